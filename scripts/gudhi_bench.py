@@ -1,0 +1,31 @@
+#!/usr/bin/env python3
+"""Times GUDHI's AlphaComplex(points).create_simplex_tree() + compute_persistence() on CSV
+clouds (header x,y,z). Prints `name,median_ms,H0/H1/H2` per cloud. Used by
+`cargo bench --bench alpha`; needs `pip install gudhi numpy`."""
+import argparse
+import os
+import statistics
+import sys
+import time
+
+try:
+    import gudhi
+    import numpy as np
+except ImportError as e:  # the Rust bench prints this line and goes on
+    sys.exit(f"gudhi/numpy not installed ({e}); pip install gudhi numpy")
+
+ap = argparse.ArgumentParser()
+ap.add_argument("--reps", type=int, default=3)
+ap.add_argument("clouds", nargs="+")
+args = ap.parse_args()
+for path in args.clouds:
+    pts = np.loadtxt(path, delimiter=",", skiprows=1)
+    times = []
+    for _ in range(args.reps):
+        t0 = time.perf_counter()
+        st = gudhi.AlphaComplex(points=pts).create_simplex_tree()
+        st.compute_persistence()
+        times.append((time.perf_counter() - t0) * 1e3)
+    counts = "/".join(str(len(st.persistence_intervals_in_dimension(d))) for d in range(3))
+    name = os.path.splitext(os.path.basename(path))[0]
+    print(f"{name},{statistics.median(times):.1f},{counts}", flush=True)

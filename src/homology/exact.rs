@@ -1,0 +1,273 @@
+//! Geometric quantities of the alpha filtration, computed in `f64` with a certified error
+//! bound and decided exactly (big integers) only when the bound cannot decide.
+//!
+//! Owns: squared circumradii of edges, triangles and tetrahedra ([`radius2`]), the exact
+//! comparison of two such radii ([`compare_radius2_exact`]), and the Gabriel tests
+//! ([`edge_gabriel`], [`triangle_gabriel`]). Does not own the orientation / in-sphere
+//! predicates of the triangulation, which come from the `robust` crate.
+//!
+//! Exactness matters because mathematically tied filtration values (lattices, 5 mm-quantized
+//! NCLT scans) must compare equal, or zero-length pairs would leak into the diagram.
+
+use num_bigint::BigInt;
+use num_traits::{Signed, Zero};
+use std::cmp::Ordering;
+
+/// A point in R³.
+pub type Point = [f64; 3];
+
+const EPS: f64 = f64::EPSILON * 0.5;
+
+/// A squared radius in `f64` with a bound on its relative error.
+#[derive(Clone, Copy, Debug)]
+pub struct Radius2 {
+    /// The value, rounded.
+    pub value: f64,
+    /// `|value - exact| <= rel_err * value`.
+    pub rel_err: f64,
+}
+
+#[inline]
+fn sub(a: &Point, b: &Point) -> Point {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
+fn dot(a: &Point, b: &Point) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline]
+fn cross(a: &Point, b: &Point) -> Point {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+#[inline]
+fn abs3(a: &Point) -> Point {
+    [a[0].abs(), a[1].abs(), a[2].abs()]
+}
+#[inline]
+fn scale(a: &Point, s: f64) -> Point {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+#[inline]
+fn add(a: &Point, b: &Point) -> Point {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// Squared radius of the smallest circumsphere of a simplex given by 2, 3 or 4 vertices.
+pub fn radius2(v: &[Point]) -> Radius2 {
+    match v.len() {
+        2 => {
+            let a = sub(&v[1], &v[0]);
+            Radius2 { value: dot(&a, &a) * 0.25, rel_err: 8.0 * EPS }
+        }
+        3 => {
+            let a = sub(&v[1], &v[0]);
+            let b = sub(&v[2], &v[0]);
+            let c = sub(&b, &a);
+            let n = cross(&a, &b);
+            let n2 = dot(&n, &n);
+            let perm = cross_abs(&abs3(&a), &abs3(&b));
+            let perm_norm = dot(&perm, &perm).sqrt();
+            let value = dot(&a, &a) * dot(&b, &b) * dot(&c, &c) / (4.0 * n2);
+            let rel_err = 64.0 * EPS * (1.0 + perm_norm / n2.sqrt());
+            Radius2 { value, rel_err: if value.is_finite() { rel_err } else { f64::INFINITY } }
+        }
+        4 => {
+            let a = sub(&v[1], &v[0]);
+            let b = sub(&v[2], &v[0]);
+            let c = sub(&v[3], &v[0]);
+            let bc = cross(&b, &c);
+            let ca = cross(&c, &a);
+            let ab = cross(&a, &b);
+            let d = dot(&a, &bc);
+            let (a2, b2, c2) = (dot(&a, &a), dot(&b, &b), dot(&c, &c));
+            let num = add(&add(&scale(&bc, a2), &scale(&ca, b2)), &scale(&ab, c2));
+            let (aa, ab_, ac) = (abs3(&a), abs3(&b), abs3(&c));
+            let pbc = cross_abs(&ab_, &ac);
+            let pca = cross_abs(&ac, &aa);
+            let pab = cross_abs(&aa, &ab_);
+            let perm_d = dot(&aa, &pbc);
+            let perm_n = add(&add(&scale(&pbc, a2), &scale(&pca, b2)), &scale(&pab, c2));
+            let n_norm = dot(&num, &num).sqrt();
+            let value = dot(&num, &num) / (4.0 * d * d);
+            let rel_err = 64.0 * EPS * (1.0 + dot(&perm_n, &perm_n).sqrt() / n_norm + perm_d / d.abs());
+            Radius2 { value, rel_err: if value.is_finite() { rel_err } else { f64::INFINITY } }
+        }
+        _ => Radius2 { value: 0.0, rel_err: 0.0 },
+    }
+}
+
+#[inline]
+fn cross_abs(a: &Point, b: &Point) -> Point {
+    [a[1] * b[2] + a[2] * b[1], a[2] * b[0] + a[0] * b[2], a[0] * b[1] + a[1] * b[0]]
+}
+
+/// `true` iff `w` lies on or outside the diametral sphere of the edge `p q`
+/// (GUDHI counts a point on the sphere as Gabriel).
+#[inline]
+pub fn edge_gabriel(p: &Point, q: &Point, w: &Point) -> bool {
+    let a = sub(p, w);
+    let b = sub(q, w);
+    let d = dot(&a, &b);
+    let perm = dot(&abs3(&a), &abs3(&b));
+    let bound = 16.0 * EPS * perm;
+    if d > bound {
+        return true;
+    }
+    if d < -bound {
+        return false;
+    }
+    let e = Exact::new(&[*p, *q, *w]);
+    let (p, q, w) = (e.pt(0), e.pt(1), e.pt(2));
+    !dot_b(&sub_b(&p, &w), &sub_b(&q, &w)).is_negative()
+}
+
+/// `true` iff `w` lies on or outside the smallest circumsphere of the triangle `p q r`.
+#[inline]
+pub fn triangle_gabriel(p: &Point, q: &Point, r: &Point, w_point: &Point) -> bool {
+    // inside  <=>  |w'|² |n|² - (M × n)·w' < 0  with a = q-p, b = r-p, w' = w-p,
+    // n = a × b, M = |a|² b - |b|² a (the circumcentre offset is (M × n) / (2|n|²)).
+    let a = sub(q, p);
+    let b = sub(r, p);
+    let w = sub(w_point, p);
+    let n = cross(&a, &b);
+    let a2 = dot(&a, &a);
+    let b2 = dot(&b, &b);
+    let m = sub(&scale(&b, a2), &scale(&a, b2));
+    let mn = cross(&m, &n);
+    let lhs = dot(&w, &w) * dot(&n, &n);
+    let rhs = dot(&mn, &w);
+    let det = lhs - rhs;
+    let (aa, ba, wa) = (abs3(&a), abs3(&b), abs3(&w));
+    let na = cross_abs(&aa, &ba);
+    let ma = add(&scale(&ba, a2), &scale(&aa, b2));
+    let perm = dot(&wa, &wa) * dot(&na, &na) + dot(&cross_abs(&ma, &na), &wa);
+    let bound = 64.0 * EPS * perm;
+    if det > bound {
+        return true;
+    }
+    if det < -bound {
+        return false;
+    }
+    let e = Exact::new(&[*p, *q, *r, *w_point]);
+    let (p, q, r, w) = (e.pt(0), e.pt(1), e.pt(2), e.pt(3));
+    let a = sub_b(&q, &p);
+    let b = sub_b(&r, &p);
+    let w = sub_b(&w, &p);
+    let n = cross_b(&a, &b);
+    let a2 = dot_b(&a, &a);
+    let b2 = dot_b(&b, &b);
+    let m = sub_b(&scale_b(&b, &a2), &scale_b(&a, &b2));
+    let det = dot_b(&w, &w) * dot_b(&n, &n) - dot_b(&cross_b(&m, &n), &w);
+    !det.is_negative()
+}
+
+/// Exact comparison of the squared circumradii of two simplices (2 to 4 vertices each).
+pub fn compare_radius2_exact(va: &[Point], vb: &[Point]) -> Ordering {
+    let mut all: Vec<Point> = Vec::with_capacity(va.len() + vb.len());
+    all.extend_from_slice(va);
+    all.extend_from_slice(vb);
+    let e = Exact::new(&all);
+    let (na, da) = exact_radius2(&e, 0, va.len());
+    let (nb, db) = exact_radius2(&e, va.len(), vb.len());
+    (na * db).cmp(&(nb * da))
+}
+
+/// Exact squared radius as `num / den` (den > 0) of points `start..start+len` of `e`.
+fn exact_radius2(e: &Exact, start: usize, len: usize) -> (BigInt, BigInt) {
+    let p = e.pt(start);
+    match len {
+        2 => {
+            let a = sub_b(&e.pt(start + 1), &p);
+            (dot_b(&a, &a), BigInt::from(4))
+        }
+        3 => {
+            let a = sub_b(&e.pt(start + 1), &p);
+            let b = sub_b(&e.pt(start + 2), &p);
+            let c = sub_b(&b, &a);
+            let n = cross_b(&a, &b);
+            (dot_b(&a, &a) * dot_b(&b, &b) * dot_b(&c, &c), dot_b(&n, &n) * 4)
+        }
+        4 => {
+            let a = sub_b(&e.pt(start + 1), &p);
+            let b = sub_b(&e.pt(start + 2), &p);
+            let c = sub_b(&e.pt(start + 3), &p);
+            let bc = cross_b(&b, &c);
+            let ca = cross_b(&c, &a);
+            let ab = cross_b(&a, &b);
+            let d = dot_b(&a, &bc);
+            let num = add_b(
+                &add_b(&scale_b(&bc, &dot_b(&a, &a)), &scale_b(&ca, &dot_b(&b, &b))),
+                &scale_b(&ab, &dot_b(&c, &c)),
+            );
+            (dot_b(&num, &num), &d * &d * 4)
+        }
+        _ => (BigInt::zero(), BigInt::from(1)),
+    }
+}
+
+type BPoint = [BigInt; 3];
+
+/// Points converted exactly to integers sharing one power-of-two scale.
+struct Exact {
+    pts: Vec<BPoint>,
+}
+
+impl Exact {
+    fn new(points: &[Point]) -> Self {
+        let mut emin = i32::MAX;
+        let decoded: Vec<[(i64, i32); 3]> = points
+            .iter()
+            .map(|p| {
+                p.map(|x| {
+                    let (m, e) = decode(x);
+                    if m != 0 {
+                        emin = emin.min(e);
+                    }
+                    (m, e)
+                })
+            })
+            .collect();
+        if emin == i32::MAX {
+            emin = 0;
+        }
+        let pts = decoded
+            .iter()
+            .map(|c| {
+                c.map(|(m, e)| if m == 0 { BigInt::zero() } else { BigInt::from(m) << ((e - emin) as u32) })
+            })
+            .collect();
+        Exact { pts }
+    }
+    fn pt(&self, i: usize) -> BPoint {
+        self.pts[i].clone()
+    }
+}
+
+/// `x = m · 2^e` exactly.
+fn decode(x: f64) -> (i64, i32) {
+    if x == 0.0 {
+        return (0, 0);
+    }
+    let bits = x.to_bits();
+    let sign = if bits >> 63 == 0 { 1 } else { -1 };
+    let exp = ((bits >> 52) & 0x7ff) as i32;
+    let frac = (bits & 0x000f_ffff_ffff_ffff) as i64;
+    let (m, e) = if exp == 0 { (frac, -1074) } else { (frac | (1 << 52), exp - 1075) };
+    (sign * m, e)
+}
+
+fn sub_b(a: &BPoint, b: &BPoint) -> BPoint {
+    [&a[0] - &b[0], &a[1] - &b[1], &a[2] - &b[2]]
+}
+fn add_b(a: &BPoint, b: &BPoint) -> BPoint {
+    [&a[0] + &b[0], &a[1] + &b[1], &a[2] + &b[2]]
+}
+fn dot_b(a: &BPoint, b: &BPoint) -> BigInt {
+    &a[0] * &b[0] + &a[1] * &b[1] + &a[2] * &b[2]
+}
+fn cross_b(a: &BPoint, b: &BPoint) -> BPoint {
+    [&a[1] * &b[2] - &a[2] * &b[1], &a[2] * &b[0] - &a[0] * &b[2], &a[0] * &b[1] - &a[1] * &b[0]]
+}
+fn scale_b(a: &BPoint, s: &BigInt) -> BPoint {
+    [&a[0] * s, &a[1] * s, &a[2] * s]
+}

@@ -1,0 +1,235 @@
+//! Persistence pairs of an alpha [`Filtration`] in dimensions 0, 1, 2 over Z/2.
+//!
+//! * H0: union-find over the edges in filtration order (negative edges merge components).
+//! * Top dimension (H2 in 3D, H1 in 2D): union-find over the dual graph — top cells plus the
+//!   outside cell — with the faces in *reverse* order (Alexander duality). Each component
+//!   remembers its oldest-in-reverse (largest rank) cell; a face joining two components pairs
+//!   with the younger one's cell.
+//! * H1 in 3D: column reduction of only the triangles that the dual pass left unpaired
+//!   (clearing), each column holding only *positive* edges (compression: negative rows can
+//!   never become pivots).
+//!
+//! Pairs whose birth and death values are exactly equal are dropped (GUDHI's
+//! `min_persistence = 0`); H0 gets one essential class (0, +inf).
+
+use super::filtration::{Filtration, Value};
+use super::{Diagram, Pair};
+use std::cmp::Ordering;
+
+/// Computes the persistence diagram (squared radii) of `f`.
+pub fn persistence(f: &Filtration) -> Diagram {
+    let c = f.complex;
+    let mut pairs = Vec::new();
+    if c.dim == 0 {
+        return Diagram::new(pairs);
+    }
+    let nv = c.points.len();
+    let ne = c.edges.len();
+
+    // H0 — vertices are all born at 0.
+    let mut uf = UnionFind::new(nv);
+    let mut edge_positive = vec![false; ne];
+    for &e in &f.edge_order {
+        let [u, v] = c.edges[e as usize];
+        if uf.union(u, v) {
+            pairs.push(Pair { dim: 0, birth: 0.0, death: f.edges[e as usize].value });
+        } else {
+            edge_positive[e as usize] = true;
+        }
+    }
+    pairs.push(Pair { dim: 0, birth: 0.0, death: f64::INFINITY });
+
+    match c.dim {
+        2 => {
+            // H1 by duality: triangles + outside, edges in reverse order.
+            let mut rank = vec![0u32; c.triangles.len()];
+            for (r, &t) in f.triangle_order.iter().enumerate() {
+                rank[t as usize] = r as u32;
+            }
+            let mut dual = ElderUnionFind::new(&rank);
+            for &e in f.edge_order.iter().rev() {
+                let [a, b] = c.edge_cofaces[e as usize];
+                if let Some(t) = dual.union(a, b) {
+                    debug_assert!(edge_positive[e as usize], "duality: dual merges are positive edges");
+                    push_finite(f, &mut pairs, 1, f.edges[e as usize], f.triangles[t as usize]);
+                }
+            }
+        }
+        3 => {
+            let mut rank = vec![0u32; c.tets.len()];
+            for (r, &t) in f.tet_order.iter().enumerate() {
+                rank[t as usize] = r as u32;
+            }
+            let mut dual = ElderUnionFind::new(&rank);
+            let mut tri_negative = vec![false; c.triangles.len()];
+            for &t in f.triangle_order.iter().rev() {
+                let [a, b] = c.tri_cofaces[t as usize];
+                match dual.union(a, b) {
+                    Some(tet) => push_finite(f, &mut pairs, 2, f.triangles[t as usize], f.tets[tet as usize]),
+                    None => tri_negative[t as usize] = true,
+                }
+            }
+            reduce_h1(f, &edge_positive, &tri_negative, &mut pairs);
+        }
+        _ => {}
+    }
+    Diagram::new(pairs)
+}
+
+/// Records a finite pair unless it has zero length: exactly tied values, or a difference
+/// within the certified error of the two computed values (GUDHI's `exact` mode rounds each
+/// value to a double before pairing, so sub-ulp differences vanish there too).
+fn push_finite(f: &Filtration, pairs: &mut Vec<Pair>, dim: u8, birth: Value, death: Value) {
+    let margin = birth.rel_err * birth.value.abs() + death.rel_err * death.value.abs();
+    if death.value - birth.value > margin && f.cmp(birth, death) == Ordering::Less {
+        pairs.push(Pair { dim, birth: birth.value, death: death.value });
+    }
+}
+
+/// H1 pairs: reduce the columns (positive edges, by rank) of the negative triangles.
+fn reduce_h1(f: &Filtration, edge_positive: &[bool], tri_negative: &[bool], pairs: &mut Vec<Pair>) {
+    let c = f.complex;
+    let mut edge_rank = vec![0u32; c.edges.len()];
+    for (r, &e) in f.edge_order.iter().enumerate() {
+        edge_rank[e as usize] = r as u32;
+    }
+    // owner[rank] = index of the stored reduced column whose pivot is that edge rank.
+    let mut owner = vec![u32::MAX; c.edges.len()];
+    let mut store: Vec<u32> = Vec::new();
+    let mut store_start: Vec<u32> = Vec::new();
+    let mut col: Vec<u32> = Vec::with_capacity(16);
+    let mut tmp: Vec<u32> = Vec::with_capacity(16);
+    for &t in &f.triangle_order {
+        if !tri_negative[t as usize] {
+            continue;
+        }
+        col.clear();
+        for &e in &c.tri_edges[t as usize] {
+            if edge_positive[e as usize] {
+                col.push(edge_rank[e as usize]);
+            }
+        }
+        col.sort_unstable_by(|a, b| b.cmp(a));
+        loop {
+            let Some(&pivot) = col.first() else {
+                debug_assert!(false, "a negative triangle cannot reduce to zero");
+                break;
+            };
+            let k = owner[pivot as usize];
+            if k == u32::MAX {
+                owner[pivot as usize] = store_start.len() as u32;
+                store_start.push(store.len() as u32);
+                store.extend_from_slice(&col);
+                let e = f.edge_order[pivot as usize];
+                push_finite(f, pairs, 1, f.edges[e as usize], f.triangles[t as usize]);
+                break;
+            }
+            let s = store_start[k as usize] as usize;
+            let end = store_start.get(k as usize + 1).map_or(store.len(), |&x| x as usize);
+            symmetric_difference_desc(&col, &store[s..end], &mut tmp);
+            std::mem::swap(&mut col, &mut tmp);
+        }
+    }
+}
+
+/// `out = a Δ b` for two strictly decreasing lists.
+fn symmetric_difference_desc(a: &[u32], b: &[u32], out: &mut Vec<u32>) {
+    out.clear();
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        match a[i].cmp(&b[j]) {
+            Ordering::Greater => {
+                out.push(a[i]);
+                i += 1;
+            }
+            Ordering::Less => {
+                out.push(b[j]);
+                j += 1;
+            }
+            Ordering::Equal => {
+                i += 1;
+                j += 1;
+            }
+        }
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+}
+
+/// Union-find with path halving and union by size.
+struct UnionFind {
+    parent: Vec<u32>,
+    size: Vec<u32>,
+}
+
+impl UnionFind {
+    fn new(n: usize) -> Self {
+        UnionFind { parent: (0..n as u32).collect(), size: vec![1; n] }
+    }
+    #[inline]
+    fn find(&mut self, mut x: u32) -> u32 {
+        while self.parent[x as usize] != x {
+            let g = self.parent[self.parent[x as usize] as usize];
+            self.parent[x as usize] = g;
+            x = g;
+        }
+        x
+    }
+    /// Merges the sets of `a` and `b`; false if they were one set.
+    #[inline]
+    fn union(&mut self, a: u32, b: u32) -> bool {
+        let (mut a, mut b) = (self.find(a), self.find(b));
+        if a == b {
+            return false;
+        }
+        if self.size[a as usize] < self.size[b as usize] {
+            std::mem::swap(&mut a, &mut b);
+        }
+        self.parent[b as usize] = a;
+        self.size[a as usize] += self.size[b as usize];
+        true
+    }
+}
+
+/// Union-find over top cells plus the outside (index = number of cells, rank +inf) where
+/// each root knows the largest rank in its set.
+struct ElderUnionFind {
+    uf: UnionFind,
+    elder_rank: Vec<u32>,
+    cell_of_rank_root: Vec<u32>,
+    outside: u32,
+}
+
+impl ElderUnionFind {
+    fn new(rank: &[u32]) -> Self {
+        let n = rank.len();
+        let mut elder_rank: Vec<u32> = rank.to_vec();
+        elder_rank.push(u32::MAX);
+        ElderUnionFind {
+            uf: UnionFind::new(n + 1),
+            elder_rank,
+            cell_of_rank_root: (0..=n as u32).collect(),
+            outside: n as u32,
+        }
+    }
+    /// Joins the sets of cells `a` and `b` (`OUTSIDE` allowed). Returns the cell that dies
+    /// (the younger set's eldest cell), or `None` if they were already one set.
+    fn union(&mut self, a: u32, b: u32) -> Option<u32> {
+        let a = if a == u32::MAX { self.outside } else { a };
+        let b = if b == u32::MAX { self.outside } else { b };
+        let (ra, rb) = (self.uf.find(a), self.uf.find(b));
+        if ra == rb {
+            return None;
+        }
+        let (ea, eb) = (self.elder_rank[ra as usize], self.elder_rank[rb as usize]);
+        let (young, old) = if ea < eb { (ra, rb) } else { (rb, ra) };
+        let dying = self.cell_of_rank_root[young as usize];
+        let keep_rank = self.elder_rank[old as usize];
+        let keep_cell = self.cell_of_rank_root[old as usize];
+        self.uf.union(ra, rb);
+        let root = self.uf.find(ra);
+        self.elder_rank[root as usize] = keep_rank;
+        self.cell_of_rank_root[root as usize] = keep_cell;
+        Some(dying)
+    }
+}

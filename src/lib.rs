@@ -1,0 +1,21 @@
+//! # toporec — topological place descriptors from LiDAR logs
+//!
+//! toporec answers "have I been here before?" with the persistent homology of each scan's
+//! 3D alpha complex, vectorized by ATOL and searched by nearest neighbours (the TopoRec
+//! method, training-free).
+//!
+//! Data flows one way:
+//!
+//! ```text
+//! sources ──► preprocess ──► homology (alpha persistence) ──► vectorize (ATOL) ──► sinks
+//! (NCLT, MCAP, KITTI, CSV)                                                     (Parquet)
+//! ```
+//!
+//! * [`sources`] decode point clouds from files; they know nothing of topology.
+//! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs.
+//! * [`cli`] wires them into the `toporec` command.
+#![deny(missing_docs)]
+
+pub mod cli;
+pub mod homology;
+pub mod sources;
