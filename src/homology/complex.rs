@@ -39,13 +39,13 @@ pub enum ComplexError {
 /// The Delaunay complex (all finite simplices of the Delaunay triangulation).
 #[derive(Debug, Default)]
 pub struct DelaunayComplex {
-    /// Deduplicated points; vertex `v` is `points[v]`.
+    /// Deduplicated points in insertion order; vertex `v` is `points[v]`.
     pub points: Vec<Point>,
-    /// Input index of each deduplicated point (its first occurrence).
+    /// Input index of each vertex (the first occurrence of its point).
     pub input_index: Vec<u32>,
     /// Dimension of the affine hull (0 to 3); that of the complex.
     pub dim: usize,
-    /// Edges `[u, v]`, `u < v`, in lexicographic order.
+    /// Edges `[u, v]`, `u < v`, grouped by `u`.
     pub edges: Vec<[u32; 2]>,
     /// Triangles (vertex triples).
     pub triangles: Vec<[u32; 3]>,
@@ -68,13 +68,20 @@ impl DelaunayComplex {
         if points.len() >= (u32::MAX / 16) as usize {
             return Err(ComplexError::TooLarge { points: points.len() });
         }
-        let mut c = DelaunayComplex { points, input_index, ..Default::default() };
+        // Vertices are renumbered in insertion (BRIO + Hilbert) order: spatially close
+        // vertices get close ids, which keeps every later pass cache-friendly.
+        let order = brio_order(&points);
+        let mut c = DelaunayComplex {
+            points: order.iter().map(|&i| points[i as usize]).collect(),
+            input_index: order.iter().map(|&i| input_index[i as usize]).collect(),
+            ..Default::default()
+        };
         let n = c.points.len();
         if n <= 1 {
             c.dim = 0;
             return Ok(c);
         }
-        let order = brio_order(&c.points);
+        let order: Vec<u32> = (0..n as u32).collect();
         let pts = &c.points;
         // Affine dimension: a second point, a non-collinear third, a non-coplanar fourth.
         let a = order[0];
@@ -138,7 +145,7 @@ impl DelaunayComplex {
         self.dim = 2;
         let cell_to_tri = number_finite_cells(t);
         self.triangles =
-            (0..t.verts.len()).filter(|&c| cell_to_tri[c] != OUTSIDE).map(|c| t.verts[c]).collect();
+            (0..t.cells.len()).filter(|&c| cell_to_tri[c] != OUTSIDE).map(|c| t.cells[c].v).collect();
         let nt = self.triangles.len();
         // Every edge is a facet: number them from the finite side with the smaller id.
         let mut raw: Vec<([u32; 2], u32, u32)> = Vec::with_capacity(nt * 3 / 2 + 8);
@@ -148,10 +155,10 @@ impl DelaunayComplex {
                 continue;
             }
             for i in 0..3 {
-                let nb = t.nbrs[c][i] as usize;
+                let nb = t.cells[c].n[i] as usize;
                 let other = cell_to_tri[nb];
                 if other == OUTSIDE || tid < other {
-                    let v = t.verts[c];
+                    let v = t.cells[c].v;
                     let (x, y) = match i {
                         0 => (v[1], v[2]),
                         1 => (v[0], v[2]),
@@ -180,7 +187,7 @@ impl DelaunayComplex {
     fn build_3d(&mut self, t: &Triangulation<4>) {
         self.dim = 3;
         let cell_to_tet = number_finite_cells(t);
-        self.tets = (0..t.verts.len()).filter(|&c| cell_to_tet[c] != OUTSIDE).map(|c| t.verts[c]).collect();
+        self.tets = (0..t.cells.len()).filter(|&c| cell_to_tet[c] != OUTSIDE).map(|c| t.cells[c].v).collect();
         let ntet = self.tets.len();
         let mut tet_tris = vec![[u32::MAX; 4]; ntet];
         let mut triangles = Vec::with_capacity(2 * ntet + 8);
@@ -190,11 +197,11 @@ impl DelaunayComplex {
                 continue;
             }
             for i in 0..4 {
-                let nb = t.nbrs[c][i] as usize;
+                let nb = t.cells[c].n[i] as usize;
                 let b = cell_to_tet[nb];
                 if b == OUTSIDE || a < b {
                     let tid = triangles.len() as u32;
-                    let v = t.verts[c];
+                    let v = t.cells[c].v;
                     let mut f = [0u32; 3];
                     let mut k = 0;
                     for (s, &x) in v.iter().enumerate() {
@@ -207,7 +214,7 @@ impl DelaunayComplex {
                     tri_cofaces.push([a, b]);
                     tet_tris[a as usize][i] = tid;
                     if b != OUTSIDE {
-                        let j = t.nbrs[nb].iter().position(|&x| x as usize == c).expect("symmetric");
+                        let j = t.cells[nb].n.iter().position(|&x| x as usize == c).expect("symmetric");
                         tet_tris[b as usize][j] = tid;
                     }
                 }
@@ -245,16 +252,17 @@ impl DelaunayComplex {
         }
         let mut tri_edges = vec![[u32::MAX; 3]; self.triangles.len()];
         let mut edges = Vec::with_capacity(start[n] as usize / 3);
+        // Edge id of (v, w) for the current v, valid while owner[w] == v: no sorting needed.
+        let mut owner = vec![u32::MAX; n];
+        let mut id_of = vec![0u32; n];
         for v in 0..n {
-            let bucket = &mut slots[start[v] as usize..start[v + 1] as usize];
-            bucket.sort_unstable();
-            let mut last = u32::MAX;
-            for &(w, r) in bucket.iter() {
-                if w != last {
+            for &(w, r) in &slots[start[v] as usize..start[v + 1] as usize] {
+                if owner[w as usize] != v as u32 {
+                    owner[w as usize] = v as u32;
+                    id_of[w as usize] = edges.len() as u32;
                     edges.push([v as u32, w]);
-                    last = w;
                 }
-                tri_edges[(r / 3) as usize][(r % 3) as usize] = (edges.len() - 1) as u32;
+                tri_edges[(r / 3) as usize][(r % 3) as usize] = id_of[w as usize];
             }
         }
         self.edges = edges;
@@ -280,9 +288,9 @@ fn tri_edge(t: &[u32; 3], i: usize) -> (u32, u32) {
 
 fn number_finite_cells<const K: usize>(t: &Triangulation<K>) -> Vec<u32> {
     let mut next = 0u32;
-    (0..t.verts.len())
+    (0..t.cells.len())
         .map(|c| {
-            if t.is_alive(c) && !t.verts[c].contains(&INFINITE) {
+            if t.is_alive(c) && !t.cells[c].v.contains(&INFINITE) {
                 next += 1;
                 next - 1
             } else {

@@ -34,22 +34,30 @@ pub trait Geometry<const K: usize> {
     fn in_degenerate_facet(&self, f: &[u32], p: u32) -> bool;
 }
 
+/// One cell: its vertices and its neighbours (`n[i]` across the facet opposite `v[i]`).
+#[derive(Clone, Copy, Debug)]
+pub struct Cell<const K: usize> {
+    /// Vertices ([`INFINITE`] for the infinite vertex; `v[0] == DEAD` for a free slot).
+    pub v: [u32; K],
+    /// Neighbours.
+    pub n: [u32; K],
+}
+
+const DEAD: u32 = u32::MAX - 1;
+
 /// A Delaunay triangulation with cells of `K` vertices.
 pub struct Triangulation<const K: usize> {
-    /// Vertices of every cell slot (free slots included).
-    pub verts: Vec<[u32; K]>,
-    /// Neighbours of every cell slot.
-    pub nbrs: Vec<[u32; K]>,
-    alive: Vec<bool>,
+    /// Every cell slot (free slots included, see [`Triangulation::is_alive`]).
+    pub cells: Vec<Cell<K>>,
     free: Vec<u32>,
-    // Scratch state kept across insertions to avoid allocation.
-    conflict_stamp: Vec<u32>,
-    seen_stamp: Vec<u32>,
+    // Per-cell visit mark of the current insertion: 2·stamp = in conflict,
+    // 2·stamp + 1 = tested, not in conflict.
+    mark: Vec<u32>,
     stamp: u32,
     stack: Vec<u32>,
     cavity: Vec<u32>,
     boundary: Vec<BoundaryFacet<K>>,
-    ridges: Vec<(u64, u32, u8)>,
+    ridges: RidgeTable,
     rng: u64,
     hint: u32,
 }
@@ -68,17 +76,14 @@ impl<const K: usize> Triangulation<K> {
             first.swap(0, 1);
         }
         let mut t = Triangulation {
-            verts: Vec::with_capacity(capacity),
-            nbrs: Vec::with_capacity(capacity),
-            alive: Vec::with_capacity(capacity),
+            cells: Vec::with_capacity(capacity),
             free: Vec::new(),
-            conflict_stamp: Vec::with_capacity(capacity),
-            seen_stamp: Vec::with_capacity(capacity),
+            mark: Vec::with_capacity(capacity),
             stamp: 0,
             stack: Vec::new(),
             cavity: Vec::new(),
             boundary: Vec::new(),
-            ridges: Vec::new(),
+            ridges: RidgeTable::new(),
             rng: 0x9E37_79B9_7F4A_7C15,
             hint: 0,
         };
@@ -97,11 +102,11 @@ impl<const K: usize> Triangulation<K> {
                 if a == b {
                     continue;
                 }
-                let va = t.verts[a];
-                let vb = t.verts[b];
+                let va = t.cells[a].v;
+                let vb = t.cells[b].v;
                 let missing: Vec<usize> = (0..K).filter(|&s| !vb.contains(&va[s])).collect();
                 if missing.len() == 1 {
-                    t.nbrs[a][missing[0]] = b as u32;
+                    t.cells[a].n[missing[0]] = b as u32;
                 }
             }
         }
@@ -109,30 +114,26 @@ impl<const K: usize> Triangulation<K> {
     }
 
     fn push_cell(&mut self, v: [u32; K]) -> u32 {
+        let cell = Cell { v, n: [NO_CELL; K] };
         if let Some(c) = self.free.pop() {
-            self.verts[c as usize] = v;
-            self.nbrs[c as usize] = [NO_CELL; K];
-            self.alive[c as usize] = true;
+            self.cells[c as usize] = cell;
             c
         } else {
-            self.verts.push(v);
-            self.nbrs.push([NO_CELL; K]);
-            self.alive.push(true);
-            self.conflict_stamp.push(0);
-            self.seen_stamp.push(0);
-            (self.verts.len() - 1) as u32
+            self.cells.push(cell);
+            self.mark.push(0);
+            (self.cells.len() - 1) as u32
         }
     }
 
     /// Whether cell slot `c` holds a live cell.
     pub fn is_alive(&self, c: usize) -> bool {
-        self.alive[c]
+        self.cells[c].v[0] != DEAD
     }
 
     /// Whether cell `c` has the infinite vertex.
     #[inline]
     pub fn is_infinite(&self, c: u32) -> bool {
-        self.verts[c as usize].contains(&INFINITE)
+        self.cells[c as usize].v.contains(&INFINITE)
     }
 
     #[inline]
@@ -148,19 +149,20 @@ impl<const K: usize> Triangulation<K> {
     /// whose hull facet `p` lies strictly beyond.
     fn locate<G: Geometry<K>>(&mut self, g: &G, p: u32) -> u32 {
         let mut c = self.hint;
-        if !self.alive[c as usize] || self.is_infinite(c) {
-            c = (0..self.verts.len() as u32)
-                .find(|&x| self.alive[x as usize] && !self.is_infinite(x))
+        if !self.is_alive(c as usize) || self.is_infinite(c) {
+            c = (0..self.cells.len() as u32)
+                .find(|&x| self.is_alive(x as usize) && !self.is_infinite(x))
                 .expect("a triangulation always has a finite cell");
         }
         'walk: loop {
             let off = (self.next_random() % K as u64) as usize;
             for k in 0..K {
                 let i = (off + k) % K;
-                let mut v = self.verts[c as usize];
+                let cell = &self.cells[c as usize];
+                let mut v = cell.v;
                 v[i] = p;
                 if g.orient(&v) < 0.0 {
-                    let n = self.nbrs[c as usize][i];
+                    let n = cell.n[i];
                     if self.is_infinite(n) {
                         return n;
                     }
@@ -173,7 +175,7 @@ impl<const K: usize> Triangulation<K> {
     }
 
     fn in_conflict<G: Geometry<K>>(&self, g: &G, c: u32, p: u32) -> bool {
-        let v = &self.verts[c as usize];
+        let v = &self.cells[c as usize].v;
         match v.iter().position(|&x| x == INFINITE) {
             None => g.in_sphere(v, p),
             Some(s) => {
@@ -200,27 +202,29 @@ impl<const K: usize> Triangulation<K> {
     pub fn insert<G: Geometry<K>>(&mut self, g: &G, p: u32) {
         let start = self.locate(g, p);
         self.stamp += 1;
-        let stamp = self.stamp;
+        let (conflict, outside) = (2 * self.stamp, 2 * self.stamp + 1);
         self.stack.clear();
         self.cavity.clear();
         self.boundary.clear();
         self.stack.push(start);
-        self.conflict_stamp[start as usize] = stamp;
+        self.mark[start as usize] = conflict;
         while let Some(c) = self.stack.pop() {
             self.cavity.push(c);
+            let cell = self.cells[c as usize];
             for i in 0..K {
-                let n = self.nbrs[c as usize][i];
-                if self.conflict_stamp[n as usize] == stamp {
+                let n = cell.n[i];
+                let m = self.mark[n as usize];
+                if m == conflict {
                     continue;
                 }
-                let known_outside = self.seen_stamp[n as usize] == stamp;
-                if !known_outside && self.in_conflict(g, n, p) {
-                    self.conflict_stamp[n as usize] = stamp;
+                if m != outside && self.in_conflict(g, n, p) {
+                    self.mark[n as usize] = conflict;
                     self.stack.push(n);
                 } else {
-                    self.seen_stamp[n as usize] = stamp;
-                    let outside_slot = self.nbrs[n as usize].iter().position(|&x| x == c).expect("symmetric");
-                    let mut v = self.verts[c as usize];
+                    self.mark[n as usize] = outside;
+                    let outside_slot =
+                        self.cells[n as usize].n.iter().position(|&x| x == c).expect("symmetric");
+                    let mut v = cell.v;
                     v[i] = p;
                     self.boundary.push(BoundaryFacet {
                         verts: v,
@@ -232,7 +236,7 @@ impl<const K: usize> Triangulation<K> {
             }
         }
         for &c in &self.cavity {
-            self.alive[c as usize] = false;
+            self.cells[c as usize].v[0] = DEAD;
             self.free.push(c);
         }
         self.ridges.clear();
@@ -241,26 +245,82 @@ impl<const K: usize> Triangulation<K> {
         for f in &boundary {
             let nc = self.push_cell(f.verts);
             let i = f.slot as usize;
-            self.nbrs[nc as usize][i] = f.outside;
-            self.nbrs[f.outside as usize][f.outside_slot as usize] = nc;
+            self.cells[nc as usize].n[i] = f.outside;
+            self.cells[f.outside as usize].n[f.outside_slot as usize] = nc;
             if !f.verts.contains(&INFINITE) {
                 last_finite = nc;
             }
             for j in 0..K {
                 if j != i {
-                    self.ridges.push((ridge_key(&f.verts, i, j), nc, j as u8));
+                    // Each ridge of the cavity boundary is shared by exactly two new cells.
+                    if let Some((other, oj)) =
+                        self.ridges.take_or_insert(ridge_key(&f.verts, i, j), nc, j as u8)
+                    {
+                        self.cells[nc as usize].n[j] = other;
+                        self.cells[other as usize].n[oj as usize] = nc;
+                    }
                 }
             }
         }
         self.boundary = boundary;
-        self.ridges.sort_unstable_by_key(|r| r.0);
-        for pair in self.ridges.chunks_exact(2) {
-            debug_assert_eq!(pair[0].0, pair[1].0, "cavity boundary must be a closed manifold");
-            self.nbrs[pair[0].1 as usize][pair[0].2 as usize] = pair[1].1;
-            self.nbrs[pair[1].1 as usize][pair[1].2 as usize] = pair[0].1;
-        }
         if last_finite != NO_CELL {
             self.hint = last_finite;
+        }
+    }
+}
+
+/// Open-addressing table matching the ridges of new cells during one insertion; cleared in
+/// O(1) by a generation stamp.
+struct RidgeTable {
+    slots: Vec<(u64, u32, u32, u8)>,
+    generation: u32,
+    len: usize,
+}
+
+impl RidgeTable {
+    fn new() -> Self {
+        RidgeTable { slots: vec![(0, 0, 0, 0); 256], generation: 1, len: 0 }
+    }
+    fn clear(&mut self) {
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.slots.iter_mut().for_each(|s| s.2 = 0);
+            self.generation = 1;
+        }
+        self.len = 0;
+    }
+    /// Returns the cell already waiting on `key` (and removes it), or stores `(cell, slot)`.
+    #[inline]
+    fn take_or_insert(&mut self, key: u64, cell: u32, slot: u8) -> Option<(u32, u8)> {
+        if 2 * (self.len + 1) > self.slots.len() {
+            self.grow();
+        }
+        let mask = self.slots.len() - 1;
+        let mut h = (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & mask;
+        loop {
+            let s = &mut self.slots[h];
+            if s.2 != self.generation {
+                *s = (key, cell, self.generation, slot);
+                self.len += 1;
+                return None;
+            }
+            if s.0 == key && s.1 != u32::MAX {
+                let found = (s.1, s.3);
+                s.1 = u32::MAX; // tombstone: matched
+                return Some(found);
+            }
+            h = (h + 1) & mask;
+        }
+    }
+    fn grow(&mut self) {
+        let live: Vec<_> =
+            self.slots.iter().filter(|s| s.2 == self.generation && s.1 != u32::MAX).copied().collect();
+        let n = self.slots.len() * 2;
+        self.slots = vec![(0, 0, 0, 0); n];
+        self.generation = 1;
+        self.len = 0;
+        for (k, c, _, sl) in live {
+            self.take_or_insert(k, c, sl);
         }
     }
 }
@@ -305,23 +365,13 @@ impl Geometry<4> for Geometry3<'_> {
     #[inline]
     fn orient(&self, v: &[u32; 4]) -> f64 {
         let p = self.pts;
-        robust::orient3d(
-            c3(&p[v[0] as usize]),
-            c3(&p[v[1] as usize]),
-            c3(&p[v[2] as usize]),
-            c3(&p[v[3] as usize]),
-        )
+        orient3d(&p[v[0] as usize], &p[v[1] as usize], &p[v[2] as usize], &p[v[3] as usize])
     }
     #[inline]
     fn in_sphere(&self, v: &[u32; 4], q: u32) -> bool {
         let p = self.pts;
-        robust::insphere(
-            c3(&p[v[0] as usize]),
-            c3(&p[v[1] as usize]),
-            c3(&p[v[2] as usize]),
-            c3(&p[v[3] as usize]),
-            c3(&p[q as usize]),
-        ) > 0.0
+        insphere(&p[v[0] as usize], &p[v[1] as usize], &p[v[2] as usize], &p[v[3] as usize], &p[q as usize])
+            > 0.0
     }
     fn in_degenerate_facet(&self, f: &[u32], q: u32) -> bool {
         let p = self.pts;
@@ -331,6 +381,69 @@ impl Geometry<4> for Geometry3<'_> {
             None => false,
         }
     }
+}
+
+// Semi-static filters: the determinant in f64 on coordinates translated to the last point,
+// certified by a bound from the largest translated coordinate per axis (derived like
+// Shewchuk's error bounds: (k + O(ε))ε × permanent, with the permanent bounded by the
+// maxima). Out of the safe magnitude range, or within the bound, `robust` decides exactly.
+const ORIENT_BOUND: f64 = 6.0e-15;
+const INSPHERE_BOUND: f64 = 2.0e-13;
+const SAFE_MIN: f64 = 1e-58;
+const SAFE_MAX: f64 = 1e58;
+
+/// Orientation of `a b c d` (sign as `robust::orient3d`), filtered.
+#[inline]
+pub fn orient3d(a: &Point, b: &Point, c: &Point, d: &Point) -> f64 {
+    let (adx, ady, adz) = (a[0] - d[0], a[1] - d[1], a[2] - d[2]);
+    let (bdx, bdy, bdz) = (b[0] - d[0], b[1] - d[1], b[2] - d[2]);
+    let (cdx, cdy, cdz) = (c[0] - d[0], c[1] - d[1], c[2] - d[2]);
+    let det = adx * (bdy * cdz - bdz * cdy) + bdx * (cdy * adz - cdz * ady) + cdx * (ady * bdz - adz * bdy);
+    let mx = adx.abs().max(bdx.abs()).max(cdx.abs());
+    let my = ady.abs().max(bdy.abs()).max(cdy.abs());
+    let mz = adz.abs().max(bdz.abs()).max(cdz.abs());
+    let lo = mx.min(my).min(mz);
+    let hi = mx.max(my).max(mz);
+    if lo > SAFE_MIN && hi < SAFE_MAX {
+        let eps = ORIENT_BOUND * mx * my * mz;
+        if det > eps || det < -eps {
+            return det;
+        }
+    }
+    robust::orient3d(c3(a), c3(b), c3(c), c3(d))
+}
+
+/// In-sphere test of `e` against positive `a b c d` (sign as `robust::insphere`), filtered.
+#[inline]
+pub fn insphere(a: &Point, b: &Point, c: &Point, d: &Point, e: &Point) -> f64 {
+    let t = |p: &Point| [p[0] - e[0], p[1] - e[1], p[2] - e[2]];
+    let (pa, pb, pc, pd) = (t(a), t(b), t(c), t(d));
+    let lift = |p: &[f64; 3]| p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+    let (la, lb, lc, ld) = (lift(&pa), lift(&pb), lift(&pc), lift(&pd));
+    // 2x2 minors on x, y.
+    let ab = pa[0] * pb[1] - pb[0] * pa[1];
+    let bc = pb[0] * pc[1] - pc[0] * pb[1];
+    let cd = pc[0] * pd[1] - pd[0] * pc[1];
+    let da = pd[0] * pa[1] - pa[0] * pd[1];
+    let ac = pa[0] * pc[1] - pc[0] * pa[1];
+    let bd = pb[0] * pd[1] - pd[0] * pb[1];
+    let abc = pa[2] * bc - pb[2] * ac + pc[2] * ab;
+    let bcd = pb[2] * cd - pc[2] * bd + pd[2] * bc;
+    let cda = pc[2] * da + pd[2] * ac + pa[2] * cd;
+    let dab = pd[2] * ab + pa[2] * bd + pb[2] * da;
+    let det = (ld * abc - lc * dab) + (lb * cda - la * bcd);
+    let mx = pa[0].abs().max(pb[0].abs()).max(pc[0].abs()).max(pd[0].abs());
+    let my = pa[1].abs().max(pb[1].abs()).max(pc[1].abs()).max(pd[1].abs());
+    let mz = pa[2].abs().max(pb[2].abs()).max(pc[2].abs()).max(pd[2].abs());
+    let lo = mx.min(my).min(mz);
+    let hi = mx.max(my).max(mz);
+    if lo > SAFE_MIN && hi < SAFE_MAX {
+        let eps = INSPHERE_BOUND * mx * my * mz * hi * hi;
+        if det > eps || det < -eps {
+            return det;
+        }
+    }
+    robust::insphere(c3(a), c3(b), c3(c), c3(d), c3(e))
 }
 
 /// A point off the plane of `a b c` (which must not be collinear).
@@ -343,7 +456,7 @@ fn lift_point(a: &Point, b: &Point, c: &Point) -> Option<Point> {
     for k in axes {
         let mut e = *a;
         e[k] += a[k].abs().max(1.0);
-        if robust::orient3d(c3(a), c3(b), c3(c), c3(&e)) != 0.0 {
+        if orient3d(a, b, c, &e) != 0.0 {
             return Some(e);
         }
     }
@@ -354,8 +467,8 @@ fn lift_point(a: &Point, b: &Point, c: &Point) -> Option<Point> {
 /// point off the plane: the sphere through `a b c e` cuts the plane in that circle.
 #[inline]
 fn in_circle_coplanar(a: &Point, b: &Point, c: &Point, e: &Point, q: &Point) -> bool {
-    let o = robust::orient3d(c3(a), c3(b), c3(c), c3(e));
-    let s = robust::insphere(c3(a), c3(b), c3(c), c3(e), c3(q));
+    let o = orient3d(a, b, c, e);
+    let s = insphere(a, b, c, e, q);
     if o > 0.0 { s > 0.0 } else { s < 0.0 }
 }
 
@@ -371,7 +484,7 @@ impl Geometry<3> for GeometryPlanar<'_> {
     #[inline]
     fn orient(&self, v: &[u32; 3]) -> f64 {
         let p = self.pts;
-        robust::orient3d(c3(&p[v[0] as usize]), c3(&p[v[1] as usize]), c3(&p[v[2] as usize]), c3(&self.lift))
+        orient3d(&p[v[0] as usize], &p[v[1] as usize], &p[v[2] as usize], &self.lift)
     }
     #[inline]
     fn in_sphere(&self, v: &[u32; 3], q: u32) -> bool {

@@ -172,6 +172,56 @@ pub fn compare_radius2_exact(va: &[Point], vb: &[Point]) -> Ordering {
     (na * db).cmp(&(nb * da))
 }
 
+/// The squared circumradius of a simplex (2 to 4 vertices), computed exactly and rounded to
+/// the nearest double (ties to even) — the value GUDHI's `precision='exact'` reports.
+pub fn radius2_correctly_rounded(v: &[Point]) -> f64 {
+    let e = Exact::new(v);
+    let (num, den) = exact_radius2(&e, 0, v.len());
+    round_ratio(&num, &den, 2 * e.emin)
+}
+
+/// `num / den · 2^exp2` rounded to nearest-even (`num >= 0`, `den > 0`).
+fn round_ratio(num: &BigInt, den: &BigInt, exp2: i32) -> f64 {
+    if num.is_zero() {
+        return 0.0;
+    }
+    // Scale so that the integer quotient has at least 55 bits.
+    let shift = den.bits() as i64 - num.bits() as i64 + 55;
+    let (n, d) = if shift >= 0 {
+        (num << (shift as u64), den.clone())
+    } else {
+        (num.clone(), den << ((-shift) as u64))
+    };
+    let (q, r) = num_integer::Integer::div_rem(&n, &d);
+    let sticky = !r.is_zero();
+    let bits = q.bits() as i64;
+    let extra = bits - 53;
+    let q = q.magnitude();
+    let mut mant: u64 = (q >> (extra as u64)).iter_u64_digits().next().unwrap_or(0);
+    let low = q - ((num_bigint::BigUint::from(mant)) << (extra as u64));
+    let half = num_bigint::BigUint::from(1u8) << ((extra - 1) as u64);
+    let up = low > half || (low == half && (sticky || mant & 1 == 1));
+    let mut exp = extra - shift + exp2 as i64;
+    if up {
+        mant += 1;
+        if mant == 1 << 53 {
+            mant >>= 1;
+            exp += 1;
+        }
+    }
+    ldexp(mant as f64, exp)
+}
+
+/// `x · 2^k`, exact while the result is a normal double.
+fn ldexp(mut x: f64, mut k: i64) -> f64 {
+    while k != 0 {
+        let step = k.clamp(-1000, 1000);
+        x *= f64::from_bits(((step + 1023) as u64) << 52);
+        k -= step;
+    }
+    x
+}
+
 /// Exact squared radius as `num / den` (den > 0) of points `start..start+len` of `e`.
 fn exact_radius2(e: &Exact, start: usize, len: usize) -> (BigInt, BigInt) {
     let p = e.pt(start);
@@ -210,6 +260,8 @@ type BPoint = [BigInt; 3];
 /// Points converted exactly to integers sharing one power-of-two scale.
 struct Exact {
     pts: Vec<BPoint>,
+    /// Every coordinate is `pts[i][k] · 2^emin`.
+    emin: i32,
 }
 
 impl Exact {
@@ -236,7 +288,7 @@ impl Exact {
                 c.map(|(m, e)| if m == 0 { BigInt::zero() } else { BigInt::from(m) << ((e - emin) as u32) })
             })
             .collect();
-        Exact { pts }
+        Exact { pts, emin }
     }
     fn pt(&self, i: usize) -> BPoint {
         self.pts[i].clone()
@@ -270,4 +322,54 @@ fn cross_b(a: &BPoint, b: &BPoint) -> BPoint {
 }
 fn scale_b(a: &BPoint, s: &BigInt) -> BPoint {
     [&a[0] * s, &a[1] * s, &a[2] * s]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const P: [Point; 4] = [
+        [-0.5453279550656607, -0.36648332058049427, 0.5947309146654682],
+        [0.3525093415019491, -0.217780898796182, -0.33437214426723094],
+        [0.19661750717437965, -0.6265316287925733, 0.3455120880292426],
+        [0.8836057305398743, -0.503508570740858, 0.8977623036666365],
+    ];
+
+    #[test]
+    fn correctly_rounded_radii_match_exact_rationals() {
+        // Expected: Python `float(Fraction(...))` of the exact circumradius², correctly rounded.
+        assert_eq!(radius2_correctly_rounded(&P), 1.7508375524540045);
+        assert_eq!(radius2_correctly_rounded(&P[..3]), 0.4556293062437632);
+        assert_eq!(radius2_correctly_rounded(&[[0.0; 3], [0.0, 0.0, 3.0]]), 2.25);
+        assert_eq!(
+            radius2_correctly_rounded(&[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+            0.75
+        );
+        // Ratios that need rounding.
+        assert_eq!(round_ratio(&BigInt::from(1), &BigInt::from(3), 0), 1.0 / 3.0);
+        assert_eq!(round_ratio(&BigInt::from(2), &BigInt::from(3), -4), 2.0 / 3.0 / 16.0);
+        assert_eq!(round_ratio(&(BigInt::from(1) << 200u32), &BigInt::from(7), -200), 1.0 / 7.0);
+    }
+
+    #[test]
+    fn f64_radius_is_within_its_error_bound() {
+        for v in [&P[..2], &P[..3], &P[..]] {
+            let r = radius2(v);
+            let exact = radius2_correctly_rounded(v);
+            assert!((r.value - exact).abs() <= r.rel_err * exact, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn gabriel_tests_on_the_boundary_count_as_gabriel() {
+        let (p, q) = ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0]);
+        assert!(edge_gabriel(&p, &q, &[1.0, 1.0, 0.0]), "on the diametral sphere");
+        assert!(!edge_gabriel(&p, &q, &[1.0, 0.5, 0.0]));
+        assert!(edge_gabriel(&p, &q, &[1.0, 1.5, 0.0]));
+        let (a, b, c) = ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]);
+        // Smallest circumsphere: centre (1, 1, 0), radius² 2.
+        assert!(triangle_gabriel(&a, &b, &c, &[2.0, 2.0, 0.0]), "on the sphere");
+        assert!(!triangle_gabriel(&a, &b, &c, &[1.0, 1.0, 1.0]));
+        assert!(triangle_gabriel(&a, &b, &c, &[1.0, 1.0, 1.5]));
+    }
 }

@@ -9,7 +9,9 @@
 //! total: (value, index).
 
 use super::complex::DelaunayComplex;
-use super::exact::{Point, Radius2, compare_radius2_exact, edge_gabriel, radius2, triangle_gabriel};
+use super::exact::{
+    Point, Radius2, compare_radius2_exact, edge_gabriel, radius2, radius2_correctly_rounded, triangle_gabriel,
+};
 use std::cmp::Ordering;
 
 /// One filtration value: an `f64` with an error bound and the simplex it comes from.
@@ -127,9 +129,40 @@ impl<'a> Filtration<'a> {
         f
     }
 
+    /// Simplex ids sorted by (exact value, id): a radix sort on the `f64` bits, then an exact
+    /// re-sort inside each cluster whose error intervals overlap (rare outside ties).
     fn order(&self, values: &[Value]) -> Vec<u32> {
-        let mut o: Vec<u32> = (0..values.len() as u32).collect();
-        o.sort_unstable_by(|&i, &j| self.cmp(values[i as usize], values[j as usize]).then(i.cmp(&j)));
+        let keyed: Vec<(u64, u32)> =
+            values.iter().enumerate().map(|(i, v)| (v.value.to_bits(), i as u32)).collect();
+        let mut o: Vec<u32> = radix_sort(keyed).into_iter().map(|(_, i)| i).collect();
+        let lower = |i: u32| {
+            let v = &values[i as usize];
+            v.value - v.rel_err * v.value.abs()
+        };
+        let upper = |i: u32| {
+            let v = &values[i as usize];
+            v.value + v.rel_err * v.value.abs()
+        };
+        let n = o.len();
+        let mut suffix_min_lower = vec![f64::INFINITY; n + 1];
+        for k in (0..n).rev() {
+            suffix_min_lower[k] = suffix_min_lower[k + 1].min(lower(o[k]));
+        }
+        let mut start = 0;
+        let mut max_upper = f64::NEG_INFINITY;
+        for k in 0..n {
+            max_upper = max_upper.max(upper(o[k]));
+            // Split after k when nothing before can exceed anything after.
+            if max_upper < suffix_min_lower[k + 1] {
+                if k > start {
+                    o[start..=k].sort_unstable_by(|&i, &j| {
+                        self.cmp(values[i as usize], values[j as usize]).then(i.cmp(&j))
+                    });
+                }
+                start = k + 1;
+                max_upper = f64::NEG_INFINITY;
+            }
+        }
         o
     }
 
@@ -153,6 +186,13 @@ impl<'a> Filtration<'a> {
         compare_radius2_exact(&pa[..na], &pb[..nb])
     }
 
+    /// The exact value of `v` rounded to the nearest double.
+    pub fn correctly_rounded(&self, v: Value) -> f64 {
+        let mut p = [[0.0; 3]; 4];
+        let n = self.source_points(v.source, &mut p);
+        radius2_correctly_rounded(&p[..n])
+    }
+
     fn source_points(&self, source: u32, out: &mut [Point; 4]) -> usize {
         let c = self.complex;
         let i = (source & INDEX_MASK) as usize;
@@ -171,4 +211,35 @@ impl<'a> Filtration<'a> {
 #[inline]
 fn own(r: Radius2, dim: u32, index: usize) -> Value {
     Value { value: r.value, rel_err: r.rel_err, source: (dim << DIM_SHIFT) | index as u32 }
+}
+
+/// LSD radix sort by key (8-bit digits; digits equal across all keys are skipped), stable,
+/// so equal keys stay in id order.
+fn radix_sort(mut a: Vec<(u64, u32)>) -> Vec<(u64, u32)> {
+    let mut b = vec![(0u64, 0u32); a.len()];
+    let (mut and_all, mut or_all) = (u64::MAX, 0u64);
+    for &(k, _) in &a {
+        and_all &= k;
+        or_all |= k;
+    }
+    let varying = and_all ^ or_all;
+    for shift in (0..64).step_by(8) {
+        if (varying >> shift) & 0xff == 0 {
+            continue;
+        }
+        let mut count = [0usize; 257];
+        for &(k, _) in &a {
+            count[((k >> shift) & 0xff) as usize + 1] += 1;
+        }
+        for d in 0..256 {
+            count[d + 1] += count[d];
+        }
+        for &x in &a {
+            let d = ((x.0 >> shift) & 0xff) as usize;
+            b[count[d]] = x;
+            count[d] += 1;
+        }
+        std::mem::swap(&mut a, &mut b);
+    }
+    a
 }

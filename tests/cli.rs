@@ -1,0 +1,162 @@
+//! The `toporec` binary: output format, format detection, and one-line errors on bad input.
+
+use crate::util::*;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn toporec(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_toporec")).args(args).output().expect("run toporec")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8(o.stdout.clone()).unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8(o.stderr.clone()).unwrap()
+}
+
+#[test]
+fn diagram_prints_sorted_round_tripping_csv() {
+    let cloud = root().join("tests/fixtures/clouds/torus_1000.csv");
+    let o = toporec(&["diagram", cloud.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    assert!(text.starts_with("dim,birth,death\n"));
+    let rows: Vec<(u8, f64, f64)> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[0].parse().unwrap(), f[1].parse().unwrap(), f[2].parse().unwrap())
+        })
+        .collect();
+    let mut sorted = rows.clone();
+    sorted.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)).then(a.2.total_cmp(&b.2)));
+    assert_eq!(rows, sorted, "rows sorted by (dim, birth, death)");
+    assert_eq!(rows.iter().filter(|r| r.2.is_infinite()).count(), 1);
+    // Printed values parse back to exactly the library's values.
+    let lib = toporec::homology::alpha_persistence(&read_cloud(&cloud)).unwrap();
+    let lib: Vec<(u8, f64, f64)> = lib.pairs().iter().map(|p| (p.dim, p.birth, p.death)).collect();
+    assert_eq!(rows, lib);
+    assert_diagrams_match(
+        &parse_diagram_csv(&text),
+        &read_diagram_csv(&root().join("tests/fixtures/diagrams/torus_1000.csv")),
+        1e-9,
+        "cli",
+    );
+}
+
+#[test]
+fn diagram_dims_and_radius_options() {
+    let cloud = root().join("tests/fixtures/clouds/uniform_cube_500.csv");
+    let sq = parse_diagram_csv(&stdout(&toporec(&["diagram", cloud.to_str().unwrap(), "--dims", "2"])));
+    assert!(sq[0].is_empty() && sq[1].is_empty() && sq[2].len() == 632);
+    let r = parse_diagram_csv(&stdout(&toporec(&[
+        "diagram",
+        cloud.to_str().unwrap(),
+        "--dims",
+        "2",
+        "--radius",
+    ])));
+    for (a, b) in sq[2].iter().zip(&r[2]) {
+        assert_eq!(a.0.sqrt(), b.0);
+        assert_eq!(a.1.sqrt(), b.1);
+    }
+}
+
+/// Asserts a failed run with a one-line error naming `name`, and no panic.
+fn assert_clean_error(o: &Output, name: &str, what: &str) {
+    let err = stderr(o);
+    assert!(!o.status.success(), "{what}: should fail");
+    assert_eq!(o.status.code(), Some(2), "{what}: exit code");
+    assert!(!err.contains("panicked"), "{what}: panicked: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{what}: one line: {err}");
+    assert!(err.contains(name), "{what}: names the file: {err}");
+}
+
+#[test]
+fn bad_inputs_give_one_line_errors() {
+    let dir = std::env::temp_dir().join(format!("toporec-cli-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("velodyne_sync")).unwrap();
+    let write = |name: &str, bytes: &[u8]| {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    };
+    let cases: Vec<(std::path::PathBuf, &str)> = vec![
+        (dir.join("missing.csv"), "missing file"),
+        (write("truncated.bin", &[0u8; 16 * 5 + 3]), "truncated KITTI .bin"),
+        (write("velodyne_sync/1.bin", &[0u8; 8 * 5 + 1]), "truncated NCLT .bin"),
+        (write("nan.csv", b"x,y,z\n0,0,0\n1,0,0\nNaN,1,0\n0,0,1\n0,1,1\n"), "NaN coordinate"),
+        (write("inf.csv", b"x,y,z\n0,0,0\n1,0,0\ninf,1,0\n0,0,1\n"), "infinite coordinate"),
+        (write("empty.csv", b""), "empty file"),
+        (write("empty.bin", b""), "empty .bin"),
+        (write("three.csv", b"x,y,z\n0,0,0\n1,0,0\n0,1,0\n"), "fewer than 4 points"),
+        (write("header.csv", b"a,b\n1,2\n"), "bad header"),
+        (write("text.csv", b"x,y,z\n1,2,three\n"), "not a number"),
+        (write("cloud.xyz", b"1 2 3\n"), "unknown format"),
+    ];
+    for (path, what) in &cases {
+        let o = toporec(&["diagram", path.to_str().unwrap()]);
+        assert_clean_error(&o, path.file_name().unwrap().to_str().unwrap(), what);
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn nclt_format_chosen_by_folder_or_flag() {
+    // Four records: the NCLT decoding gives a tetrahedron with 1 m edges along the axes.
+    let rec = |x: u16, y: u16, z: u16| {
+        let mut r = Vec::new();
+        for v in [x, y, z] {
+            r.extend_from_slice(&v.to_le_bytes());
+        }
+        r.extend_from_slice(&[7, 3]);
+        r
+    };
+    let base = 20_000u16; // 0 m
+    let bytes: Vec<u8> = [
+        rec(base, base, base),
+        rec(base + 200, base, base),
+        rec(base, base + 200, base),
+        rec(base, base, base + 200),
+    ]
+    .concat();
+    let dir = std::env::temp_dir().join(format!("toporec-nclt-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("velodyne_sync")).unwrap();
+    let in_sync = dir.join("velodyne_sync/1000.bin");
+    std::fs::write(&in_sync, &bytes).unwrap();
+    let elsewhere = dir.join("1000.bin");
+    std::fs::write(&elsewhere, &bytes).unwrap();
+    let by_folder = stdout(&toporec(&["diagram", in_sync.to_str().unwrap()]));
+    let by_flag = stdout(&toporec(&["diagram", elsewhere.to_str().unwrap(), "--format", "nclt"]));
+    assert_eq!(by_folder, by_flag);
+    let d = parse_diagram_csv(&by_folder);
+    let mut deaths: Vec<f64> = d[0].iter().map(|p| p.1).collect();
+    deaths.sort_by(f64::total_cmp);
+    assert_eq!(deaths, vec![0.25, 0.25, 0.25, f64::INFINITY], "1 m edges: (1/2)² = 0.25");
+    // As KITTI, the same 32 bytes are two 16-byte records: too few points.
+    let o = toporec(&["diagram", elsewhere.to_str().unwrap()]);
+    assert_clean_error(&o, "1000.bin", "KITTI reading of NCLT bytes");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn real_kitti_and_nclt_scans() {
+    let Some(data) = shared_data("real_kitti_and_nclt_scans") else { return };
+    let nclt = data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin");
+    let o = toporec(&["diagram", nclt.to_str().unwrap(), "--dims", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(parse_diagram_csv(&stdout(&o))[2].len(), 5_546);
+    let kitti = data.join("kitti/sequences/00/velodyne/000094.bin");
+    let o = toporec(&["diagram", kitti.to_str().unwrap(), "--dims", "0"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // KITTI scans carry duplicate points: H0 counts distinct points.
+    let h0 = parse_diagram_csv(&stdout(&o))[0].len();
+    let pts = read_cloud(Path::new(&kitti));
+    let mut distinct: Vec<[u64; 3]> = pts.iter().map(|p| p.map(|x| (x + 0.0).to_bits())).collect();
+    distinct.sort();
+    distinct.dedup();
+    assert_eq!(h0, distinct.len());
+}

@@ -1,0 +1,83 @@
+//! Shared helpers: fixture loading, diagram comparison with a stated tolerance.
+
+use std::path::{Path, PathBuf};
+use toporec::homology::{Diagram, Point};
+
+/// The crate root.
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// `../shared/data` beside the repository, if present (prints a skip line otherwise).
+pub fn shared_data(test: &str) -> Option<PathBuf> {
+    let p = root().join("../shared/data");
+    if p.is_dir() {
+        Some(p)
+    } else {
+        println!("SKIP {test}: ../shared/data is absent");
+        None
+    }
+}
+
+pub fn read_cloud(path: &Path) -> Vec<Point> {
+    toporec::sources::read_cloud(path, None).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Reads a `dim,birth,death` CSV into per-dimension pair lists.
+pub fn read_diagram_csv(path: &Path) -> [Vec<(f64, f64)>; 3] {
+    let text = std::fs::read_to_string(path).unwrap();
+    parse_diagram_csv(&text)
+}
+
+pub fn parse_diagram_csv(text: &str) -> [Vec<(f64, f64)>; 3] {
+    let mut out: [Vec<(f64, f64)>; 3] = Default::default();
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let d: usize = f[0].parse().unwrap();
+        out[d].push((f[1].parse().unwrap(), f[2].parse().unwrap()));
+    }
+    out
+}
+
+pub fn by_dim(d: &Diagram) -> [Vec<(f64, f64)>; 3] {
+    [0u8, 1, 2].map(|k| d.dimension(k).iter().map(|p| (p.birth, p.death)).collect())
+}
+
+fn close(a: f64, b: f64, tol: f64) -> bool {
+    if a.is_infinite() || b.is_infinite() {
+        return a == b;
+    }
+    (a - b).abs() <= tol * a.abs().max(b.abs())
+}
+
+/// Asserts equal pair counts per dimension and a one-to-one matching of the pairs whose birth
+/// and death agree within `rel_tol` relative (greedy, over pairs sorted by (birth, death)).
+pub fn assert_diagrams_match(
+    ours: &[Vec<(f64, f64)>; 3],
+    reference: &[Vec<(f64, f64)>; 3],
+    rel_tol: f64,
+    what: &str,
+) {
+    for d in 0..3 {
+        assert_eq!(ours[d].len(), reference[d].len(), "{what}: H{d} pair count");
+        let mut a = ours[d].clone();
+        let mut b = reference[d].clone();
+        let key = |x: &(f64, f64), y: &(f64, f64)| x.0.total_cmp(&y.0).then(x.1.total_cmp(&y.1));
+        a.sort_by(key);
+        b.sort_by(key);
+        let mut used = vec![false; b.len()];
+        for (i, p) in a.iter().enumerate() {
+            // A tied birth can swap neighbours in the sort: look within a window of ranks.
+            let (lo, hi) = (i.saturating_sub(256), (i + 257).min(b.len()));
+            let found = (lo..hi)
+                .filter(|&j| !used[j] && close(p.0, b[j].0, rel_tol) && close(p.1, b[j].1, rel_tol))
+                .min_by_key(|&j| j.abs_diff(i));
+            match found {
+                Some(j) => used[j] = true,
+                None => panic!(
+                    "{what}: H{d} pair {p:?} (rank {i}) has no reference pair within {rel_tol:e} relative"
+                ),
+            }
+        }
+    }
+}
