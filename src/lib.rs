@@ -13,9 +13,11 @@
 //!
 //! * [`sources`] decode point clouds from files; they know nothing of topology.
 //! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs.
+//! * [`vectorize`] turns diagrams into ATOL descriptors.
 //! * [`cli`] wires them into the `toporec` command.
 #![deny(missing_docs)]
 
 pub mod cli;
 pub mod homology;
 pub mod sources;
+pub mod vectorize;

@@ -1,5 +1,6 @@
 //! One integration-test binary (fast to link); a module per area.
 
+mod atol;
 mod cli;
 mod homology;
 mod util;
