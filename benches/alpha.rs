@@ -10,32 +10,23 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 use toporec::homology::{DelaunayComplex, Filtration, Point, persistence::persistence};
+use toporec::rng::SplitMix64;
 
 struct Cloud {
     name: String,
     points: Vec<Point>,
 }
 
-fn splitmix(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 fn uniform_cube(n: usize, seed: u64) -> Vec<Point> {
-    let mut s = seed;
-    (0..n)
-        .map(|_| [0, 1, 2].map(|_| (splitmix(&mut s) >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0))
-        .collect()
+    let mut rng = SplitMix64(seed);
+    (0..n).map(|_| [0, 1, 2].map(|_| rng.next_f64() * 2.0 - 1.0)).collect()
 }
 
 fn subsample(points: &[Point], n: usize, seed: u64) -> Vec<Point> {
     let mut idx: Vec<usize> = (0..points.len()).collect();
-    let mut s = seed;
+    let mut rng = SplitMix64(seed);
     for i in 0..n.min(idx.len()) {
-        let j = i + (splitmix(&mut s) % (idx.len() - i) as u64) as usize;
+        let j = i + (rng.next_u64() % (idx.len() - i) as u64) as usize;
         idx.swap(i, j);
     }
     idx.truncate(n);

@@ -19,5 +19,6 @@
 
 pub mod cli;
 pub mod homology;
+pub mod rng;
 pub mod sources;
 pub mod vectorize;

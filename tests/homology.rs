@@ -3,6 +3,7 @@
 use crate::util::*;
 use proptest::prelude::*;
 use toporec::homology::{DelaunayComplex, Filtration, Point, alpha_persistence, persistence::persistence};
+use toporec::rng::SplitMix64;
 
 /// GUDHI's `safe` values differ from exactly rounded ones by up to 2.2e-10 relative on
 /// uniform_cube_4096 (checked against `precision='exact'`), so 1e-9 is the tolerance.
@@ -245,17 +246,9 @@ fn naive_diagram(pts: &[Point]) -> [Vec<(f64, f64)>; 3] {
     out
 }
 
-fn splitmix(state: &mut u64) -> f64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-}
-
 fn random_cloud(n: usize, seed: u64) -> Vec<Point> {
-    let mut s = seed;
-    (0..n).map(|_| [splitmix(&mut s), splitmix(&mut s), splitmix(&mut s)]).collect()
+    let mut rng = SplitMix64(seed);
+    (0..n).map(|_| [rng.next_f64(), rng.next_f64(), rng.next_f64()]).collect()
 }
 
 #[test]
@@ -338,9 +331,9 @@ proptest! {
         let m = rotation(a, b, c);
         let mut moved: Vec<Point> = pts.iter().map(|p| rotate(p, &m, &[tx, ty, tz])).collect();
         // A seeded permutation.
-        let mut s = seed ^ 0xABCD;
+        let mut rng = SplitMix64(seed ^ 0xABCD);
         for i in (1..moved.len()).rev() {
-            let j = (splitmix(&mut s) * (i + 1) as f64) as usize;
+            let j = (rng.next_f64() * (i + 1) as f64) as usize;
             moved.swap(i, j.min(i));
         }
         assert_diagrams_match(&diagram(&moved), &diagram(&pts), 1e-9, "moved");

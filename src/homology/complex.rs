@@ -5,7 +5,7 @@
 //! Owns the simplex numbering. Vertex ids index the *deduplicated* points (first occurrence
 //! kept); `input_index` maps them back.
 
-use super::delaunay::{Geometry3, GeometryPlanar, INFINITE, Triangulation, planar_lift};
+use super::delaunay::{Geometry3, GeometryPlanar, INFINITE, Triangulation, orient3d, planar_lift};
 use super::exact::Point;
 use super::spatial_sort::brio_order;
 use std::collections::HashMap;
@@ -94,12 +94,7 @@ impl DelaunayComplex {
         };
         let cc = order[ci];
         let fourth = order.iter().position(|&i| {
-            robust::orient3d(
-                c3(&pts[a as usize]),
-                c3(&pts[b as usize]),
-                c3(&pts[cc as usize]),
-                c3(&pts[i as usize]),
-            ) != 0.0
+            orient3d(&pts[a as usize], &pts[b as usize], &pts[cc as usize], &pts[i as usize]) != 0.0
         });
         match fourth {
             None => {
@@ -298,11 +293,6 @@ fn number_finite_cells<const K: usize>(t: &Triangulation<K>) -> Vec<u32> {
             }
         })
         .collect()
-}
-
-#[inline]
-fn c3(p: &Point) -> robust::Coord3D<f64> {
-    robust::Coord3D { x: p[0], y: p[1], z: p[2] }
 }
 
 /// Exact collinearity of three points (all three coordinate projections degenerate).

@@ -30,16 +30,11 @@ pub fn brio_order(points: &[Point]) -> Vec<u32> {
         })
         .collect();
 
-    // Deterministic shuffle (SplitMix64), then rounds of doubling size.
+    // Deterministic shuffle, then rounds of doubling size.
     let mut order: Vec<u32> = (0..n as u32).collect();
-    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    let mut rng = crate::rng::SplitMix64(0x2545_F491_4F6C_DD1D);
     for i in (1..n).rev() {
-        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        order.swap(i, (z % (i as u64 + 1)) as usize);
+        order.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
     }
     let mut end = n;
     let mut bounds = vec![n];
