@@ -230,11 +230,11 @@ fn naive_diagram(pts: &[Point]) -> [Vec<(f64, f64)>; 3] {
             paired[low] = true;
             paired[j] = true;
             let b = &order[low];
-            let (bv, dv) = (value(b), value(s));
-            let zero = b.0 > 0 && f.cmp(val(b), val(s)) == std::cmp::Ordering::Equal;
-            let tiny = dv - bv <= if b.0 > 0 { val(b).rel_err * bv + val(s).rel_err * dv } else { 0.0 };
-            if !zero && !tiny {
-                out[b.0].push((bv, dv));
+            // Vertices are born at 0 and every edge value is positive; otherwise the engine's
+            // zero-length rule (this oracle checks the pairing, not that rule).
+            let pair = if b.0 == 0 { Some((0.0, value(s))) } else { f.pair_values(val(b), val(s)) };
+            if let Some(p) = pair {
+                out[b.0].push(p);
             }
         }
     }

@@ -376,7 +376,7 @@ impl Geometry<4> for Geometry3<'_> {
     fn in_degenerate_facet(&self, f: &[u32], q: u32) -> bool {
         let p = self.pts;
         let (a, b, c) = (&p[f[0] as usize], &p[f[1] as usize], &p[f[2] as usize]);
-        match lift_point(a, b, c) {
+        match planar_lift(a, b, c) {
             Some(e) => in_circle_coplanar(a, b, c, &e, &p[q as usize]),
             None => false,
         }
@@ -447,7 +447,7 @@ pub fn insphere(a: &Point, b: &Point, c: &Point, d: &Point, e: &Point) -> f64 {
 }
 
 /// A point off the plane of `a b c` (which must not be collinear).
-fn lift_point(a: &Point, b: &Point, c: &Point) -> Option<Point> {
+pub fn planar_lift(a: &Point, b: &Point, c: &Point) -> Option<Point> {
     let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
     let w = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
     let n = [u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]];
@@ -505,9 +505,4 @@ impl Geometry<3> for GeometryPlanar<'_> {
         let (lo, hi) = if a[k] < b[k] { (a[k], b[k]) } else { (b[k], a[k]) };
         lo < q[k] && q[k] < hi
     }
-}
-
-/// Lift point for a co-planar set whose plane passes through the non-collinear `a b c`.
-pub fn planar_lift(a: &Point, b: &Point, c: &Point) -> Option<Point> {
-    lift_point(a, b, c)
 }

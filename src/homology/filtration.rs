@@ -35,6 +35,12 @@ impl Value {
     fn is_set(&self) -> bool {
         self.source != u32::MAX
     }
+
+    /// Absolute error bound of `value`.
+    #[inline]
+    pub fn abs_err(&self) -> f64 {
+        self.rel_err * self.value.abs()
+    }
 }
 
 /// Filtration values of every edge, triangle and tetrahedron, plus their orders.
@@ -135,14 +141,8 @@ impl<'a> Filtration<'a> {
         let keyed: Vec<(u64, u32)> =
             values.iter().enumerate().map(|(i, v)| (v.value.to_bits(), i as u32)).collect();
         let mut o: Vec<u32> = radix_sort(keyed).into_iter().map(|(_, i)| i).collect();
-        let lower = |i: u32| {
-            let v = &values[i as usize];
-            v.value - v.rel_err * v.value.abs()
-        };
-        let upper = |i: u32| {
-            let v = &values[i as usize];
-            v.value + v.rel_err * v.value.abs()
-        };
+        let lower = |i: u32| values[i as usize].value - values[i as usize].abs_err();
+        let upper = |i: u32| values[i as usize].value + values[i as usize].abs_err();
         let n = o.len();
         let mut suffix_min_lower = vec![f64::INFINITY; n + 1];
         for k in (0..n).rev() {
@@ -172,7 +172,7 @@ impl<'a> Filtration<'a> {
         if a.source == b.source {
             return Ordering::Equal;
         }
-        let margin = a.rel_err * a.value.abs() + b.rel_err * b.value.abs();
+        let margin = a.abs_err() + b.abs_err();
         if b.value - a.value > margin {
             return Ordering::Less;
         }
@@ -184,6 +184,22 @@ impl<'a> Filtration<'a> {
         let na = self.source_points(a.source, &mut pa);
         let nb = self.source_points(b.source, &mut pb);
         compare_radius2_exact(&pa[..na], &pb[..nb])
+    }
+
+    /// The (birth, death) values of a finite pair, or `None` if it has zero length as GUDHI's
+    /// `exact` mode sees it: birth and death, each computed exactly and rounded to a double,
+    /// coincide. The `f64` values decide when they differ by more than their certified error;
+    /// otherwise the exact values are compared, and rounded when they differ (a sub-ulp
+    /// difference is zero length there too).
+    pub fn pair_values(&self, birth: Value, death: Value) -> Option<(f64, f64)> {
+        if death.value - birth.value > birth.abs_err() + death.abs_err() {
+            return Some((birth.value, death.value));
+        }
+        if self.cmp(birth, death) != Ordering::Less {
+            return None;
+        }
+        let (b, d) = (self.correctly_rounded(birth), self.correctly_rounded(death));
+        (b < d).then_some((b, d))
     }
 
     /// The exact value of `v` rounded to the nearest double.

@@ -76,19 +76,10 @@ pub fn persistence(f: &Filtration) -> Diagram {
     Diagram::new(pairs)
 }
 
-/// Records a finite pair unless it has zero length as GUDHI's `exact` mode sees it: its
-/// birth and death, each computed exactly and rounded to a double, coincide. The `f64` values
-/// decide when they differ by more than their certified error; otherwise the exact values are
-/// compared, and rounded when they differ (a sub-ulp difference is zero length there too).
+/// Records a finite pair unless it has zero length (see [`Filtration::pair_values`]).
 fn push_finite(f: &Filtration, pairs: &mut Vec<Pair>, dim: u8, birth: Value, death: Value) {
-    let margin = birth.rel_err * birth.value.abs() + death.rel_err * death.value.abs();
-    if death.value - birth.value > margin {
-        pairs.push(Pair { dim, birth: birth.value, death: death.value });
-    } else if f.cmp(birth, death) == Ordering::Less {
-        let (b, d) = (f.correctly_rounded(birth), f.correctly_rounded(death));
-        if b < d {
-            pairs.push(Pair { dim, birth: b, death: d });
-        }
+    if let Some((birth, death)) = f.pair_values(birth, death) {
+        pairs.push(Pair { dim, birth, death });
     }
 }
 
