@@ -1,8 +1,12 @@
 //! The `toporec` command line: parses flags, runs a subcommand, maps the outcome to an exit
 //! code (0 ok, 1 partial, 2 failed). Errors are printed as one line naming the file.
 
-use crate::homology::{Diagram, alpha_persistence};
+use crate::diagram_csv;
+use crate::homology::alpha_persistence;
 use crate::sources::{CloudFormat, read_cloud};
+use crate::vectorize::atol::{Contrast, Weighting};
+use crate::vectorize::codebook::{Codebook, CodebookFitter, CodebookSpec, DimSelection};
+use crate::vectorize::kmeans::{Algorithm, KMeansParams};
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use std::io::Write;
@@ -26,6 +30,69 @@ pub struct Cli {
 pub enum Command {
     /// Print the persistence diagram of one cloud's alpha complex as CSV (dim,birth,death).
     Diagram(DiagramArgs),
+    /// Fit an ATOL codebook on diagram CSV files and save it as JSON.
+    Fit(FitArgs),
+    /// Turn diagram CSV files into descriptors with a saved codebook (CSV rows on stdout or --out).
+    Vectorize(VectorizeArgs),
+}
+
+/// Arguments of `toporec fit`.
+#[derive(clap::Args, Debug)]
+pub struct FitArgs {
+    /// Diagram CSV files (dim,birth,death), as `toporec diagram` writes them.
+    #[arg(required = true)]
+    pub diagrams: Vec<PathBuf>,
+    /// Where to write the codebook (JSON).
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Centres per codebook (the descriptor length per part).
+    #[arg(long, short, default_value_t = 50)]
+    pub b: usize,
+    /// `paper` (H2, else H1, else H0) or a list like `0,1,2` (one codebook per dimension).
+    #[arg(long, default_value = "paper", value_parser = DimSelection::parse)]
+    pub dims: DimSelection,
+    /// ATOL contrast: gaussian, laplacian or indicator.
+    #[arg(long, default_value = "laplacian", value_parser = parse_contrast)]
+    pub contrast: Contrast,
+    /// ATOL weighting: cloud (sum) or iidproba (mean).
+    #[arg(long, default_value = "cloud", value_parser = parse_weighting)]
+    pub weighting: Weighting,
+    /// The quantiser.
+    #[arg(long, value_enum, default_value = "minibatch")]
+    pub kmeans: Algorithm,
+    /// Points kept (uniform reservoir sample) per codebook for fitting.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub sample_size: usize,
+    /// Seed of sampling and k-means.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Record that the diagrams are in radii, not squared radii.
+    #[arg(long)]
+    pub radius: bool,
+}
+
+/// Arguments of `toporec vectorize`.
+#[derive(clap::Args, Debug)]
+pub struct VectorizeArgs {
+    /// Diagram CSV files.
+    #[arg(required = true)]
+    pub diagrams: Vec<PathBuf>,
+    /// The codebook (JSON from `toporec fit`).
+    #[arg(long, short)]
+    pub codebook: PathBuf,
+    /// Output CSV (default stdout): diagram,dim_used,v1..vb.
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+}
+
+fn parse_contrast(s: &str) -> Result<Contrast, String> {
+    serde_json::from_value(serde_json::Value::String(s.into()))
+        .map_err(|_| format!("`{s}` is not one of gaussian, laplacian, indicator"))
+}
+
+fn parse_weighting(s: &str) -> Result<Weighting, String> {
+    serde_json::from_value(serde_json::Value::String(s.into()))
+        .map_err(|_| format!("`{s}` is not one of cloud, iidproba"))
 }
 
 /// Arguments of `toporec diagram`.
@@ -52,6 +119,8 @@ pub fn main() -> ExitCode {
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     let result = match cli.command {
         Command::Diagram(args) => diagram(args),
+        Command::Fit(args) => fit(args),
+        Command::Vectorize(args) => vectorize(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -85,7 +154,7 @@ fn diagram(args: DiagramArgs) -> Result<()> {
     if args.radius {
         diagram = diagram.to_radii();
     }
-    write_diagram_csv(&diagram, &mut std::io::stdout().lock()).or_else(ignore_broken_pipe)?;
+    diagram_csv::write(&diagram, &mut std::io::stdout().lock()).or_else(ignore_broken_pipe)?;
     Ok(())
 }
 
@@ -93,12 +162,62 @@ fn ignore_broken_pipe(e: std::io::Error) -> std::io::Result<()> {
     if e.kind() == std::io::ErrorKind::BrokenPipe { Ok(()) } else { Err(e) }
 }
 
-/// Writes `dim,birth,death` rows; floats in shortest round-trip form, `inf` for infinity.
-pub fn write_diagram_csv(d: &Diagram, out: &mut impl Write) -> std::io::Result<()> {
-    let mut w = std::io::BufWriter::new(out);
-    writeln!(w, "dim,birth,death")?;
-    for p in d.pairs() {
-        writeln!(w, "{},{:?},{:?}", p.dim, p.birth, p.death)?;
+fn fit(args: FitArgs) -> Result<()> {
+    let spec = CodebookSpec {
+        dims: args.dims,
+        b: args.b,
+        contrast: args.contrast,
+        weighting: args.weighting,
+        kmeans: KMeansParams { algorithm: args.kmeans, ..KMeansParams::default() },
+        sample_size: args.sample_size,
+        seed: args.seed,
+        squared_radii: !args.radius,
+    };
+    let mut fitter = CodebookFitter::new(spec);
+    for path in &args.diagrams {
+        fitter.add(&diagram_csv::read(path)?);
     }
-    w.flush()
+    let start = std::time::Instant::now();
+    let codebook = fitter.finish().context("fitting the codebook")?;
+    tracing::info!(elapsed = ?start.elapsed(), "codebook fitted");
+    codebook.save(&args.out)?;
+    eprintln!(
+        "codebook {} (dims {}, length {}) written to {}",
+        codebook.id(),
+        codebook.spec.dims,
+        codebook.len(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn vectorize(args: VectorizeArgs) -> Result<()> {
+    let codebook = Codebook::load(&args.codebook)?;
+    let mut text = String::from("diagram,dim_used");
+    for j in 1..=codebook.len() {
+        text += &format!(",v{j}");
+    }
+    text.push('\n');
+    for path in &args.diagrams {
+        let d = codebook.vectorize(&diagram_csv::read(path)?);
+        let dim = d.dim_used.map(|d| d.to_string()).unwrap_or_default();
+        text += &format!("{},{dim}", csv_field(&path.display().to_string()));
+        for v in &d.values {
+            text += &format!(",{v:?}");
+        }
+        text.push('\n');
+    }
+    match &args.out {
+        Some(out) => crate::fsutil::write_atomic(out, text.as_bytes()),
+        None => std::io::stdout()
+            .lock()
+            .write_all(text.as_bytes())
+            .or_else(ignore_broken_pipe)
+            .map_err(Into::into),
+    }
+}
+
+/// Quotes a CSV field when needed (RFC 4180).
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
 }

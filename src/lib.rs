@@ -18,6 +18,8 @@
 #![deny(missing_docs)]
 
 pub mod cli;
+pub mod diagram_csv;
+pub mod fsutil;
 pub mod homology;
 pub mod rng;
 pub mod sources;

@@ -160,3 +160,56 @@ fn real_kitti_and_nclt_scans() {
     distinct.dedup();
     assert_eq!(h0, distinct.len());
 }
+
+#[test]
+fn fit_then_vectorize_from_diagram_files() {
+    let dir = scratch_dir("cli_fit_vectorize");
+    let diagrams: Vec<String> = ["uniform_cube_500", "torus_1000", "two_spheres_800", "lidar_like_4096"]
+        .iter()
+        .map(|n| root().join(format!("tests/fixtures/diagrams/{n}.csv")).display().to_string())
+        .collect();
+    let cb = dir.join("codebook.json");
+    let mut args = vec!["fit", "-o", cb.to_str().unwrap(), "-b", "8", "--dims", "0,1,2", "--seed", "3"];
+    args.extend(diagrams.iter().map(String::as_str));
+    let o = toporec(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("length 24"), "{}", stderr(&o));
+    // Fitting again gives the same bytes.
+    let first = std::fs::read(&cb).unwrap();
+    assert!(toporec(&args).status.success());
+    assert_eq!(std::fs::read(&cb).unwrap(), first, "same seed, same codebook file");
+
+    let mut args = vec!["vectorize", "-c", cb.to_str().unwrap()];
+    args.extend(diagrams.iter().map(String::as_str));
+    let o = toporec(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header.len(), 2 + 24);
+    assert_eq!(&header[..3], ["diagram", "dim_used", "v1"]);
+    // Rows equal the library's vectorization of the same files.
+    let codebook = toporec::vectorize::codebook::Codebook::load(&cb).unwrap();
+    for (line, path) in lines.zip(&diagrams) {
+        let f: Vec<&str> = line.split(',').collect();
+        assert_eq!(f[0], path);
+        let values: Vec<f64> = f[2..].iter().map(|v| v.parse().unwrap()).collect();
+        let expected = codebook.vectorize(&toporec::diagram_csv::read(Path::new(path)).unwrap());
+        assert_eq!(values, expected.values);
+    }
+    // Bad inputs: one line naming the file.
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, "dim,birth,death\n1,0.5,0.2\n").unwrap();
+    let o = toporec(&["fit", "-o", cb.to_str().unwrap(), bad.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("bad.csv") && stderr(&o).contains("line 2"), "{}", stderr(&o));
+    let only_h0 = dir.join("h0.csv");
+    std::fs::write(&only_h0, "dim,birth,death\n0,0.0,inf\n").unwrap();
+    let o = toporec(&["fit", "-o", dir.join("x.json").to_str().unwrap(), only_h0.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("infinite components only"), "{}", stderr(&o));
+    assert!(!dir.join("x.json").exists(), "no codebook written on failure");
+    let o = toporec(&["vectorize", "-c", bad.to_str().unwrap(), diagrams[0].as_str()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("bad.csv: not JSON"), "{}", stderr(&o));
+}

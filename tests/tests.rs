@@ -2,5 +2,6 @@
 
 mod atol;
 mod cli;
+mod codebook;
 mod homology;
 mod util;

@@ -81,3 +81,11 @@ pub fn assert_diagrams_match(
         }
     }
 }
+
+/// A fresh, empty scratch folder under target/tmp for one test.
+pub fn scratch_dir(test: &str) -> PathBuf {
+    let dir = root().join("target/tmp/tests").join(test);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}

@@ -1,7 +1,11 @@
 //! Vectorization: persistence diagrams → fixed-length descriptors.
 //!
-//! Owns the ATOL model (centres, inertias, contrast, weighting) and its transform. Fitting the
-//! centres (k-means) is not here yet; [`atol::Atol::from_centers`] builds a model from given
-//! centres exactly as GUDHI's `Atol.fit` does after its quantiser has run.
+//! * [`atol`]: the ATOL model and transform, equal to `gudhi.representations.Atol`.
+//! * [`kmeans`]: the quantiser fitting ATOL's centres (mini-batch as scikit-learn, or Lloyd).
+//! * [`reservoir`]: the bounded uniform sample the quantiser is fitted on.
+//! * [`codebook`]: the saved model — dimension rule, one ATOL per part, JSON file.
 
 pub mod atol;
+pub mod codebook;
+pub mod kmeans;
+pub mod reservoir;

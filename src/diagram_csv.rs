@@ -1,0 +1,55 @@
+//! Diagram CSV files: header `dim,birth,death`, one pair per row, `inf` for the essential
+//! class. `toporec diagram` writes them; `toporec fit` and `toporec vectorize` read them.
+
+use crate::homology::{Diagram, Pair};
+use std::io::Write;
+use std::path::Path;
+
+/// Writes `dim,birth,death` rows; floats in shortest round-trip form, `inf` for infinity.
+pub fn write(d: &Diagram, out: &mut impl Write) -> std::io::Result<()> {
+    let mut w = std::io::BufWriter::new(out);
+    writeln!(w, "dim,birth,death")?;
+    for p in d.pairs() {
+        writeln!(w, "{},{:?},{:?}", p.dim, p.birth, p.death)?;
+    }
+    w.flush()
+}
+
+/// Reads a diagram CSV; errors name the file and the line.
+pub fn read(path: &Path) -> anyhow::Result<Diagram> {
+    let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// Parses the text of a diagram CSV.
+pub fn parse(text: &str) -> Result<Diagram, String> {
+    let mut lines = text.lines().enumerate();
+    match lines.next() {
+        Some((_, header)) if header.trim() == "dim,birth,death" => {}
+        Some((_, header)) => {
+            return Err(format!("line 1: expected header `dim,birth,death`, found `{header}`"));
+        }
+        None => return Err("empty file (expected header `dim,birth,death`)".into()),
+    }
+    let mut pairs = Vec::new();
+    for (i, line) in lines {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let bad = |what: &str| format!("line {}: {what}: `{line}`", i + 1);
+        let mut fields = line.split(',').map(str::trim);
+        let (Some(dim), Some(birth), Some(death), None) =
+            (fields.next(), fields.next(), fields.next(), fields.next())
+        else {
+            return Err(bad("expected 3 fields"));
+        };
+        let dim: u8 = dim.parse().ok().filter(|d| *d <= 2).ok_or_else(|| bad("dim must be 0, 1 or 2"))?;
+        let birth: f64 = birth.parse().map_err(|_| bad("birth is not a number"))?;
+        let death: f64 = death.parse().map_err(|_| bad("death is not a number"))?;
+        if birth.is_nan() || death.is_nan() || !birth.is_finite() || death < birth {
+            return Err(bad("need finite birth <= death"));
+        }
+        pairs.push(Pair { dim, birth, death });
+    }
+    Ok(Diagram::new(pairs))
+}
