@@ -3,6 +3,7 @@
 
 use crate::diagram_csv;
 use crate::homology::alpha_persistence;
+use crate::sources::mcap::McapSpec;
 use crate::sources::{CloudFormat, read_cloud};
 use crate::vectorize::atol::{Contrast, Weighting};
 use crate::vectorize::codebook::{Codebook, CodebookFitter, CodebookSpec, DimSelection};
@@ -30,10 +31,19 @@ pub struct Cli {
 pub enum Command {
     /// Print the persistence diagram of one cloud's alpha complex as CSV (dim,birth,death).
     Diagram(DiagramArgs),
+    /// Describe what a file or folder holds (format, scans, topics, points, time span, poses).
+    Inspect(InspectArgs),
     /// Fit an ATOL codebook on diagram CSV files and save it as JSON.
     Fit(FitArgs),
     /// Turn diagram CSV files into descriptors with a saved codebook (CSV rows on stdout or --out).
     Vectorize(VectorizeArgs),
+}
+
+/// Arguments of `toporec inspect`.
+#[derive(clap::Args, Debug)]
+pub struct InspectArgs {
+    /// A cloud file, an MCAP, an NCLT session (or folder of sessions), a KITTI sequence.
+    pub path: PathBuf,
 }
 
 /// Arguments of `toporec fit`.
@@ -106,9 +116,15 @@ pub struct DiagramArgs {
     /// Print radii instead of squared radii (GUDHI's output_squared_values=False).
     #[arg(long)]
     pub radius: bool,
-    /// The file format; detected from the path when omitted.
+    /// The file format; detected from the path when omitted (MCAP by its magic).
     #[arg(long, value_enum)]
     pub format: Option<CloudFormat>,
+    /// MCAP: the Nth point-cloud message (0-based) of the topic.
+    #[arg(long, default_value_t = 0)]
+    pub index: u64,
+    /// MCAP: the topic (default: the file's only point-cloud topic).
+    #[arg(long)]
+    pub topic: Option<String>,
 }
 
 /// Entry point of the binary.
@@ -119,6 +135,7 @@ pub fn main() -> ExitCode {
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     let result = match cli.command {
         Command::Diagram(args) => diagram(args),
+        Command::Inspect(args) => crate::inspect::inspect(&args.path).map(|report| print!("{report}")),
         Command::Fit(args) => fit(args),
         Command::Vectorize(args) => vectorize(args),
     };
@@ -143,7 +160,11 @@ fn diagram(args: DiagramArgs) -> Result<()> {
     if let Some(d) = args.dims.iter().find(|&&d| d > 2) {
         bail!("--dims: dimension {d} is not one of 0, 1, 2");
     }
-    let points = read_cloud(&args.cloud, args.format)?;
+    let points = if args.format.is_none() && crate::inspect::is_mcap(&args.cloud) {
+        mcap_cloud(&args)?
+    } else {
+        read_cloud(&args.cloud, args.format)?
+    };
     if points.len() < MIN_POINTS {
         bail!("{}: {} point(s); a diagram needs at least {MIN_POINTS}", args.cloud.display(), points.len());
     }
@@ -156,6 +177,19 @@ fn diagram(args: DiagramArgs) -> Result<()> {
     }
     diagram_csv::write(&diagram, &mut std::io::stdout().lock()).or_else(ignore_broken_pipe)?;
     Ok(())
+}
+
+/// The `--index`th point cloud of an MCAP file.
+fn mcap_cloud(args: &DiagramArgs) -> Result<Vec<crate::homology::Point>> {
+    let spec = McapSpec { topic: args.topic.clone(), ..McapSpec::file(&args.cloud) };
+    for item in spec.open()? {
+        match item {
+            Ok(scan) if scan.message_index == Some(args.index) => return Ok(scan.points),
+            Err(f) if f.message_index == Some(args.index) => bail!("{}", f.error),
+            _ => {}
+        }
+    }
+    bail!("{}: no point-cloud message with index {}", args.cloud.display(), args.index)
 }
 
 fn ignore_broken_pipe(e: std::io::Error) -> std::io::Result<()> {

@@ -21,6 +21,7 @@ pub mod cli;
 pub mod diagram_csv;
 pub mod fsutil;
 pub mod homology;
+pub mod inspect;
 pub mod rng;
 pub mod sources;
 pub mod vectorize;

@@ -213,3 +213,39 @@ fn fit_then_vectorize_from_diagram_files() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("bad.csv: not JSON"), "{}", stderr(&o));
 }
+
+#[test]
+fn inspect_and_diagram_of_an_mcap_message() {
+    let Some(data) = shared_data("inspect_and_diagram_of_an_mcap_message") else { return };
+    let o = toporec(&["inspect", data.join("mcap/ouster_os1_ros1.mcap").to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    assert!(text.contains("format: mcap"), "{text}");
+    assert!(text.contains("/os1_cloud_node/points  [sensor_msgs/PointCloud2 / ros1]  2 messages"), "{text}");
+    assert!(text.contains("raw points per scan: min 131072 / median 131072 / max 131072"), "{text}");
+    let o = toporec(&["inspect", data.join("nclt_from_kitti").to_str().unwrap()]);
+    let text = stdout(&o);
+    assert!(text.contains("format: nclt sessions") && text.contains("poses joined: 14 of 14"), "{text}");
+
+    // `diagram --index 1` of the ROS 2 MCAP is the diagram of KITTI frame 95.
+    let mcap = data.join("mcap/kitti_ros2_cdr.mcap");
+    let a = toporec(&["diagram", mcap.to_str().unwrap(), "--index", "1", "--dims", "2"]);
+    assert!(a.status.success(), "{}", stderr(&a));
+    let b = toporec(&[
+        "diagram",
+        data.join("kitti/sequences/00/velodyne/000095.bin").to_str().unwrap(),
+        "--dims",
+        "2",
+    ]);
+    assert_eq!(stdout(&a), stdout(&b));
+    let o = toporec(&["diagram", mcap.to_str().unwrap(), "--index", "9"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("kitti_ros2_cdr.mcap: no point-cloud message with index 9"),
+        "{}",
+        stderr(&o)
+    );
+    let o = toporec(&["inspect", root().join("Cargo.toml").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("Cargo.toml: unknown cloud format"), "{}", stderr(&o));
+}

@@ -4,4 +4,5 @@ mod atol;
 mod cli;
 mod codebook;
 mod homology;
+mod sources;
 mod util;

@@ -1,9 +1,12 @@
-//! KITTI Velodyne `.bin` scans: little-endian float32 records `x, y, z, reflectance`
-//! (x forward, y left, z up, metres).
+//! KITTI odometry: Velodyne `.bin` scans, little-endian float32 records `x, y, z,
+//! reflectance` (x forward, y left, z up, metres), in `sequences/NN/velodyne/`, with
+//! `times.txt` (seconds) and `poses.txt` (3x4 poses of camera 0 in the frame of camera 0 at
+//! frame 0). Poses are exposed z up: `(t_z, −t_x, −t_y)` (forward, left, up).
 
-use super::SourceError;
+use super::{Pose, Scan, ScanFailure, ScanStream, SourceError};
 use crate::homology::Point;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Bytes per KITTI record.
 pub const RECORD: usize = 16;
@@ -30,4 +33,118 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<KittiScan, SourceError> {
         scan.reflectance.push(f(12));
     }
     Ok(scan)
+}
+
+/// `kind = "kitti"` in a pipeline file.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KittiSpec {
+    /// Sequence folders (`sequences/NN`, holding `velodyne/*.bin`, `times.txt`, `poses.txt`).
+    pub sequences: Vec<PathBuf>,
+}
+
+/// A KITTI sequence's side files: per-frame times (s) and poses.
+#[derive(Clone, Debug, Default)]
+pub struct Sequence {
+    /// `times.txt`, seconds per frame.
+    pub times: Vec<f64>,
+    /// `poses.txt` translations as poses (z up), per frame.
+    pub poses: Vec<Pose>,
+}
+
+impl Sequence {
+    /// Reads `times.txt` and `poses.txt` of a sequence folder (either may be absent; a bad
+    /// line is an error naming the line).
+    pub fn read(dir: &Path) -> Result<Self, SourceError> {
+        let lines = |name: &str| -> Result<Option<(PathBuf, String)>, SourceError> {
+            let p = dir.join(name);
+            if !p.is_file() {
+                return Ok(None);
+            }
+            let text =
+                std::fs::read_to_string(&p).map_err(|source| SourceError::Io { path: p.clone(), source })?;
+            Ok(Some((p, text)))
+        };
+        let mut seq = Sequence::default();
+        if let Some((path, text)) = lines("times.txt")? {
+            for (i, l) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+                let t = l.trim().parse::<f64>().map_err(|_| SourceError::Parse {
+                    path: path.clone(),
+                    line: i + 1,
+                    message: "expected a time in seconds".into(),
+                })?;
+                seq.times.push(t);
+            }
+        }
+        if let Some((path, text)) = lines("poses.txt")? {
+            for (i, l) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+                let v: Option<Vec<f64>> = l.split_whitespace().map(|x| x.parse().ok()).collect();
+                let v = v.filter(|v| v.len() == 12).ok_or_else(|| SourceError::Parse {
+                    path: path.clone(),
+                    line: i + 1,
+                    message: "expected 12 numbers (a 3x4 pose)".into(),
+                })?;
+                // Camera 0 frame (x right, y down, z forward) → z up: (z, −x, −y); yaw from
+                // the camera's forward axis (third column) in that frame.
+                let (tx, ty, tz) = (v[3], v[7], v[11]);
+                let yaw = (-v[2]).atan2(v[10]);
+                seq.poses.push(Pose { x: tz, y: -tx, z: -ty, yaw });
+            }
+        }
+        Ok(seq)
+    }
+}
+
+impl KittiSpec {
+    /// Opens the stream over all sequences, in order.
+    pub fn open(&self) -> Result<ScanStream, SourceError> {
+        let mut streams: Vec<ScanStream> = Vec::new();
+        for dir in &self.sequences {
+            let velodyne = dir.join("velodyne");
+            if !velodyne.is_dir() {
+                return Err(SourceError::invalid(dir, "not a KITTI sequence (no velodyne/ folder)"));
+            }
+            let seq = Arc::new(Sequence::read(dir)?);
+            let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let files = super::list_files(&velodyne, "bin")?;
+            streams.push(Box::new(files.into_iter().map(move |path| frame_scan(&path, &session, &seq))));
+        }
+        Ok(Box::new(streams.into_iter().flatten()))
+    }
+}
+
+fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFailure> {
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let frame: Option<usize> = name.parse().ok();
+    let utime = frame.and_then(|f| seq.times.get(f)).map(|t| (t * 1e6).round() as i64);
+    let fail = |error: String| ScanFailure {
+        id: format!("{session}/{name}"),
+        session: session.to_string(),
+        path: path.to_owned(),
+        message_index: None,
+        utime,
+        error,
+    };
+    let Some(frame) = frame else {
+        return Err(fail(format!("{}: file name is not a frame number", path.display())));
+    };
+    let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
+    let mut scan = decode(&bytes, path).map_err(|e| fail(e.to_string()))?;
+    let raw_points = scan.points.len();
+    let mut intensity = Some(std::mem::take(&mut scan.reflectance));
+    let mut ring = None;
+    super::drop_invalid(&mut scan.points, &mut intensity, &mut ring);
+    Ok(Scan {
+        id: format!("{session}/{frame:06}"),
+        session: session.to_string(),
+        path: path.to_owned(),
+        message_index: None,
+        // Without times.txt, the frame number stands in (at KITTI's 10 Hz).
+        utime: utime.unwrap_or(frame as i64 * 100_000),
+        points: scan.points,
+        intensity,
+        ring,
+        raw_points,
+        pose: seq.poses.get(frame).copied(),
+    })
 }

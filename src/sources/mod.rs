@@ -9,11 +9,124 @@
 //! hence diagrams — are unchanged).
 
 pub mod csv;
+pub mod groundtruth;
 pub mod kitti;
+pub mod mcap;
+pub mod mcap_reader;
 pub mod nclt;
+pub mod pointcloud2;
 
 use crate::homology::Point;
 use std::path::{Path, PathBuf};
+
+/// A pose in the source's world frame (metres, z up; see each source for its frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose {
+    /// x (metres).
+    pub x: f64,
+    /// y (metres).
+    pub y: f64,
+    /// z (metres).
+    pub z: f64,
+    /// Heading about z (radians), when known (0 otherwise).
+    pub yaw: f64,
+}
+
+/// One LiDAR scan as a source yields it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scan {
+    /// Stable id, `<session>/<utime>` (NCLT), `<session>/<frame>` (KITTI) or
+    /// `<session>/<index>` (MCAP, index of the message on its topic).
+    pub id: String,
+    /// Session (NCLT date folder, KITTI sequence folder, MCAP file stem).
+    pub session: String,
+    /// The file it came from.
+    pub path: PathBuf,
+    /// MCAP: 0-based index of the message among the topic's point clouds.
+    pub message_index: Option<u64>,
+    /// Timestamp in microseconds.
+    pub utime: i64,
+    /// Points (metres, sensor frame, z up); non-finite and zero points already dropped.
+    pub points: Vec<Point>,
+    /// Per-point intensity, when the source has it.
+    pub intensity: Option<Vec<f32>>,
+    /// Per-point ring / laser id, when the source has it.
+    pub ring: Option<Vec<u16>>,
+    /// Points in the record before dropping non-finite and zero points.
+    pub raw_points: usize,
+    /// Ground-truth pose, when joined.
+    pub pose: Option<Pose>,
+}
+
+/// A scan that could not be read: where it was, and why. The stream goes on after it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScanFailure {
+    /// Best-effort id (as [`Scan::id`], or derived from the location).
+    pub id: String,
+    /// Session.
+    pub session: String,
+    /// The file.
+    pub path: PathBuf,
+    /// MCAP message index, when known.
+    pub message_index: Option<u64>,
+    /// Timestamp, when known.
+    pub utime: Option<i64>,
+    /// The error, naming the file (and message or record).
+    pub error: String,
+}
+
+impl std::fmt::Display for ScanFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.error)
+    }
+}
+
+/// A stream of scans; failures are items too, so one bad scan never stops a run.
+pub type ScanStream = Box<dyn Iterator<Item = Result<Scan, ScanFailure>> + Send>;
+
+/// Where scans come from (a `[[sources]]` table of a pipeline file).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum SourceSpec {
+    /// NCLT sessions.
+    Nclt(nclt::NcltSpec),
+    /// MCAP files with PointCloud2 messages.
+    Mcap(mcap::McapSpec),
+    /// KITTI odometry sequences.
+    Kitti(kitti::KittiSpec),
+}
+
+impl SourceSpec {
+    /// Opens the stream. Fails only when the source as a whole is unusable (a missing folder,
+    /// an MCAP without point clouds); per-scan problems are stream items.
+    pub fn open(&self) -> Result<ScanStream, SourceError> {
+        match self {
+            SourceSpec::Nclt(s) => s.open(),
+            SourceSpec::Mcap(s) => s.open(),
+            SourceSpec::Kitti(s) => s.open(),
+        }
+    }
+
+    /// Makes relative paths relative to `base` (the pipeline file's folder).
+    pub fn resolve_paths(&mut self, base: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        match self {
+            SourceSpec::Nclt(s) => {
+                s.sessions.iter_mut().for_each(fix);
+                s.groundtruth.iter_mut().for_each(fix);
+            }
+            SourceSpec::Mcap(s) => {
+                s.files.iter_mut().for_each(fix);
+                s.poses.iter_mut().for_each(fix);
+            }
+            SourceSpec::Kitti(s) => s.sequences.iter_mut().for_each(fix),
+        }
+    }
+}
 
 /// An error reading a source, naming the file.
 #[derive(Debug, thiserror::Error)]
@@ -60,6 +173,55 @@ pub enum SourceError {
         /// The file.
         path: PathBuf,
     },
+    /// The file or folder is not what the source expects.
+    #[error("{path}: {message}")]
+    Invalid {
+        /// The file or folder.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl SourceError {
+    /// An [`SourceError::Invalid`].
+    pub fn invalid(path: &Path, message: impl Into<String>) -> Self {
+        SourceError::Invalid { path: path.to_owned(), message: message.into() }
+    }
+}
+
+/// Lists `dir`'s files with extension `ext`, sorted by name.
+pub(crate) fn list_files(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, SourceError> {
+    let entries =
+        std::fs::read_dir(dir).map_err(|source| SourceError::Io { path: dir.to_owned(), source })?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case(ext)))
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+/// Drops non-finite and exact-zero points (no-returns), keeping channels aligned.
+pub(crate) fn drop_invalid(
+    points: &mut Vec<Point>,
+    intensity: &mut Option<Vec<f32>>,
+    ring: &mut Option<Vec<u16>>,
+) {
+    let keep: Vec<bool> = points.iter().map(|p| p.iter().all(|v| v.is_finite()) && *p != [0.0; 3]).collect();
+    if keep.iter().all(|&k| k) {
+        return;
+    }
+    let mut k = keep.iter();
+    points.retain(|_| *k.next().unwrap());
+    if let Some(v) = intensity {
+        let mut k = keep.iter();
+        v.retain(|_| *k.next().unwrap());
+    }
+    if let Some(v) = ring {
+        let mut k = keep.iter();
+        v.retain(|_| *k.next().unwrap());
+    }
 }
 
 /// A single-cloud file format.

@@ -3,9 +3,12 @@
 //! `raw · 0.005 − 100` m. Stored with z down; exposed as `(x, −y, −z)` (z up, see
 //! [`super`]).
 
-use super::SourceError;
+use super::groundtruth::GroundTruth;
+use super::{Scan, ScanFailure, ScanStream, SourceError};
 use crate::homology::Point;
-use std::path::Path;
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Bytes per record.
 pub const RECORD: usize = 8;
@@ -43,4 +46,407 @@ pub fn decode_sync(bytes: &[u8], path: &Path) -> Result<NcltScan, SourceError> {
         scan.laser.push(r[7]);
     }
     Ok(scan)
+}
+
+/// Magic of a `velodyne_hits.bin` packet: four u16 equal to 44444.
+pub const HITS_MAGIC: [u8; 8] = [0x9C, 0xAD, 0x9C, 0xAD, 0x9C, 0xAD, 0x9C, 0xAD];
+/// Bytes of a packet header: magic, u32 hit count, u64 utime, 4 padding bytes.
+pub const HITS_HEADER: usize = 24;
+
+/// Which NCLT files to read in a session.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NcltReader {
+    /// `velodyne_sync/<utime>.bin`, one file per scan.
+    #[default]
+    Sync,
+    /// The raw `velodyne_hits.bin` stream, cut into scans.
+    Hits,
+}
+
+/// `kind = "nclt"` in a pipeline file.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NcltSpec {
+    /// Session folders (named by date, holding `velodyne_sync/` or `velodyne_hits.bin`), or
+    /// folders holding such session folders.
+    pub sessions: Vec<PathBuf>,
+    /// Which files to read.
+    #[serde(default)]
+    pub reader: NcltReader,
+    /// Ground-truth CSV; default: `groundtruth_<session>.csv` found near each session.
+    #[serde(default)]
+    pub groundtruth: Option<PathBuf>,
+    /// Largest time gap for a pose join, milliseconds.
+    #[serde(default = "default_tolerance_ms")]
+    pub tolerance_ms: f64,
+    /// `hits` only: cut scans every this many milliseconds instead of at each full revolution.
+    #[serde(default)]
+    pub hits_period_ms: Option<f64>,
+}
+
+fn default_tolerance_ms() -> f64 {
+    100.0
+}
+
+/// Whether `dir` looks like one NCLT session.
+pub fn is_session(dir: &Path) -> bool {
+    dir.join("velodyne_sync").is_dir() || dir.join("velodyne_hits.bin").is_file()
+}
+
+impl NcltSpec {
+    /// A spec for given session folders with defaults.
+    pub fn sessions(sessions: Vec<PathBuf>) -> Self {
+        NcltSpec {
+            sessions,
+            reader: NcltReader::Sync,
+            groundtruth: None,
+            tolerance_ms: default_tolerance_ms(),
+            hits_period_ms: None,
+        }
+    }
+
+    /// The session folders, with parent folders expanded (sorted).
+    pub fn session_dirs(&self) -> Result<Vec<PathBuf>, SourceError> {
+        let mut out = Vec::new();
+        for s in &self.sessions {
+            if is_session(s) {
+                out.push(s.clone());
+                continue;
+            }
+            let entries =
+                std::fs::read_dir(s).map_err(|source| SourceError::Io { path: s.clone(), source })?;
+            let mut found: Vec<PathBuf> =
+                entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| is_session(p)).collect();
+            if found.is_empty() {
+                return Err(SourceError::invalid(
+                    s,
+                    "not an NCLT session (no velodyne_sync/ or velodyne_hits.bin)",
+                ));
+            }
+            found.sort();
+            out.extend(found);
+        }
+        Ok(out)
+    }
+
+    /// Opens the stream over all sessions, in order.
+    pub fn open(&self) -> Result<ScanStream, SourceError> {
+        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
+        let mut streams: Vec<ScanStream> = Vec::new();
+        for dir in self.session_dirs()? {
+            let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let gt_path =
+                self.groundtruth.clone().or_else(|| super::groundtruth::find_for_session(&dir, &session));
+            let gt = match gt_path {
+                Some(p) => Some(Arc::new(GroundTruth::read(&p)?)),
+                None => {
+                    tracing::info!(
+                        "{}: no groundtruth_{session}.csv found; scans have no pose",
+                        dir.display()
+                    );
+                    None
+                }
+            };
+            match self.reader {
+                NcltReader::Sync => {
+                    let files = super::list_files(&dir.join("velodyne_sync"), "bin")?;
+                    let mut files: Vec<(Option<i64>, PathBuf)> = files
+                        .into_iter()
+                        .map(|p| (p.file_stem().and_then(|s| s.to_str()?.parse().ok()), p))
+                        .collect();
+                    files.sort();
+                    let session = session.clone();
+                    streams.push(Box::new(files.into_iter().map(move |(utime, path)| {
+                        sync_scan(&path, &session, utime, gt.as_deref(), tolerance)
+                    })));
+                }
+                NcltReader::Hits => {
+                    let path = dir.join("velodyne_hits.bin");
+                    let file = std::fs::File::open(&path)
+                        .map_err(|source| SourceError::Io { path: path.clone(), source })?;
+                    let period = self.hits_period_ms.map(|ms| (ms * 1000.0).round() as i64);
+                    streams.push(Box::new(HitsScans::new(
+                        std::io::BufReader::new(file),
+                        path,
+                        session,
+                        period,
+                        gt,
+                        tolerance,
+                    )));
+                }
+            }
+        }
+        Ok(Box::new(streams.into_iter().flatten()))
+    }
+}
+
+fn sync_scan(
+    path: &Path,
+    session: &str,
+    utime: Option<i64>,
+    gt: Option<&GroundTruth>,
+    tolerance: i64,
+) -> Result<Scan, ScanFailure> {
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let fail = |error: String| ScanFailure {
+        id: format!("{session}/{name}"),
+        session: session.to_string(),
+        path: path.to_owned(),
+        message_index: None,
+        utime,
+        error,
+    };
+    let Some(utime) = utime else {
+        return Err(fail(format!("{}: file name is not a utime (µs)", path.display())));
+    };
+    let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
+    let scan = decode_sync(&bytes, path).map_err(|e| fail(e.to_string()))?;
+    Ok(to_scan(
+        scan,
+        format!("{session}/{utime}"),
+        session,
+        path,
+        utime,
+        gt.and_then(|g| g.pose_at(utime, tolerance)),
+    ))
+}
+
+fn to_scan(
+    scan: NcltScan,
+    id: String,
+    session: &str,
+    path: &Path,
+    utime: i64,
+    pose: Option<super::Pose>,
+) -> Scan {
+    Scan {
+        id,
+        session: session.to_string(),
+        path: path.to_owned(),
+        message_index: None,
+        utime,
+        raw_points: scan.points.len(),
+        points: scan.points,
+        intensity: Some(scan.intensity.iter().map(|&i| i as f32).collect()),
+        ring: Some(scan.laser.iter().map(|&l| l as u16).collect()),
+        pose,
+    }
+}
+
+/// Cuts the `velodyne_hits.bin` packet stream into scans: at each full revolution (the
+/// azimuth of packets' first hits, unwrapped, has turned 2π) or every `period` µs. A bad
+/// packet (wrong magic) is reported and skipped by searching for the next magic; a truncated
+/// tail ends the stream with an error.
+pub struct HitsScans<R> {
+    input: R,
+    path: PathBuf,
+    session: String,
+    period: Option<i64>,
+    gt: Option<Arc<GroundTruth>>,
+    tolerance: i64,
+    offset: u64,
+    current: NcltScan,
+    start_utime: Option<i64>,
+    turned: f64,
+    last_azimuth: Option<f64>,
+    pending: std::collections::VecDeque<Result<Scan, ScanFailure>>,
+    magic_consumed: bool,
+    done: bool,
+}
+
+impl<R: std::io::Read> HitsScans<R> {
+    /// Reads packets from `input` (the file `path`).
+    pub fn new(
+        input: R,
+        path: PathBuf,
+        session: String,
+        period: Option<i64>,
+        gt: Option<Arc<GroundTruth>>,
+        tolerance: i64,
+    ) -> Self {
+        HitsScans {
+            input,
+            path,
+            session,
+            period,
+            gt,
+            tolerance,
+            offset: 0,
+            current: NcltScan::default(),
+            start_utime: None,
+            turned: 0.0,
+            last_azimuth: None,
+            pending: Default::default(),
+            magic_consumed: false,
+            done: false,
+        }
+    }
+
+    fn failure(&self, error: String) -> ScanFailure {
+        ScanFailure {
+            id: format!("{}/hits@{}", self.session, self.offset),
+            session: self.session.clone(),
+            path: self.path.clone(),
+            message_index: None,
+            utime: None,
+            error: format!("{}: byte {}: {error}", self.path.display(), self.offset),
+        }
+    }
+
+    fn flush(&mut self) {
+        if let Some(utime) = self.start_utime.take()
+            && !self.current.points.is_empty()
+        {
+            let scan = std::mem::take(&mut self.current);
+            let pose = self.gt.as_ref().and_then(|g| g.pose_at(utime, self.tolerance));
+            let id = format!("{}/{utime}", self.session);
+            self.pending.push_back(Ok(to_scan(scan, id, &self.session, &self.path, utime, pose)));
+        }
+        self.current = NcltScan::default();
+        self.turned = 0.0;
+    }
+
+    /// Reads exactly `buf.len()` bytes; Ok(false) at a clean end of input.
+    fn read_exact_or_eof(&mut self, buf: &mut [u8]) -> Result<bool, String> {
+        let mut got = 0;
+        while got < buf.len() {
+            match self.input.read(&mut buf[got..]) {
+                Ok(0) if got == 0 => return Ok(false),
+                Ok(0) => {
+                    return Err(format!("truncated: file ends {got} bytes into a {}-byte read", buf.len()));
+                }
+                Ok(k) => got += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e.to_string()),
+            }
+        }
+        Ok(true)
+    }
+
+    /// Reads one packet; Ok(None) at the end.
+    fn packet(&mut self) -> Result<Option<(i64, Vec<u8>)>, String> {
+        if !self.magic_consumed {
+            let mut magic = [0u8; 8];
+            if !self.read_exact_or_eof(&mut magic)? {
+                return Ok(None);
+            }
+            if magic != HITS_MAGIC {
+                return Err(BAD_MAGIC.into());
+            }
+        }
+        self.magic_consumed = false;
+        let mut rest = [0u8; HITS_HEADER - 8];
+        if !self.read_exact_or_eof(&mut rest)? {
+            return Err("truncated: file ends after a packet magic".into());
+        }
+        let hits = u32::from_le_bytes(rest[..4].try_into().unwrap()) as usize;
+        let utime = u64::from_le_bytes(rest[4..12].try_into().unwrap()) as i64;
+        if hits > MAX_HITS {
+            return Err(format!("packet claims {hits} hits (corrupt header)"));
+        }
+        let mut body = vec![0u8; hits * RECORD];
+        if hits > 0 && !self.read_exact_or_eof(&mut body)? {
+            return Err("truncated: file ends after a packet header".into());
+        }
+        self.offset += (HITS_HEADER + body.len()) as u64;
+        Ok(Some((utime, body)))
+    }
+
+    /// Skips forward to just after the next magic; Ok(false) at the end of input.
+    fn resync(&mut self) -> Result<bool, String> {
+        let mut window = [0u8; 8];
+        let mut filled = 0;
+        loop {
+            let mut b = [0u8; 1];
+            if !self.read_exact_or_eof(&mut b)? {
+                return Ok(false);
+            }
+            self.offset += 1;
+            window.rotate_left(1);
+            window[7] = b[0];
+            filled += 1;
+            if filled >= 8 && window == HITS_MAGIC {
+                self.offset -= 8;
+                self.magic_consumed = true;
+                return Ok(true);
+            }
+        }
+    }
+
+    fn add_packet(&mut self, utime: i64, body: &[u8]) {
+        let packet = decode_sync(body, &self.path).expect("whole records");
+        let Some(first) = packet.points.first() else { return };
+        let azimuth = first[1].atan2(first[0]);
+        let delta = self.last_azimuth.map_or(0.0, |a| {
+            let d = azimuth - a;
+            // Into (−π, π]: the rotation between two packets is small.
+            d - (2.0 * PI) * ((d + PI) / (2.0 * PI)).floor()
+        });
+        self.last_azimuth = Some(azimuth);
+        let cut = match (self.period, self.start_utime) {
+            (Some(period), Some(start)) => utime - start >= period,
+            (Some(_), None) => false,
+            // (A hair under 2π: the sum of the packet steps rounds.)
+            (None, _) => (self.turned + delta).abs() >= 2.0 * PI - 1e-9,
+        };
+        if cut {
+            self.flush();
+        } else {
+            self.turned += delta;
+        }
+        self.start_utime.get_or_insert(utime);
+        self.current.points.extend(packet.points);
+        self.current.intensity.extend(packet.intensity);
+        self.current.laser.extend(packet.laser);
+    }
+}
+
+const BAD_MAGIC: &str = "bad packet magic (expected 4 × 0xAD9C); skipping to the next packet";
+/// More hits than any real packet holds: the header is corrupt.
+const MAX_HITS: usize = 1 << 20;
+
+impl<R: std::io::Read> Iterator for HitsScans<R> {
+    type Item = Result<Scan, ScanFailure>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(item) = self.pending.pop_front() {
+                return Some(item);
+            }
+            if self.done {
+                return None;
+            }
+            match self.packet() {
+                Ok(Some((utime, body))) => self.add_packet(utime, &body),
+                Ok(None) => {
+                    self.flush();
+                    self.done = true;
+                }
+                Err(e) if e == BAD_MAGIC => {
+                    let f = self.failure(e);
+                    self.pending.push_back(Err(f));
+                    match self.resync() {
+                        Ok(true) => {}
+                        Ok(false) => {
+                            self.flush();
+                            self.done = true;
+                        }
+                        Err(e) => {
+                            self.flush();
+                            let f = self.failure(e);
+                            self.pending.push_back(Err(f));
+                            self.done = true;
+                        }
+                    }
+                }
+                Err(e) => {
+                    self.flush();
+                    let f = self.failure(e);
+                    self.pending.push_back(Err(f));
+                    self.done = true;
+                }
+            }
+        }
+    }
 }

@@ -1,0 +1,338 @@
+//! `sensor_msgs/PointCloud2` messages in ROS 2 CDR and ROS 1 encodings (REFERENCE §7.1–7.3),
+//! decoded by the message's own `fields`: x, y, z and optional intensity and ring of any
+//! numeric type, any `point_step` and `row_step`, either byte order, organized or not.
+//! Points with a non-finite coordinate and exact `(0, 0, 0)` points (the no-return value of
+//! Ouster and others) are dropped; `raw_points` counts them all.
+
+/// Datatype codes of `sensor_msgs/PointField`.
+pub mod datatype {
+    /// int8
+    pub const INT8: u8 = 1;
+    /// uint8
+    pub const UINT8: u8 = 2;
+    /// int16
+    pub const INT16: u8 = 3;
+    /// uint16
+    pub const UINT16: u8 = 4;
+    /// int32
+    pub const INT32: u8 = 5;
+    /// uint32
+    pub const UINT32: u8 = 6;
+    /// float32
+    pub const FLOAT32: u8 = 7;
+    /// float64
+    pub const FLOAT64: u8 = 8;
+}
+
+/// Size in bytes of a PointField datatype.
+pub fn datatype_size(datatype: u8) -> Option<usize> {
+    Some(match datatype {
+        1 | 2 => 1,
+        3 | 4 => 2,
+        5..=7 => 4,
+        8 => 8,
+        _ => return None,
+    })
+}
+
+/// One `PointField`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointField {
+    /// Field name.
+    pub name: String,
+    /// Byte offset in a point.
+    pub offset: u32,
+    /// Datatype code.
+    pub datatype: u8,
+    /// Element count.
+    pub count: u32,
+}
+
+/// A parsed `PointCloud2`, borrowing its data.
+#[derive(Clone, Debug)]
+pub struct PointCloud2<'a> {
+    /// Header stamp in nanoseconds.
+    pub stamp_ns: i64,
+    /// Header frame id.
+    pub frame_id: String,
+    /// Rows (1 for unorganized clouds).
+    pub height: u32,
+    /// Points per row.
+    pub width: u32,
+    /// Field layout.
+    pub fields: Vec<PointField>,
+    /// Byte order of `data`.
+    pub is_bigendian: bool,
+    /// Bytes per point.
+    pub point_step: u32,
+    /// Bytes per row.
+    pub row_step: u32,
+    /// Point bytes.
+    pub data: &'a [u8],
+}
+
+/// The encodings understood.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Encoding {
+    /// ROS 2 CDR (with its 4-byte encapsulation header).
+    Cdr,
+    /// ROS 1 serialization.
+    Ros1,
+}
+
+/// A cursor over a serialized message: CDR (aligned from `origin`, either byte order) or ROS 1
+/// (packed little-endian).
+struct Cursor<'a> {
+    buf: &'a [u8],
+    pos: usize,
+    little: bool,
+    /// Alignment origin (CDR: 4, after the encapsulation header); None = packed (ROS 1).
+    origin: Option<usize>,
+    /// XCDR2 aligns 8-byte values to 4.
+    max_align: usize,
+}
+
+impl<'a> Cursor<'a> {
+    fn align(&mut self, n: usize) {
+        if let Some(o) = self.origin {
+            let n = n.min(self.max_align);
+            let rel = self.pos - o;
+            self.pos = o + rel.div_ceil(n) * n;
+        }
+    }
+
+    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], String> {
+        let end = self.pos.checked_add(n).filter(|&e| e <= self.buf.len());
+        let end = end
+            .ok_or_else(|| format!("message ends inside {what} (needs {n} bytes at offset {})", self.pos))?;
+        let s = &self.buf[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+
+    fn u8(&mut self, what: &str) -> Result<u8, String> {
+        Ok(self.take(1, what)?[0])
+    }
+
+    fn u32(&mut self, what: &str) -> Result<u32, String> {
+        self.align(4);
+        let b: [u8; 4] = self.take(4, what)?.try_into().unwrap();
+        Ok(if self.little { u32::from_le_bytes(b) } else { u32::from_be_bytes(b) })
+    }
+
+    fn string(&mut self, what: &str) -> Result<String, String> {
+        let len = self.u32(what)? as usize;
+        let bytes = self.take(len, what)?;
+        // CDR counts the terminating NUL; ROS 1 does not.
+        let bytes = if self.origin.is_some() { bytes.strip_suffix(&[0]).unwrap_or(bytes) } else { bytes };
+        Ok(String::from_utf8_lossy(bytes).into_owned())
+    }
+}
+
+/// Parses a serialized `PointCloud2`.
+pub fn parse(buf: &[u8], encoding: Encoding) -> Result<PointCloud2<'_>, String> {
+    let mut c = match encoding {
+        Encoding::Cdr => {
+            if buf.len() < 4 {
+                return Err("message shorter than the 4-byte CDR header".into());
+            }
+            let kind = buf[1];
+            let xcdr2 = matches!(kind, 0x06..=0x0b | 0x10..=0x15);
+            Cursor {
+                buf,
+                pos: 4,
+                little: kind % 2 == 1,
+                origin: Some(4),
+                max_align: if xcdr2 { 4 } else { 8 },
+            }
+        }
+        Encoding::Ros1 => Cursor { buf, pos: 0, little: true, origin: None, max_align: 8 },
+    };
+    let stamp_ns = match encoding {
+        Encoding::Cdr => {
+            let sec = c.u32("header.stamp.sec")? as i32 as i64;
+            sec * 1_000_000_000 + c.u32("header.stamp.nanosec")? as i64
+        }
+        Encoding::Ros1 => {
+            c.u32("header.seq")?;
+            let sec = c.u32("header.stamp.secs")? as i64;
+            sec * 1_000_000_000 + c.u32("header.stamp.nsecs")? as i64
+        }
+    };
+    let frame_id = c.string("header.frame_id")?;
+    let height = c.u32("height")?;
+    let width = c.u32("width")?;
+    let n_fields = c.u32("fields")? as usize;
+    if n_fields > 1024 {
+        return Err(format!("{n_fields} fields: corrupt message"));
+    }
+    let mut fields = Vec::with_capacity(n_fields);
+    for _ in 0..n_fields {
+        let name = c.string("field name")?;
+        let offset = c.u32("field offset")?;
+        let datatype = c.u8("field datatype")?;
+        let count = c.u32("field count")?;
+        fields.push(PointField { name, offset, datatype, count });
+    }
+    let is_bigendian = c.u8("is_bigendian")? != 0;
+    let point_step = c.u32("point_step")?;
+    let row_step = c.u32("row_step")?;
+    let len = c.u32("data")? as usize;
+    let data = c.take(len, "data")?;
+    Ok(PointCloud2 { stamp_ns, frame_id, height, width, fields, is_bigendian, point_step, row_step, data })
+}
+
+/// Points of a cloud in metres, with optional per-point channels.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DecodedCloud {
+    /// Kept points.
+    pub points: Vec<[f64; 3]>,
+    /// Intensity of kept points, when the cloud has a field `intensity` (or `reflectance`).
+    pub intensity: Option<Vec<f32>>,
+    /// Ring of kept points, when the cloud has a field `ring` (or `laser_id`).
+    pub ring: Option<Vec<u16>>,
+    /// Points in the message, before dropping non-finite and zero points.
+    pub raw_points: usize,
+}
+
+type ReadFn = fn(&[u8]) -> f64;
+
+fn read_fn(datatype: u8, big: bool) -> Option<ReadFn> {
+    macro_rules! f {
+        ($t:ty, $n:expr) => {
+            if big {
+                |b: &[u8]| <$t>::from_be_bytes(b[..$n].try_into().unwrap()) as f64
+            } else {
+                |b: &[u8]| <$t>::from_le_bytes(b[..$n].try_into().unwrap()) as f64
+            }
+        };
+    }
+    Some(match datatype {
+        datatype::INT8 => |b: &[u8]| b[0] as i8 as f64,
+        datatype::UINT8 => |b: &[u8]| b[0] as f64,
+        datatype::INT16 => f!(i16, 2),
+        datatype::UINT16 => f!(u16, 2),
+        datatype::INT32 => f!(i32, 4),
+        datatype::UINT32 => f!(u32, 4),
+        datatype::FLOAT32 => f!(f32, 4),
+        datatype::FLOAT64 => f!(f64, 8),
+        _ => return None,
+    })
+}
+
+impl PointCloud2<'_> {
+    /// Looks up a field by name; checks it fits in `point_step`.
+    fn field(&self, names: &[&str]) -> Result<Option<(usize, ReadFn)>, String> {
+        let Some(f) = self.fields.iter().find(|f| names.contains(&f.name.as_str())) else {
+            return Ok(None);
+        };
+        let size = datatype_size(f.datatype)
+            .ok_or_else(|| format!("field `{}` has unknown datatype {}", f.name, f.datatype))?;
+        if f.offset as usize + size > self.point_step as usize {
+            return Err(format!(
+                "field `{}` (offset {}, {size} bytes) does not fit in point_step {}",
+                f.name, f.offset, self.point_step
+            ));
+        }
+        Ok(Some((f.offset as usize, read_fn(f.datatype, self.is_bigendian).unwrap())))
+    }
+
+    /// Decodes the points (see the module doc for what is dropped).
+    pub fn decode(&self) -> Result<DecodedCloud, String> {
+        let [x, y, z] = ["x", "y", "z"].map(|n| self.field(&[n]));
+        let (Some(x), Some(y), Some(z)) = (x?, y?, z?) else {
+            let names: Vec<&str> = self.fields.iter().map(|f| f.name.as_str()).collect();
+            return Err(format!("PointCloud2 has no x, y, z fields (fields: {names:?})"));
+        };
+        let intensity = self.field(&["intensity", "reflectance", "i"])?;
+        let ring = self.field(&["ring", "laser_id"])?;
+        let (h, w, ps, rs) =
+            (self.height as usize, self.width as usize, self.point_step as usize, self.row_step as usize);
+        if w > 0 && h > 0 && ps == 0 {
+            return Err("point_step is 0".into());
+        }
+        if h > 0 && rs < w * ps {
+            return Err(format!("row_step {rs} is smaller than width {w} × point_step {ps}"));
+        }
+        let needed = if h == 0 { 0 } else { (h - 1) * rs + w * ps };
+        if self.data.len() < needed {
+            return Err(format!(
+                "data has {} bytes; height {h} × row_step {rs} needs {needed}",
+                self.data.len()
+            ));
+        }
+        let raw = h * w;
+        let mut out = DecodedCloud {
+            points: Vec::with_capacity(raw),
+            intensity: intensity.map(|_| Vec::with_capacity(raw)),
+            ring: ring.map(|_| Vec::with_capacity(raw)),
+            raw_points: raw,
+        };
+        for row in 0..h {
+            let row_bytes = &self.data[row * rs..row * rs + w * ps];
+            for p in row_bytes.chunks_exact(ps) {
+                let q = [x.1(&p[x.0..]), y.1(&p[y.0..]), z.1(&p[z.0..])];
+                if !q.iter().all(|v| v.is_finite()) || q == [0.0; 3] {
+                    continue;
+                }
+                out.points.push(q);
+                if let (Some(v), Some(f)) = (&mut out.intensity, intensity) {
+                    v.push(f.1(&p[f.0..]) as f32);
+                }
+                if let (Some(v), Some(f)) = (&mut out.ring, ring) {
+                    v.push(f.1(&p[f.0..]) as u16);
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Serializes a `PointCloud2` little-endian (test fixtures, the simulator's MCAP writer).
+pub fn serialize(cloud: &PointCloud2<'_>, encoding: Encoding) -> Vec<u8> {
+    let mut out = Vec::with_capacity(cloud.data.len() + 256);
+    let cdr = encoding == Encoding::Cdr;
+    let align = |out: &mut Vec<u8>, n: usize| {
+        if cdr {
+            while (out.len() - 4) % n != 0 {
+                out.push(0);
+            }
+        }
+    };
+    let put_u32 = |out: &mut Vec<u8>, v: u32| {
+        align(out, 4);
+        out.extend_from_slice(&v.to_le_bytes());
+    };
+    let put_str = |out: &mut Vec<u8>, s: &str| {
+        put_u32(out, (s.len() + cdr as usize) as u32);
+        out.extend_from_slice(s.as_bytes());
+        if cdr {
+            out.push(0);
+        }
+    };
+    let (sec, nsec) = (cloud.stamp_ns.div_euclid(1_000_000_000), cloud.stamp_ns.rem_euclid(1_000_000_000));
+    if cdr {
+        out.extend_from_slice(&[0, 1, 0, 0]);
+    } else {
+        out.extend_from_slice(&0u32.to_le_bytes()); // seq
+    }
+    put_u32(&mut out, sec as u32);
+    put_u32(&mut out, nsec as u32);
+    put_str(&mut out, &cloud.frame_id);
+    put_u32(&mut out, cloud.height);
+    put_u32(&mut out, cloud.width);
+    put_u32(&mut out, cloud.fields.len() as u32);
+    for f in &cloud.fields {
+        put_str(&mut out, &f.name);
+        put_u32(&mut out, f.offset);
+        out.push(f.datatype);
+        put_u32(&mut out, f.count);
+    }
+    out.push(cloud.is_bigendian as u8);
+    put_u32(&mut out, cloud.point_step);
+    put_u32(&mut out, cloud.row_step);
+    put_u32(&mut out, cloud.data.len() as u32);
+    out.extend_from_slice(cloud.data);
+    out.push(1); // is_dense
+    out
+}

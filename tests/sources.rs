@@ -1,0 +1,702 @@
+//! Sources: real files in ../shared/data, byte fixtures written here (every PointCloud2
+//! layout variant, MCAP compressions and summary-less files), bad input, and fuzzing.
+
+use crate::util::*;
+use proptest::prelude::*;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use toporec::sources::groundtruth::GroundTruth;
+use toporec::sources::kitti::KittiSpec;
+use toporec::sources::mcap::McapSpec;
+use toporec::sources::mcap_reader::McapMessages;
+use toporec::sources::nclt::{HITS_MAGIC, HitsScans, NcltSpec};
+use toporec::sources::pointcloud2::{self, Encoding, PointCloud2, PointField, datatype};
+use toporec::sources::{Scan, ScanFailure, SourceSpec};
+
+fn collect(spec: SourceSpec) -> (Vec<Scan>, Vec<ScanFailure>) {
+    let mut ok = Vec::new();
+    let mut bad = Vec::new();
+    for item in spec.open().unwrap_or_else(|e| panic!("{e}")) {
+        match item {
+            Ok(s) => ok.push(s),
+            Err(f) => bad.push(f),
+        }
+    }
+    (ok, bad)
+}
+
+// ---------------------------------------------------------------- real files
+
+#[test]
+fn real_nclt_scan() {
+    let Some(data) = shared_data("real_nclt_scan") else { return };
+    let (scans, bad) = collect(SourceSpec::Nclt(NcltSpec::sessions(vec![data.join("nclt/2012-01-15")])));
+    assert!(bad.is_empty());
+    assert_eq!(scans.len(), 1);
+    let s = &scans[0];
+    assert_eq!((s.points.len(), s.raw_points), (23_546, 23_546));
+    assert_eq!(
+        (s.id.as_str(), s.session.as_str(), s.utime),
+        ("2012-01-15/1326652795280148", "2012-01-15", 1326652795280148)
+    );
+    let ring = s.ring.as_ref().unwrap();
+    assert_eq!((ring.iter().min(), ring.iter().max()), (Some(&0), Some(&31)));
+    let mut ids: Vec<u16> = ring.clone();
+    ids.sort();
+    ids.dedup();
+    assert_eq!(ids.len(), 32, "all 32 lasers present");
+    let max_range =
+        s.points.iter().map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()).fold(0.0, f64::max);
+    assert!(max_range <= 81.0 && max_range > 75.0, "max range {max_range}");
+    assert!(s.pose.is_none(), "no ground truth beside this scan");
+}
+
+#[test]
+fn real_ros1_mcap() {
+    let Some(data) = shared_data("real_ros1_mcap") else { return };
+    let path = data.join("mcap/ouster_os1_ros1.mcap");
+    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&path)));
+    assert!(bad.is_empty(), "{bad:?}");
+    assert_eq!(scans.len(), 2, "2 clouds on /os1_cloud_node/points");
+    for (i, s) in scans.iter().enumerate() {
+        assert_eq!(s.raw_points, 131_072, "64 x 2048 before dropping");
+        assert_eq!(s.message_index, Some(i as u64));
+        assert_eq!(s.id, format!("ouster_os1_ros1/{i:06}"));
+        assert_eq!(s.intensity.as_ref().unwrap().len(), s.points.len());
+        assert!(s.ring.as_ref().unwrap().iter().all(|&r| r < 64));
+        assert!(s.points.iter().all(|p| p.iter().all(|v| v.is_finite()) && *p != [0.0; 3]));
+    }
+    // Kept after dropping the (0, 0, 0) no-returns (reported in the README).
+    assert_eq!([scans[0].points.len(), scans[1].points.len()], [45_716, 45_809]);
+}
+
+fn kitti_points(path: &Path) -> Vec<[f64; 3]> {
+    read_cloud(path)
+}
+
+#[test]
+fn real_ros2_mcap_equals_kitti_files() {
+    let Some(data) = shared_data("real_ros2_mcap_equals_kitti_files") else { return };
+    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&data.join("mcap/kitti_ros2_cdr.mcap"))));
+    assert!(bad.is_empty(), "{bad:?}");
+    let counts: Vec<usize> = scans.iter().map(|s| s.points.len()).collect();
+    assert_eq!(counts, [121_618, 121_671, 123_034, 122_914]);
+    for (s, frame) in scans.iter().zip(["000094", "000095", "000198", "000199"]) {
+        let k = kitti_points(&data.join(format!("kitti/sequences/00/velodyne/{frame}.bin")));
+        // Both decode float32 to f64 losslessly: equal as float32 means equal here.
+        assert!(s.points == k, "message {:?} differs from KITTI {frame}", s.message_index);
+    }
+}
+
+#[test]
+fn real_nclt_session_joins_ground_truth() {
+    let Some(data) = shared_data("real_nclt_session_joins_ground_truth") else { return };
+    // The folder holding the session: expanded to its sessions; ground truth found beside.
+    let (scans, bad) = collect(SourceSpec::Nclt(NcltSpec::sessions(vec![data.join("nclt_from_kitti")])));
+    assert!(bad.is_empty());
+    assert_eq!(scans.len(), 14);
+    assert!(scans.windows(2).all(|w| w[0].utime < w[1].utime), "sorted by utime");
+    let gt = GroundTruth::read(&data.join("nclt_from_kitti/groundtruth_2011-10-03.csv")).unwrap();
+    for s in &scans {
+        let pose = s.pose.unwrap_or_else(|| panic!("{} has no pose", s.id));
+        let row = gt.rows.iter().find(|r| r.0 == s.utime).expect("an exact ground-truth row");
+        assert_eq!(pose, row.1);
+    }
+    // z up: the ground (2 m below the sensor) has negative z.
+    let zs: Vec<f64> = scans[0].points.iter().map(|p| p[2]).collect();
+    let below = zs.iter().filter(|&&z| z < -1.0).count();
+    assert!(below > zs.len() / 4, "most returns are ground below the sensor: {below}/{}", zs.len());
+}
+
+#[test]
+fn real_kitti_sequence_with_times_and_poses() {
+    let Some(data) = shared_data("real_kitti_sequence_with_times_and_poses") else { return };
+    let dir = data.join("kitti/sequences/00");
+    let (scans, bad) = collect(SourceSpec::Kitti(KittiSpec { sequences: vec![dir.clone()] }));
+    assert!(bad.is_empty());
+    let ids: Vec<&str> = scans.iter().map(|s| s.id.as_str()).collect();
+    assert_eq!(
+        ids,
+        [
+            "00/000000",
+            "00/000003",
+            "00/000006",
+            "00/000009",
+            "00/000094",
+            "00/000095",
+            "00/000198",
+            "00/000199"
+        ]
+    );
+    let times: Vec<f64> = std::fs::read_to_string(dir.join("times.txt"))
+        .unwrap()
+        .lines()
+        .map(|l| l.trim().parse().unwrap())
+        .collect();
+    let pose_line: Vec<f64> = std::fs::read_to_string(dir.join("poses.txt"))
+        .unwrap()
+        .lines()
+        .nth(198)
+        .unwrap()
+        .split_whitespace()
+        .map(|x| x.parse().unwrap())
+        .collect();
+    let s = &scans[6];
+    assert_eq!(s.utime, (times[198] * 1e6).round() as i64);
+    let p = s.pose.unwrap();
+    assert_eq!(
+        (p.x, p.y, p.z),
+        (pose_line[11], -pose_line[3], -pose_line[7]),
+        "camera (x right, y down, z fwd) → z up"
+    );
+}
+
+// ---------------------------------------------------------------- PointCloud2 byte fixtures
+
+struct Layout {
+    fields: Vec<PointField>,
+    point_step: u32,
+    big: bool,
+}
+
+fn field(name: &str, offset: u32, datatype: u8) -> PointField {
+    PointField { name: name.into(), offset, datatype, count: 1 }
+}
+
+fn put(buf: &mut [u8], datatype: u8, big: bool, v: f64) {
+    macro_rules! w {
+        ($t:ty) => {{
+            let b = if big { (v as $t).to_be_bytes() } else { (v as $t).to_le_bytes() };
+            buf[..b.len()].copy_from_slice(&b);
+        }};
+    }
+    match datatype {
+        datatype::INT8 => w!(i8),
+        datatype::UINT8 => w!(u8),
+        datatype::INT16 => w!(i16),
+        datatype::UINT16 => w!(u16),
+        datatype::INT32 => w!(i32),
+        datatype::UINT32 => w!(u32),
+        datatype::FLOAT32 => w!(f32),
+        _ => w!(f64),
+    }
+}
+
+/// Points (x, y, z, intensity, ring) → a serialized cloud with the layout; `height` rows with
+/// `row_pad` bytes of padding per row.
+fn cloud_bytes(
+    points: &[[f64; 5]],
+    layout: &Layout,
+    height: u32,
+    row_pad: u32,
+    encoding: Encoding,
+) -> Vec<u8> {
+    let width = points.len() as u32 / height;
+    let row_step = width * layout.point_step + row_pad;
+    let mut data = vec![0xEEu8; (row_step * height) as usize];
+    for (i, p) in points.iter().enumerate() {
+        let (row, col) = (i as u32 / width, i as u32 % width);
+        let base = (row * row_step + col * layout.point_step) as usize;
+        for f in &layout.fields {
+            let v = match f.name.as_str() {
+                "x" => p[0],
+                "y" => p[1],
+                "z" => p[2],
+                "intensity" => p[3],
+                "ring" => p[4],
+                _ => 7.0,
+            };
+            put(&mut data[base + f.offset as usize..], f.datatype, layout.big, v);
+        }
+    }
+    let cloud = PointCloud2 {
+        stamp_ns: 1_700_000_000_123_456_789,
+        frame_id: "lidar".into(),
+        height,
+        width,
+        fields: layout.fields.clone(),
+        is_bigendian: layout.big,
+        point_step: layout.point_step,
+        row_step,
+        data: &data,
+    };
+    pointcloud2::serialize(&cloud, encoding)
+}
+
+fn sample_points() -> Vec<[f64; 5]> {
+    (0..12)
+        .map(|i| {
+            [i as f64 * 0.5 - 2.0, 1.0 + i as f64 * 0.25, -0.75 * i as f64, 10.0 * i as f64, (i % 4) as f64]
+        })
+        .collect()
+}
+
+#[test]
+fn pointcloud2_layouts_decode_by_their_fields() {
+    use datatype::*;
+    let layouts = [
+        (
+            "plain f32 LE",
+            Layout {
+                fields: vec![
+                    field("x", 0, FLOAT32),
+                    field("y", 4, FLOAT32),
+                    field("z", 8, FLOAT32),
+                    field("intensity", 12, FLOAT32),
+                ],
+                point_step: 16,
+                big: false,
+            },
+        ),
+        (
+            "big-endian",
+            Layout {
+                fields: vec![
+                    field("x", 0, FLOAT32),
+                    field("y", 4, FLOAT32),
+                    field("z", 8, FLOAT32),
+                    field("intensity", 12, UINT16),
+                    field("ring", 14, UINT8),
+                ],
+                point_step: 16,
+                big: true,
+            },
+        ),
+        (
+            "float64",
+            Layout {
+                fields: vec![field("x", 0, FLOAT64), field("y", 8, FLOAT64), field("z", 16, FLOAT64)],
+                point_step: 24,
+                big: false,
+            },
+        ),
+        (
+            "extra fields + padding, shuffled order",
+            Layout {
+                fields: vec![
+                    field("t", 0, UINT32),
+                    field("z", 12, FLOAT32),
+                    field("ring", 16, UINT16),
+                    field("x", 4, FLOAT32),
+                    field("y", 8, FLOAT32),
+                    field("noise", 18, INT16),
+                    field("intensity", 20, INT8),
+                ],
+                point_step: 48,
+                big: false,
+            },
+        ),
+    ];
+    let points = sample_points();
+    for (name, layout) in &layouts {
+        for encoding in [Encoding::Cdr, Encoding::Ros1] {
+            for (height, pad) in [(1, 0), (3, 5)] {
+                let bytes = cloud_bytes(&points, layout, height, pad, encoding);
+                let msg = pointcloud2::parse(&bytes, encoding).unwrap_or_else(|e| panic!("{name}: {e}"));
+                assert_eq!((msg.stamp_ns, msg.frame_id.as_str()), (1_700_000_000_123_456_789, "lidar"));
+                let cloud = msg.decode().unwrap_or_else(|e| panic!("{name}: {e}"));
+                assert_eq!(cloud.raw_points, 12);
+                // The first sample point is (−2, 1, 0): kept (only exact zeros are dropped).
+                let expected: Vec<[f64; 3]> = points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+                assert_eq!(cloud.points, expected, "{name} {encoding:?} height {height}");
+                let has = |f: &str| layout.fields.iter().any(|x| x.name == f);
+                assert_eq!(cloud.intensity.is_some(), has("intensity"), "{name}");
+                if let Some(i) = &cloud.intensity {
+                    let want: Vec<f32> = points
+                        .iter()
+                        .map(|p| if name.contains("extra") { p[3].min(127.0) as f32 } else { p[3] as f32 })
+                        .collect();
+                    assert_eq!(i, &want, "{name}");
+                }
+                if let Some(r) = &cloud.ring {
+                    assert_eq!(r, &points.iter().map(|p| p[4] as u16).collect::<Vec<_>>(), "{name}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn pointcloud2_drops_nan_and_zero_points_and_rejects_bad_layouts() {
+    use datatype::*;
+    let layout = Layout {
+        fields: vec![field("x", 0, FLOAT32), field("y", 4, FLOAT32), field("z", 8, FLOAT32)],
+        point_step: 12,
+        big: false,
+    };
+    let mut points = sample_points();
+    points[3][1] = f64::NAN;
+    points[5][0] = f64::INFINITY;
+    points[7] = [0.0; 5];
+    let bytes = cloud_bytes(&points, &layout, 1, 0, Encoding::Cdr);
+    let cloud = pointcloud2::parse(&bytes, Encoding::Cdr).unwrap().decode().unwrap();
+    assert_eq!((cloud.raw_points, cloud.points.len()), (12, 9));
+    // No x/y/z.
+    let no_xyz =
+        Layout { fields: vec![field("a", 0, FLOAT32), field("b", 4, FLOAT32)], point_step: 8, big: false };
+    let e = pointcloud2::parse(&cloud_bytes(&points, &no_xyz, 1, 0, Encoding::Cdr), Encoding::Cdr)
+        .unwrap()
+        .decode()
+        .unwrap_err();
+    assert!(e.contains("no x, y, z"), "{e}");
+    // point_step smaller than the fields.
+    let mut small = cloud_bytes(&points, &layout, 1, 0, Encoding::Ros1);
+    let msg = pointcloud2::parse(&small, Encoding::Ros1).unwrap();
+    let bad = PointCloud2 { point_step: 10, row_step: 120, ..msg.clone() };
+    let e = bad.decode().unwrap_err();
+    assert!(e.contains("does not fit in point_step 10"), "{e}");
+    // Data shorter than height × row_step; a message cut short.
+    let short = PointCloud2 { data: &msg.data[..100], ..msg.clone() };
+    assert!(short.decode().unwrap_err().contains("needs 144"));
+    small.truncate(small.len() - 30);
+    assert!(pointcloud2::parse(&small, Encoding::Ros1).unwrap_err().contains("message ends inside data"));
+}
+
+// ---------------------------------------------------------------- MCAP fixtures
+
+const ROS2_SCHEMA: &str = "sensor_msgs/msg/PointCloud2";
+
+struct McapOptions {
+    compression: Option<mcap::Compression>,
+    summary: bool,
+    chunk_size: Option<u64>,
+}
+
+/// Writes `clouds` (serialized CDR PointCloud2) on /points plus chatter on /other.
+fn write_mcap(path: &Path, clouds: &[Vec<u8>], o: &McapOptions) {
+    let mut opts =
+        mcap::WriteOptions::new().compression(o.compression).chunk_size(o.chunk_size).profile("ros2");
+    if !o.summary {
+        opts = opts
+            .emit_summary_records(false)
+            .emit_summary_offsets(false)
+            .emit_statistics(false)
+            .emit_chunk_indexes(false)
+            .emit_message_indexes(false)
+            .emit_attachment_indexes(false)
+            .emit_metadata_indexes(false);
+    }
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = opts.create(file).unwrap();
+    let schema = w.add_schema(ROS2_SCHEMA, "ros2msg", b"# PointCloud2").unwrap();
+    let cloud_channel = w.add_channel(schema, "/points", "cdr", &BTreeMap::new()).unwrap();
+    let other_schema = w.add_schema("std_msgs/msg/String", "ros2msg", b"string data").unwrap();
+    let other = w.add_channel(other_schema, "/other", "cdr", &BTreeMap::new()).unwrap();
+    for (i, c) in clouds.iter().enumerate() {
+        let header = |channel_id, t: u64| mcap::records::MessageHeader {
+            channel_id,
+            sequence: i as u32,
+            log_time: t,
+            publish_time: t,
+        };
+        w.write_to_known_channel(&header(other, 10 * i as u64), b"\x00\x01\x00\x00\x03\x00\x00\x00hi\x00")
+            .unwrap();
+        w.write_to_known_channel(&header(cloud_channel, 10 * i as u64 + 5), c).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+fn test_clouds(n: usize) -> Vec<Vec<u8>> {
+    use datatype::*;
+    let layout = Layout {
+        fields: vec![
+            field("x", 0, FLOAT32),
+            field("y", 4, FLOAT32),
+            field("z", 8, FLOAT32),
+            field("intensity", 12, FLOAT32),
+        ],
+        point_step: 16,
+        big: false,
+    };
+    (0..n)
+        .map(|k| {
+            let pts: Vec<[f64; 5]> =
+                sample_points().iter().map(|p| [p[0] + k as f64, p[1], p[2], p[3], p[4]]).collect();
+            cloud_bytes(&pts, &layout, 1, 0, Encoding::Cdr)
+        })
+        .collect()
+}
+
+#[test]
+fn mcap_zstd_lz4_plain_and_summaryless_files_read_alike() {
+    let dir = scratch_dir("mcap_variants");
+    let clouds = test_clouds(5);
+    let mut reference: Option<Vec<Scan>> = None;
+    for (name, compression, summary) in [
+        ("zstd", Some(mcap::Compression::Zstd), true),
+        ("lz4", Some(mcap::Compression::Lz4), true),
+        ("none", None, true),
+        ("zstd-no-summary", Some(mcap::Compression::Zstd), false),
+        ("lz4-no-summary", Some(mcap::Compression::Lz4), false),
+    ] {
+        let path = dir.join(format!("{name}.mcap"));
+        write_mcap(&path, &clouds, &McapOptions { compression, summary, chunk_size: Some(600) });
+        assert_eq!(toporec::sources::mcap_reader::summary_channels(&path).is_some(), summary, "{name}");
+        let spec = McapSpec { session: Some("s".into()), ..McapSpec::file(&path) };
+        let (scans, bad) = collect(SourceSpec::Mcap(spec));
+        assert!(bad.is_empty(), "{name}: {bad:?}");
+        assert_eq!(scans.len(), 5, "{name}");
+        assert_eq!(scans[2].points[0], [0.0, 1.0, 0.0], "{name}: (-2 + 2, 1, 0)");
+        assert_eq!(scans[0].utime, 1_700_000_000_123_456, "{name}: header stamp in µs");
+        let scans: Vec<Scan> = scans.into_iter().map(|s| Scan { path: PathBuf::new(), ..s }).collect();
+        match &reference {
+            None => reference = Some(scans),
+            Some(r) => assert_eq!(&scans, r, "{name} reads like zstd"),
+        }
+    }
+}
+
+#[test]
+fn corrupt_and_truncated_mcap_lose_only_the_bad_chunk() {
+    let dir = scratch_dir("mcap_corrupt");
+    let clouds = test_clouds(6);
+    let path = dir.join("good.mcap");
+    // Small chunks: about one cloud per chunk.
+    write_mcap(
+        &path,
+        &clouds,
+        &McapOptions { compression: Some(mcap::Compression::Zstd), summary: true, chunk_size: Some(300) },
+    );
+    let bytes = std::fs::read(&path).unwrap();
+    // Flip bytes in the middle of the file: inside some chunk's compressed data.
+    let mut corrupt = bytes.clone();
+    let mid = bytes.len() / 2;
+    for b in &mut corrupt[mid..mid + 16] {
+        *b ^= 0x5A;
+    }
+    let bad_path = dir.join("corrupt.mcap");
+    std::fs::write(&bad_path, &corrupt).unwrap();
+    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&bad_path)));
+    assert!(!bad.is_empty(), "the corruption is reported");
+    assert!(scans.len() >= 4 && scans.len() < 6, "{} scans survive", scans.len());
+    for f in &bad {
+        assert!(
+            f.error.contains("corrupt.mcap") && (f.error.contains("chunk") || f.error.contains("byte")),
+            "{}",
+            f.error
+        );
+    }
+    // Truncated: the scans before the cut, then one error naming the file.
+    let cut = dir.join("truncated.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let spec = McapSpec { topic: Some("/points".into()), ..McapSpec::file(&cut) };
+    let (scans, bad) = collect(SourceSpec::Mcap(spec));
+    assert!((2..6).contains(&scans.len()), "{} scans before the cut", scans.len());
+    assert_eq!(bad.len(), 1);
+    assert!(bad[0].error.contains("truncated.mcap"), "{}", bad[0].error);
+    // A message without x/y/z on the topic: that message fails, the rest read.
+    let mut mixed = test_clouds(3);
+    let no_xyz = Layout { fields: vec![field("a", 0, datatype::FLOAT32)], point_step: 4, big: false };
+    mixed[1] = cloud_bytes(&sample_points(), &no_xyz, 1, 0, Encoding::Cdr);
+    let p = dir.join("mixed.mcap");
+    write_mcap(&p, &mixed, &McapOptions { compression: None, summary: true, chunk_size: None });
+    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&p)));
+    assert_eq!(scans.len(), 2);
+    assert_eq!(bad.len(), 1);
+    assert_eq!(bad[0].message_index, Some(1));
+    assert!(
+        bad[0].error.contains("mixed.mcap: message 1 on /points: PointCloud2 has no x, y, z"),
+        "{}",
+        bad[0].error
+    );
+    // Wrong topic names are explained.
+    let e = McapSpec { topic: Some("/other".into()), ..McapSpec::file(&p) }.open().err().unwrap().to_string();
+    assert!(e.contains("std_msgs/msg/String"), "{e}");
+}
+
+// ---------------------------------------------------------------- NCLT fixtures
+
+fn nclt_record(p: [f64; 3], intensity: u8, laser: u8) -> [u8; 8] {
+    // Stored z down: (x, −y, −z) of the exposed point.
+    let q = [p[0], -p[1], -p[2]].map(|v| ((v + 100.0) / 0.005).round() as u16);
+    let mut r = [0u8; 8];
+    r[0..2].copy_from_slice(&q[0].to_le_bytes());
+    r[2..4].copy_from_slice(&q[1].to_le_bytes());
+    r[4..6].copy_from_slice(&q[2].to_le_bytes());
+    r[6] = intensity;
+    r[7] = laser;
+    r
+}
+
+#[test]
+fn nclt_session_with_bad_files_and_garbage_ground_truth() {
+    let dir = scratch_dir("nclt_session");
+    let session = dir.join("2020-01-01");
+    let sync = session.join("velodyne_sync");
+    std::fs::create_dir_all(&sync).unwrap();
+    for (utime, n) in [(1_000_000i64, 10usize), (2_000_000, 12), (3_000_000, 9)] {
+        let bytes: Vec<u8> =
+            (0..n).flat_map(|i| nclt_record([i as f64, 2.0, -1.5], 7, (i % 32) as u8)).collect();
+        std::fs::write(sync.join(format!("{utime}.bin")), bytes).unwrap();
+    }
+    // A truncated scan (not a multiple of 8 bytes) and a non-utime name.
+    std::fs::write(sync.join("2500000.bin"), [0u8; 13]).unwrap();
+    std::fs::write(sync.join("notes.bin"), [0u8; 8]).unwrap();
+    std::fs::write(
+        dir.join("groundtruth_2020-01-01.csv"),
+        "1000010,1.0,2.0,3.0,0,0,0.5\ngarbage line\n2000000,NaN,NaN,NaN,NaN,NaN,NaN\n2100000,4.0,5.0,6.0,0,0,0\n3000000,7,8,9,0,0\n",
+    )
+    .unwrap();
+    let gt = GroundTruth::read(&dir.join("groundtruth_2020-01-01.csv")).unwrap();
+    assert_eq!((gt.rows.len(), gt.nan_rows, gt.bad_lines.len()), (2, 1, 2));
+    assert!(gt.bad_lines[0].contains("groundtruth_2020-01-01.csv:2:"), "{}", gt.bad_lines[0]);
+    assert!(gt.bad_lines[1].contains(":5:"), "short row");
+    let spec = NcltSpec { tolerance_ms: 150.0, ..NcltSpec::sessions(vec![session.clone()]) };
+    let (scans, bad) = collect(SourceSpec::Nclt(spec));
+    assert_eq!(scans.iter().map(|s| s.utime).collect::<Vec<_>>(), [1_000_000, 2_000_000, 3_000_000]);
+    assert_eq!(bad.len(), 2);
+    assert!(bad.iter().any(|f| f.error.contains("2500000.bin: truncated")), "{bad:?}");
+    assert!(bad.iter().any(|f| f.error.contains("notes.bin: file name is not a utime")), "{bad:?}");
+    // Poses: nearest row within 150 ms, exposed z up: (x, −y, −z), yaw = −heading.
+    let p0 = scans[0].pose.unwrap();
+    assert_eq!((p0.x, p0.y, p0.z, p0.yaw), (1.0, -2.0, -3.0, -0.5));
+    assert_eq!(scans[1].pose.unwrap().x, 4.0, "100 ms away: joined");
+    assert!(scans[2].pose.is_none(), "the 3 s row was garbage: no pose within 150 ms");
+    // Points round-trip the 5 mm quantization, z up.
+    assert_eq!(scans[0].points[3], [3.0, 2.0, -1.5]);
+    assert_eq!(scans[0].ring.as_ref().unwrap()[3], 3);
+}
+
+fn hits_packet(utime: u64, hits: &[[u8; 8]]) -> Vec<u8> {
+    let mut p = HITS_MAGIC.to_vec();
+    p.extend((hits.len() as u32).to_le_bytes());
+    p.extend(utime.to_le_bytes());
+    p.extend([0u8; 4]);
+    hits.iter().for_each(|h| p.extend(h));
+    p
+}
+
+/// Packets every 1 ms, each 3 hits at one azimuth, turning 10° per packet: 36 per turn.
+fn hits_stream(packets: usize) -> Vec<u8> {
+    (0..packets)
+        .flat_map(|k| {
+            let a = (k as f64 * 10.0 + 5.0).to_radians();
+            let hits: Vec<[u8; 8]> =
+                (0..3).map(|l| nclt_record([10.0 * a.cos(), 10.0 * a.sin(), l as f64], 1, l)).collect();
+            hits_packet(1_000_000 + 1000 * k as u64, &hits)
+        })
+        .collect()
+}
+
+#[test]
+fn velodyne_hits_cut_by_revolution_or_period_and_resync_after_garbage() {
+    let bytes = hits_stream(36 * 3 + 10);
+    let scans = |bytes: Vec<u8>, period: Option<i64>| -> (Vec<Scan>, Vec<ScanFailure>) {
+        let it = HitsScans::new(
+            std::io::Cursor::new(bytes),
+            PathBuf::from("s/velodyne_hits.bin"),
+            "s".into(),
+            period,
+            None,
+            0,
+        );
+        let (mut ok, mut bad) = (vec![], vec![]);
+        for x in it {
+            match x {
+                Ok(s) => ok.push(s),
+                Err(f) => bad.push(f),
+            }
+        }
+        (ok, bad)
+    };
+    let (ok, bad) = scans(bytes.clone(), None);
+    assert!(bad.is_empty());
+    assert_eq!(
+        ok.iter().map(|s| s.points.len()).collect::<Vec<_>>(),
+        [108, 108, 108, 30],
+        "3 turns + the rest"
+    );
+    assert_eq!(ok[1].utime, 1_036_000);
+    assert_eq!(ok[1].id, "s/1036000");
+    // By period: 50 ms.
+    let (ok, _) = scans(bytes.clone(), Some(50_000));
+    assert_eq!(ok.iter().map(|s| s.points.len()).collect::<Vec<_>>(), [150, 150, 54]);
+    // Garbage between packets: reported with its byte offset, then reading resumes.
+    let packet = hits_stream(1).len();
+    let mut g = bytes[..packet * 5].to_vec();
+    g.extend(b"garbage!");
+    g.extend(&bytes[packet * 5..]);
+    let (ok, bad) = scans(g, None);
+    assert_eq!(bad.len(), 1);
+    assert!(
+        bad[0].error.contains("velodyne_hits.bin: byte") && bad[0].error.contains("bad packet magic"),
+        "{}",
+        bad[0].error
+    );
+    assert_eq!(ok.iter().map(|s| s.points.len()).sum::<usize>(), 118 * 3);
+    // Truncated tail: the scans so far, then an error.
+    let (ok, bad) = scans(bytes[..bytes.len() - 5].to_vec(), None);
+    assert_eq!(bad.len(), 1);
+    assert!(bad[0].error.contains("truncated"));
+    assert_eq!(ok.iter().map(|s| s.points.len()).sum::<usize>(), 117 * 3);
+}
+
+// ---------------------------------------------------------------- fuzzing
+
+/// Inputs per fuzz target (4 targets; stated in the README).
+const FUZZ_CASES: u32 = 1500;
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: FUZZ_CASES, failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn fuzz_pointcloud2_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400), ros1 in any::<bool>()) {
+        let enc = if ros1 { Encoding::Ros1 } else { Encoding::Cdr };
+        if let Ok(c) = pointcloud2::parse(&bytes, enc) {
+            let _ = c.decode();
+        }
+    }
+
+    #[test]
+    fn fuzz_mutated_pointcloud2_never_panics(flips in proptest::collection::vec((0usize..400, any::<u8>()), 1..8)) {
+        let mut bytes = test_clouds(1).remove(0);
+        for (i, b) in flips {
+            let n = bytes.len();
+            bytes[i % n] = b;
+        }
+        if let Ok(c) = pointcloud2::parse(&bytes, Encoding::Cdr) {
+            let _ = c.decode();
+        }
+    }
+
+    #[test]
+    fn fuzz_hits_and_sync_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..300), prefix in any::<bool>()) {
+        let mut input = if prefix { hits_stream(2) } else { vec![] };
+        input.extend(&bytes);
+        let path = PathBuf::from("fuzz/velodyne_hits.bin");
+        for _ in HitsScans::new(std::io::Cursor::new(input.clone()), path.clone(), "f".into(), None, None, 0) {}
+        let _ = toporec::sources::nclt::decode_sync(&input, &path);
+        let _ = toporec::sources::kitti::decode(&input, &path);
+    }
+}
+
+#[test]
+fn fuzz_mutated_mcap_files_never_panic() {
+    // Random byte flips in a valid zstd MCAP (not via proptest: each case writes a file).
+    let dir = scratch_dir("mcap_fuzz");
+    let path = dir.join("base.mcap");
+    write_mcap(
+        &path,
+        &test_clouds(4),
+        &McapOptions { compression: Some(mcap::Compression::Zstd), summary: true, chunk_size: Some(400) },
+    );
+    let base = std::fs::read(&path).unwrap();
+    let mut rng = toporec::rng::SplitMix64(5);
+    let target = dir.join("case.mcap");
+    for _ in 0..300 {
+        let mut b = base.clone();
+        for _ in 0..1 + rng.below(6) {
+            let i = rng.below(b.len());
+            b[i] = rng.next_u64() as u8;
+        }
+        if rng.below(4) == 0 {
+            b.truncate(rng.below(b.len()));
+        }
+        std::fs::write(&target, &b).unwrap();
+        let _ = McapSpec::file(&target).open().map(|s| s.count());
+        let _ = McapMessages::open(&target).map(|m| m.count());
+        let _ = toporec::inspect::inspect(&target);
+    }
+    let _ = Arc::new(());
+}
