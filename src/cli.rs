@@ -3,6 +3,8 @@
 
 use crate::diagram_csv;
 use crate::homology::alpha_persistence;
+use crate::pipeline::RunOptions;
+use crate::pipeline::config::Pipeline;
 use crate::sources::mcap::McapSpec;
 use crate::sources::{CloudFormat, read_cloud};
 use crate::vectorize::atol::{Contrast, Weighting};
@@ -29,6 +31,13 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Subcommand, Debug)]
 pub enum Command {
+    /// Run a pipeline file: sources → preprocess → persistence → vectorize → Parquet index.
+    Run(RunArgs),
+    /// Check a pipeline file (every error at once, with key paths) without reading data.
+    Validate(ValidateArgs),
+    /// Write the Parquet table schemas as JSON (what `schemas/` holds).
+    #[command(hide = true)]
+    Schemas(SchemasArgs),
     /// Print the persistence diagram of one cloud's alpha complex as CSV (dim,birth,death).
     Diagram(DiagramArgs),
     /// Describe what a file or folder holds (format, scans, topics, points, time span, poses).
@@ -37,6 +46,37 @@ pub enum Command {
     Fit(FitArgs),
     /// Turn diagram CSV files into descriptors with a saved codebook (CSV rows on stdout or --out).
     Vectorize(VectorizeArgs),
+}
+
+/// Arguments of `toporec run`.
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// The pipeline file (TOML).
+    #[arg(default_value = "pipelines/sample.toml")]
+    pub pipeline: PathBuf,
+    /// Worker threads (default: all cores).
+    #[arg(long, short)]
+    pub threads: Option<usize>,
+    /// Write the index here instead of the file's `output.index`.
+    #[arg(long)]
+    pub index: Option<PathBuf>,
+    /// No progress bar or progress lines.
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+/// Arguments of `toporec validate`.
+#[derive(clap::Args, Debug)]
+pub struct ValidateArgs {
+    /// The pipeline file (TOML).
+    pub pipeline: PathBuf,
+}
+
+/// Arguments of `toporec schemas`.
+#[derive(clap::Args, Debug)]
+pub struct SchemasArgs {
+    /// Folder to write `<table>.json` into.
+    pub dir: PathBuf,
 }
 
 /// Arguments of `toporec inspect`.
@@ -134,6 +174,9 @@ pub fn main() -> ExitCode {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&cli.log_level));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     let result = match cli.command {
+        Command::Run(args) => return run(args),
+        Command::Validate(args) => validate(args),
+        Command::Schemas(args) => schemas(args),
         Command::Diagram(args) => diagram(args),
         Command::Inspect(args) => crate::inspect::inspect(&args.path).map(|report| print!("{report}")),
         Command::Fit(args) => fit(args),
@@ -146,6 +189,62 @@ pub fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+fn run(args: RunArgs) -> ExitCode {
+    let pipeline = match Pipeline::load(&args.pipeline) {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let opts = RunOptions { threads, index: args.index, progress: !args.no_progress };
+    match crate::pipeline::run(&pipeline, &opts) {
+        Ok(summary) => {
+            eprintln!("{summary}");
+            if summary.partial() {
+                eprintln!(
+                    "partial: {} of {} scans failed (see the scans table's error column)",
+                    summary.errors, summary.read
+                );
+                ExitCode::from(1)
+            } else {
+                ExitCode::SUCCESS
+            }
+        }
+        Err(e) => {
+            eprintln!("error: {}", one_line(&e));
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn validate(args: ValidateArgs) -> Result<()> {
+    let p = Pipeline::load(&args.pipeline)?;
+    println!(
+        "{}: ok ({} source(s), index {}, {})",
+        args.pipeline.display(),
+        p.sources.len(),
+        p.index.display(),
+        match &p.vectorize {
+            crate::pipeline::config::Vectorize::Fit(s) => format!("fit b = {} dims {}", s.b, s.dims),
+            crate::pipeline::config::Vectorize::Load(path, cb) =>
+                format!("codebook {} ({})", cb.id(), path.display()),
+        }
+    );
+    Ok(())
+}
+
+fn schemas(args: SchemasArgs) -> Result<()> {
+    for t in crate::sinks::schema::all() {
+        crate::fsutil::write_atomic(
+            &args.dir.join(format!("{}.json", t.name)),
+            crate::sinks::schema::render_json(&t).as_bytes(),
+        )?;
+    }
+    Ok(())
 }
 
 /// The error chain on one line.

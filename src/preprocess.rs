@@ -1,0 +1,140 @@
+//! The preprocess stage: range crop → ground removal → voxel grid → subsample → normalize,
+//! each optional (settings in [`crate::pipeline::config::Preprocess`]). Deterministic: the
+//! random parts (RANSAC, subsampling) are seeded by the scan id, so reruns agree.
+
+use crate::homology::Point;
+use crate::pipeline::config::{Ground, Preprocess};
+use crate::rng::SplitMix64;
+use std::collections::HashMap;
+
+/// Why a scan was skipped.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Skip(pub String);
+
+/// A stable 64-bit seed from a scan id (FNV-1a).
+pub fn seed_of(id: &str) -> u64 {
+    id.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
+}
+
+/// Runs the stage; `Err` when fewer than `min_points` points remain.
+pub fn preprocess(mut points: Vec<Point>, id: &str, p: &Preprocess) -> Result<Vec<Point>, Skip> {
+    let mut rng = SplitMix64(seed_of(id));
+    if let Some(r) = p.range {
+        points.retain(|q| {
+            let d = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+            d >= r.min && d <= r.max
+        });
+    }
+    match p.ground {
+        Some(Ground::Height { below }) => points.retain(|q| q[2] >= below),
+        Some(Ground::Plane { threshold, iterations }) => {
+            if let Some(plane) = ransac_ground(&points, threshold, iterations, &mut rng) {
+                points.retain(|q| plane_distance(&plane, q).abs() > threshold);
+            }
+        }
+        None => {}
+    }
+    if let Some(size) = p.voxel {
+        points = voxel_grid(&points, size);
+    }
+    if let Some(n) = p.subsample {
+        points = subsample(points, n, &mut rng);
+    }
+    if points.len() < p.min_points {
+        return Err(Skip(format!(
+            "{} points after preprocessing (min_points = {})",
+            points.len(),
+            p.min_points
+        )));
+    }
+    if p.normalize {
+        normalize(&mut points);
+    }
+    Ok(points)
+}
+
+/// A plane `n·x + d = 0` with unit normal.
+type Plane = ([f64; 3], f64);
+
+fn plane_distance(p: &Plane, q: &Point) -> f64 {
+    p.0[0] * q[0] + p.0[1] * q[1] + p.0[2] * q[2] + p.1
+}
+
+/// RANSAC over planes whose normal is within 30° of z: the one with most inliers (scored on
+/// at most 2,000 sampled points).
+fn ransac_ground(points: &[Point], threshold: f64, iterations: usize, rng: &mut SplitMix64) -> Option<Plane> {
+    if points.len() < 3 {
+        return None;
+    }
+    let sample: Vec<Point> = if points.len() > 2000 {
+        (0..2000).map(|_| points[rng.below(points.len())]).collect()
+    } else {
+        points.to_vec()
+    };
+    let min_cos = 30f64.to_radians().cos();
+    let mut best: Option<(usize, Plane)> = None;
+    for _ in 0..iterations {
+        let [a, b, c] = [0; 3].map(|_| points[rng.below(points.len())]);
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if len == 0.0 || (n[2] / len).abs() < min_cos {
+            continue;
+        }
+        let n = [n[0] / len, n[1] / len, n[2] / len];
+        let plane = (n, -(n[0] * a[0] + n[1] * a[1] + n[2] * a[2]));
+        let inliers = sample.iter().filter(|q| plane_distance(&plane, q).abs() <= threshold).count();
+        if best.is_none_or(|(k, _)| inliers > k) {
+            best = Some((inliers, plane));
+        }
+    }
+    best.map(|(_, p)| p)
+}
+
+/// One centroid per occupied cell, in cell order (deterministic).
+pub fn voxel_grid(points: &[Point], size: f64) -> Vec<Point> {
+    let mut cells: HashMap<[i64; 3], ([f64; 3], u32)> = HashMap::with_capacity(points.len() / 2);
+    for q in points {
+        let key = q.map(|c| (c / size).floor() as i64);
+        let e = cells.entry(key).or_insert(([0.0; 3], 0));
+        for k in 0..3 {
+            e.0[k] += q[k];
+        }
+        e.1 += 1;
+    }
+    let mut cells: Vec<([i64; 3], ([f64; 3], u32))> = cells.into_iter().collect();
+    cells.sort_unstable_by_key(|c| c.0);
+    cells.into_iter().map(|(_, (s, n))| s.map(|c| c / n as f64)).collect()
+}
+
+/// At most `n` points chosen uniformly (partial Fisher–Yates), kept in their original order.
+pub fn subsample(points: Vec<Point>, n: usize, rng: &mut SplitMix64) -> Vec<Point> {
+    if points.len() <= n {
+        return points;
+    }
+    let mut idx: Vec<u32> = (0..points.len() as u32).collect();
+    for i in 0..n {
+        let j = i + rng.below(idx.len() - i);
+        idx.swap(i, j);
+    }
+    let mut chosen = idx[..n].to_vec();
+    chosen.sort_unstable();
+    chosen.into_iter().map(|i| points[i as usize]).collect()
+}
+
+/// Zero mean, largest |coordinate| 1 (the PointNetVLAD convention).
+pub fn normalize(points: &mut [Point]) {
+    let n = points.len() as f64;
+    let mean = [0, 1, 2].map(|k| points.iter().map(|q| q[k]).sum::<f64>() / n);
+    let mut scale = 0.0f64;
+    for q in points.iter_mut() {
+        for k in 0..3 {
+            q[k] -= mean[k];
+            scale = scale.max(q[k].abs());
+        }
+    }
+    if scale > 0.0 {
+        points.iter_mut().for_each(|q| *q = q.map(|c| c / scale));
+    }
+}

@@ -1,0 +1,333 @@
+//! Parquet writers for the index tables (zstd, row groups bounded in rows so memory stays
+//! bounded), and the rows they take. Rows are buffered a few thousand at a time and written
+//! as Arrow record batches.
+
+use super::schema::{self, Table};
+use crate::homology::Diagram;
+use crate::sources::Pose;
+use anyhow::{Context, Result};
+use arrow::array::{
+    ArrayRef, FixedSizeListBuilder, Float32Builder, Float64Builder, Int64Builder, RecordBatch, StringBuilder,
+    UInt8Builder, UInt64Builder,
+};
+use arrow::datatypes::Schema;
+use parquet::arrow::ArrowWriter;
+use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::properties::WriterProperties;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Rows per row group (bounded memory per open file).
+const ROW_GROUP_ROWS: usize = 256 * 1024;
+
+/// What happened to a scan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Status {
+    /// Indexed.
+    Ok,
+    /// Left out on purpose (e.g. too few points after preprocessing).
+    Skipped,
+    /// Could not be read or processed.
+    Error,
+}
+
+impl Status {
+    /// The value in the `status` column.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Status::Ok => "ok",
+            Status::Skipped => "skipped",
+            Status::Error => "error",
+        }
+    }
+}
+
+/// A row of `scans`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScanRow {
+    /// Scan id.
+    pub scan_id: String,
+    /// Session (the partition).
+    pub session: String,
+    /// Position in the run's input.
+    pub seq: u64,
+    /// Source file.
+    pub source_path: String,
+    /// MCAP message index.
+    pub message_index: Option<u64>,
+    /// Timestamp (µs).
+    pub utime: Option<i64>,
+    /// Ground-truth pose.
+    pub pose: Option<Pose>,
+    /// Points in the record.
+    pub raw_points: u64,
+    /// Points after preprocessing.
+    pub kept_points: u64,
+    /// Outcome.
+    pub status: Status,
+    /// Reason for skipped/error.
+    pub error: Option<String>,
+}
+
+/// A row of `descriptors`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DescriptorRow {
+    /// Scan id.
+    pub scan_id: String,
+    /// Timestamp (µs).
+    pub utime: Option<i64>,
+    /// Ground-truth pose.
+    pub pose: Option<Pose>,
+    /// Paper rule: the dimension used.
+    pub dim_used: Option<u8>,
+    /// The vector.
+    pub values: Vec<f32>,
+}
+
+fn properties(schema: &Schema) -> WriterProperties {
+    let kv = schema
+        .metadata()
+        .iter()
+        .map(|(k, v)| parquet::file::metadata::KeyValue::new(k.clone(), v.clone()))
+        .collect();
+    WriterProperties::builder()
+        .set_compression(Compression::ZSTD(ZstdLevel::try_new(3).expect("valid level")))
+        .set_max_row_group_row_count(Some(ROW_GROUP_ROWS))
+        .set_key_value_metadata(Some(kv))
+        .build()
+}
+
+/// One Parquet file being written.
+pub struct TableFile {
+    path: PathBuf,
+    writer: ArrowWriter<std::fs::File>,
+    schema: Arc<Schema>,
+    rows: u64,
+}
+
+impl TableFile {
+    /// Creates `path` (its folder too) for `table`.
+    pub fn create(path: &Path, table: &Table, extra_meta: &[(&str, String)]) -> Result<Self> {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}: creating folder", dir.display()))?;
+        }
+        let schema = table.arrow_schema(extra_meta);
+        let file = std::fs::File::create(path).with_context(|| format!("{}: creating", path.display()))?;
+        let writer = ArrowWriter::try_new(file, schema.clone(), Some(properties(&schema)))?;
+        Ok(TableFile { path: path.to_owned(), writer, schema, rows: 0 })
+    }
+
+    fn write(&mut self, columns: Vec<ArrayRef>) -> Result<()> {
+        let batch = RecordBatch::try_new(self.schema.clone(), columns)?;
+        self.rows += batch.num_rows() as u64;
+        self.writer.write(&batch).with_context(|| format!("{}: writing", self.path.display()))
+    }
+
+    /// Closes the file (footer written); returns its path and row count.
+    pub fn finish(self) -> Result<(PathBuf, u64)> {
+        self.writer.close().with_context(|| format!("{}: closing", self.path.display()))?;
+        Ok((self.path, self.rows))
+    }
+}
+
+/// Rows buffered before a batch is written.
+const BATCH_ROWS: usize = 8192;
+
+/// Writer of one `scans` file.
+pub struct ScansFile {
+    file: TableFile,
+    rows: Vec<ScanRow>,
+}
+
+impl ScansFile {
+    /// Creates the file.
+    pub fn create(path: &Path) -> Result<Self> {
+        Ok(ScansFile { file: TableFile::create(path, &schema::scans(), &[])?, rows: Vec::new() })
+    }
+
+    /// Adds a row.
+    pub fn push(&mut self, row: ScanRow) -> Result<()> {
+        self.rows.push(row);
+        if self.rows.len() >= BATCH_ROWS { self.flush() } else { Ok(()) }
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        if self.rows.is_empty() {
+            return Ok(());
+        }
+        let rows = std::mem::take(&mut self.rows);
+        let s = |f: &dyn Fn(&ScanRow) -> Option<String>| {
+            let mut b = StringBuilder::new();
+            rows.iter().for_each(|r| b.append_option(f(r)));
+            Arc::new(b.finish()) as ArrayRef
+        };
+        let u = |f: &dyn Fn(&ScanRow) -> Option<u64>| {
+            let mut b = UInt64Builder::new();
+            rows.iter().for_each(|r| b.append_option(f(r)));
+            Arc::new(b.finish()) as ArrayRef
+        };
+        let p = |f: &dyn Fn(&Pose) -> f64| {
+            let mut b = Float64Builder::new();
+            rows.iter().for_each(|r| b.append_option(r.pose.as_ref().map(f)));
+            Arc::new(b.finish()) as ArrayRef
+        };
+        let mut utime = Int64Builder::new();
+        rows.iter().for_each(|r| utime.append_option(r.utime));
+        let columns = vec![
+            s(&|r| Some(r.scan_id.clone())),
+            u(&|r| Some(r.seq)),
+            s(&|r| Some(r.source_path.clone())),
+            u(&|r| r.message_index),
+            Arc::new(utime.finish()) as ArrayRef,
+            p(&|q| q.x),
+            p(&|q| q.y),
+            p(&|q| q.z),
+            p(&|q| q.yaw),
+            u(&|r| Some(r.raw_points)),
+            u(&|r| Some(r.kept_points)),
+            s(&|r| Some(r.status.as_str().to_string())),
+            s(&|r| r.error.clone()),
+        ];
+        self.file.write(columns)
+    }
+
+    /// Flushes and closes.
+    pub fn finish(mut self) -> Result<(PathBuf, u64)> {
+        self.flush()?;
+        self.file.finish()
+    }
+}
+
+/// Writer of one `diagrams` file.
+pub struct DiagramsFile {
+    file: TableFile,
+    ids: StringBuilder,
+    dims: UInt8Builder,
+    births: Float64Builder,
+    deaths: Float64Builder,
+    pending: usize,
+}
+
+impl DiagramsFile {
+    /// Creates the file.
+    pub fn create(path: &Path) -> Result<Self> {
+        Ok(DiagramsFile {
+            file: TableFile::create(path, &schema::diagrams(), &[])?,
+            ids: StringBuilder::new(),
+            dims: UInt8Builder::new(),
+            births: Float64Builder::new(),
+            deaths: Float64Builder::new(),
+            pending: 0,
+        })
+    }
+
+    /// Adds one scan's pairs in dimensions `dims`.
+    pub fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> Result<()> {
+        for p in diagram.pairs().iter().filter(|p| dims.contains(&p.dim)) {
+            self.ids.append_value(scan_id);
+            self.dims.append_value(p.dim);
+            self.births.append_value(p.birth);
+            self.deaths.append_value(p.death);
+            self.pending += 1;
+        }
+        if self.pending >= 8 * BATCH_ROWS { self.flush() } else { Ok(()) }
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        if self.pending == 0 {
+            return Ok(());
+        }
+        self.pending = 0;
+        let columns: Vec<ArrayRef> = vec![
+            Arc::new(self.ids.finish()),
+            Arc::new(self.dims.finish()),
+            Arc::new(self.births.finish()),
+            Arc::new(self.deaths.finish()),
+        ];
+        self.file.write(columns)
+    }
+
+    /// Flushes and closes.
+    pub fn finish(mut self) -> Result<(PathBuf, u64)> {
+        self.flush()?;
+        self.file.finish()
+    }
+}
+
+/// Writer of one `descriptors` file.
+pub struct DescriptorsFile {
+    file: TableFile,
+    b: usize,
+    codebook_id: String,
+    rows: Vec<DescriptorRow>,
+}
+
+impl DescriptorsFile {
+    /// Creates the file for descriptors of length `b` made with codebook `codebook_id`.
+    pub fn create(path: &Path, b: usize, codebook_id: &str) -> Result<Self> {
+        let meta = [(schema::meta::CODEBOOK_ID, codebook_id.to_string())];
+        Ok(DescriptorsFile {
+            file: TableFile::create(path, &schema::descriptors(b), &meta)?,
+            b,
+            codebook_id: codebook_id.to_string(),
+            rows: Vec::new(),
+        })
+    }
+
+    /// Adds a row.
+    pub fn push(&mut self, row: DescriptorRow) -> Result<()> {
+        anyhow::ensure!(
+            row.values.len() == self.b,
+            "descriptor of length {} in a table of length {}",
+            row.values.len(),
+            self.b
+        );
+        self.rows.push(row);
+        if self.rows.len() >= BATCH_ROWS / 4 { self.flush() } else { Ok(()) }
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        if self.rows.is_empty() {
+            return Ok(());
+        }
+        let rows = std::mem::take(&mut self.rows);
+        let mut ids = StringBuilder::new();
+        let mut utime = Int64Builder::new();
+        let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
+        let mut dim = UInt8Builder::new();
+        let item = Arc::new(arrow::datatypes::Field::new("item", arrow::datatypes::DataType::Float32, false));
+        let mut vec =
+            FixedSizeListBuilder::new(Float32Builder::with_capacity(rows.len() * self.b), self.b as i32)
+                .with_field(item);
+        let mut codebook = StringBuilder::new();
+        for r in &rows {
+            ids.append_value(&r.scan_id);
+            utime.append_option(r.utime);
+            pose[0].append_option(r.pose.map(|p| p.x));
+            pose[1].append_option(r.pose.map(|p| p.y));
+            pose[2].append_option(r.pose.map(|p| p.z));
+            dim.append_option(r.dim_used);
+            vec.values().append_slice(&r.values);
+            vec.append(true);
+            codebook.append_value(&self.codebook_id);
+        }
+        let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
+        let columns: Vec<ArrayRef> = vec![
+            Arc::new(ids.finish()),
+            Arc::new(utime.finish()),
+            px,
+            py,
+            pz,
+            Arc::new(dim.finish()),
+            Arc::new(vec.finish()),
+            Arc::new(codebook.finish()),
+        ];
+        self.file.write(columns)
+    }
+
+    /// Flushes and closes.
+    pub fn finish(mut self) -> Result<(PathBuf, u64)> {
+        self.flush()?;
+        self.file.finish()
+    }
+}
