@@ -35,6 +35,8 @@ pub enum Command {
     Run(RunArgs),
     /// Check a pipeline file (every error at once, with key paths) without reading data.
     Validate(ValidateArgs),
+    /// Generate multi-session LiDAR drives through a procedural town (NCLT, MCAP, KITTI files).
+    Simulate(SimulateArgs),
     /// Write the Parquet table schemas as JSON (what `schemas/` holds).
     #[command(hide = true)]
     Schemas(SchemasArgs),
@@ -63,6 +65,56 @@ pub struct RunArgs {
     /// No progress bar or progress lines.
     #[arg(long)]
     pub no_progress: bool,
+}
+
+/// Arguments of `toporec simulate`.
+#[derive(clap::Args, Debug)]
+pub struct SimulateArgs {
+    /// Output folder.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Formats to write.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "nclt")]
+    pub format: Vec<crate::simulate::Format>,
+    /// Sessions (days) driving the same loop.
+    #[arg(long, default_value_t = 2)]
+    pub sessions: usize,
+    /// Seed of the town, routes and noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Scans per session (default: one loop).
+    #[arg(long)]
+    pub scans: Option<usize>,
+    /// Sensor model.
+    #[arg(long, value_enum, default_value = "hdl32")]
+    pub sensor: crate::simulate::SensorModel,
+    /// Azimuth resolution (degrees).
+    #[arg(long, default_value_t = 0.2)]
+    pub azimuth_res: f64,
+    /// Driving speed (m/s).
+    #[arg(long, default_value_t = 10.0)]
+    pub speed: f64,
+    /// Scan rate (Hz).
+    #[arg(long, default_value_t = 10.0)]
+    pub rate: f64,
+    /// Blocks per side of the town.
+    #[arg(long, default_value_t = 3)]
+    pub blocks: usize,
+    /// Street spacing (m).
+    #[arg(long, default_value_t = 60.0)]
+    pub block_size: f64,
+    /// Ground slope along x and y (dz/dx,dz/dy).
+    #[arg(long, value_delimiter = ',', default_value = "0,0")]
+    pub slope: Vec<f64>,
+    /// Odd sessions drive the loop in the opposite direction.
+    #[arg(long)]
+    pub reverse: bool,
+    /// Probability that a return is lost.
+    #[arg(long, default_value_t = 0.08)]
+    pub dropout: f64,
+    /// Worker threads (default: all cores).
+    #[arg(long, short)]
+    pub threads: Option<usize>,
 }
 
 /// Arguments of `toporec validate`.
@@ -177,6 +229,7 @@ pub fn main() -> ExitCode {
         Command::Run(args) => return run(args),
         Command::Validate(args) => validate(args),
         Command::Schemas(args) => schemas(args),
+        Command::Simulate(args) => simulate(args),
         Command::Diagram(args) => diagram(args),
         Command::Inspect(args) => crate::inspect::inspect(&args.path).map(|report| print!("{report}")),
         Command::Fit(args) => fit(args),
@@ -233,6 +286,49 @@ fn validate(args: ValidateArgs) -> Result<()> {
             crate::pipeline::config::Vectorize::Load(path, cb) =>
                 format!("codebook {} ({})", cb.id(), path.display()),
         }
+    );
+    Ok(())
+}
+
+fn simulate(a: SimulateArgs) -> Result<()> {
+    use crate::simulate::{Sensor, SimParams, scene::TownParams};
+    if a.slope.len() != 2 {
+        bail!("--slope: expected two numbers dz/dx,dz/dy");
+    }
+    let mut sensor = Sensor::new(a.sensor);
+    sensor.azimuth_res = a.azimuth_res;
+    sensor.dropout = a.dropout;
+    let p = SimParams {
+        town: TownParams {
+            blocks: a.blocks,
+            block_size: a.block_size,
+            slope: [a.slope[0], a.slope[1]],
+            ..TownParams::default()
+        },
+        sensor,
+        sessions: a.sessions,
+        seed: a.seed,
+        scans: a.scans,
+        speed: a.speed,
+        rate: a.rate,
+        reverse: a.reverse,
+        ..SimParams::default()
+    };
+    if a.blocks == 0 || a.block_size <= 20.0 || a.rate <= 0.0 || a.speed <= 0.0 || a.azimuth_res <= 0.0 {
+        bail!(
+            "simulate: need blocks >= 1, block size > 20 m, and positive rate, speed and azimuth resolution"
+        );
+    }
+    let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let start = std::time::Instant::now();
+    let n = pool.install(|| crate::simulate::simulate(&p, &a.format, &a.out))?;
+    let secs = start.elapsed().as_secs_f64();
+    eprintln!(
+        "simulated {n} scans ({} sessions) into {} in {secs:.2} s ({:.0} scans/s)",
+        a.sessions,
+        a.out.display(),
+        n as f64 / secs
     );
     Ok(())
 }

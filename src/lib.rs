@@ -25,6 +25,7 @@ pub mod inspect;
 pub mod pipeline;
 pub mod preprocess;
 pub mod rng;
+pub mod simulate;
 pub mod sinks;
 pub mod sources;
 pub mod vectorize;

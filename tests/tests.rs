@@ -4,5 +4,7 @@ mod atol;
 mod cli;
 mod codebook;
 mod homology;
+mod pipeline;
+mod simulate;
 mod sources;
 mod util;

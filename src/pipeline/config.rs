@@ -202,7 +202,7 @@ impl Pipeline {
         let doc: Table =
             text.parse().map_err(|e: toml::de::Error| fail(vec![e.to_string().trim().to_string()]))?;
         let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_owned();
-        let resolve = |p: PathBuf| if p.is_relative() { base.join(p) } else { p };
+        let resolve = |p: PathBuf| clean(&if p.is_relative() { base.join(p) } else { p });
         let mut root = Section::new(&doc, "");
 
         let index = match root.table("output", &mut errors) {
@@ -225,6 +225,7 @@ impl Pipeline {
                     match item.clone().try_into::<SourceSpec>() {
                         Ok(mut s) => {
                             s.resolve_paths(&base);
+                            s.clean_paths(clean);
                             check_source_paths(&s, i, &mut errors);
                             sources.push(s);
                         }
@@ -425,6 +426,22 @@ impl Pipeline {
             toml::to_string(&doc).expect("TOML of plain data")
         )
     }
+}
+
+/// Removes `.` and `name/..` components without touching the file system.
+pub fn clean(path: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out: Vec<Component> = Vec::new();
+    for c in path.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir if matches!(out.last(), Some(Component::Normal(_))) => {
+                out.pop();
+            }
+            other => out.push(other),
+        }
+    }
+    if out.is_empty() { PathBuf::from(".") } else { out.iter().collect() }
 }
 
 /// Diagram dimensions a descriptor reads.

@@ -109,11 +109,12 @@ impl SourceSpec {
 
     /// Makes relative paths relative to `base` (the pipeline file's folder).
     pub fn resolve_paths(&mut self, base: &Path) {
-        let fix = |p: &mut PathBuf| {
-            if p.is_relative() {
-                *p = base.join(&*p);
-            }
-        };
+        self.clean_paths(|p| if p.is_relative() { base.join(p) } else { p.to_owned() });
+    }
+
+    /// Rewrites every path of the spec with `f`.
+    pub fn clean_paths(&mut self, f: impl Fn(&Path) -> PathBuf) {
+        let fix = |p: &mut PathBuf| *p = f(p);
         match self {
             SourceSpec::Nclt(s) => {
                 s.sessions.iter_mut().for_each(fix);

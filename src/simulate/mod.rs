@@ -1,0 +1,495 @@
+//! `toporec simulate`: ray-cast a rotating multi-beam LiDAR through a procedural town along a
+//! closed route, for several sessions (days), and write the scans in the formats the sources
+//! read — an NCLT layout (`velodyne_data/<date>/velodyne_sync/*.bin` + `ground_truth/`), an
+//! MCAP with ROS 2 PointCloud2 messages (zstd chunks) + poses, and KITTI `.bin` + poses.
+//!
+//! Deterministic: the town depends on the seed, each session's movable objects and route
+//! noise on (seed, session), each scan's noise on (seed, session, scan); scans are ray-cast in
+//! parallel and written in order, a chunk at a time (memory does not grow with the count).
+
+pub mod scene;
+
+use crate::rng::SplitMix64;
+use crate::sources::pointcloud2::{self, Encoding, PointCloud2, PointField, datatype};
+use anyhow::{Context, Result};
+use rayon::prelude::*;
+use scene::{Scene, TownParams};
+use std::path::{Path, PathBuf};
+
+/// A rotating multi-beam LiDAR.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sensor {
+    /// Beam elevations (degrees), beam index = ring.
+    pub elevations: Vec<f64>,
+    /// Azimuth step (degrees).
+    pub azimuth_res: f64,
+    /// Maximum range (m).
+    pub max_range: f64,
+    /// Range noise σ (m).
+    pub range_noise: f64,
+    /// Probability that a return is lost.
+    pub dropout: f64,
+    /// Mounting height above the ground (m).
+    pub height: f64,
+}
+
+/// Sensor models.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SensorModel {
+    /// 32 beams, −30.67° to +10.67° (Velodyne HDL-32E, NCLT's sensor).
+    Hdl32,
+    /// 64 beams, −24.9° to +2° (Velodyne HDL-64E, KITTI's sensor).
+    Hdl64,
+    /// 16 beams, −15° to +15° (Velodyne VLP-16).
+    Vlp16,
+}
+
+impl Sensor {
+    /// The model with toporec's defaults (0.2° azimuth, 100 m, 2 cm noise, 8 % dropouts, 1.9 m).
+    pub fn new(model: SensorModel) -> Self {
+        let spread =
+            |n: usize, lo: f64, hi: f64| (0..n).map(|i| lo + (hi - lo) * i as f64 / (n - 1) as f64).collect();
+        let elevations = match model {
+            SensorModel::Hdl32 => spread(32, -30.67, 10.67),
+            SensorModel::Hdl64 => spread(64, -24.9, 2.0),
+            SensorModel::Vlp16 => spread(16, -15.0, 15.0),
+        };
+        Sensor {
+            elevations,
+            azimuth_res: 0.2,
+            max_range: 100.0,
+            range_noise: 0.02,
+            dropout: 0.08,
+            height: 1.9,
+        }
+    }
+
+    /// Rays per revolution.
+    pub fn rays(&self) -> usize {
+        self.elevations.len() * self.columns()
+    }
+
+    fn columns(&self) -> usize {
+        (360.0 / self.azimuth_res).round() as usize
+    }
+}
+
+/// A simulated scan: points in the sensor frame (x forward, y left, z up).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimScan {
+    /// Session index.
+    pub session: usize,
+    /// Scan index in the session.
+    pub index: usize,
+    /// Timestamp (µs).
+    pub utime: i64,
+    /// Sensor pose in the town: x, y, z, yaw.
+    pub pose: [f64; 4],
+    /// Points.
+    pub points: Vec<[f32; 3]>,
+    /// Intensity 0–255.
+    pub intensity: Vec<u8>,
+    /// Beam index.
+    pub ring: Vec<u16>,
+}
+
+/// Output formats.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// NCLT layout.
+    Nclt,
+    /// ROS 2 MCAP.
+    Mcap,
+    /// KITTI odometry layout.
+    Kitti,
+}
+
+/// Everything `simulate` needs.
+#[derive(Clone, Debug)]
+pub struct SimParams {
+    /// Town.
+    pub town: TownParams,
+    /// Sensor.
+    pub sensor: Sensor,
+    /// Sessions (days).
+    pub sessions: usize,
+    /// Seed.
+    pub seed: u64,
+    /// Scans per session (None: one loop).
+    pub scans: Option<usize>,
+    /// Speed (m/s).
+    pub speed: f64,
+    /// Scan rate (Hz).
+    pub rate: f64,
+    /// Odd sessions drive the loop the other way.
+    pub reverse: bool,
+    /// Lateral lane offset between sessions (m).
+    pub lane_offset: f64,
+    /// Heading noise σ (degrees).
+    pub heading_noise: f64,
+}
+
+impl Default for SimParams {
+    fn default() -> Self {
+        SimParams {
+            town: TownParams::default(),
+            sensor: Sensor::new(SensorModel::Hdl32),
+            sessions: 2,
+            seed: 1,
+            scans: None,
+            speed: 10.0,
+            rate: 10.0,
+            reverse: false,
+            lane_offset: 1.5,
+            heading_noise: 1.5,
+        }
+    }
+}
+
+/// Session names: dates from 2026-01-01 on (NCLT names sessions by date).
+pub fn session_name(session: usize) -> String {
+    format!("2026-{:02}-{:02}", 1 + session / 28 % 12, 1 + session % 28)
+}
+
+fn session_base_utime(session: usize) -> i64 {
+    // 2026-01-01T10:00:00Z plus whole days.
+    1_767_261_600_000_000 + session as i64 * 86_400_000_000
+}
+
+/// The closed route: a rectangle along street centre lines (around the inner blocks when
+/// there are at least 3 per side).
+pub fn route_corners(t: &TownParams) -> [[f64; 2]; 4] {
+    let b = t.block_size;
+    let (lo, hi) = if t.blocks >= 3 { (b, (t.blocks - 1) as f64 * b) } else { (0.0, t.blocks as f64 * b) };
+    [[lo, lo], [hi, lo], [hi, hi], [lo, hi]]
+}
+
+/// Position and heading at arc length `s` along the loop (counter-clockwise), with a lateral
+/// offset to the right of travel.
+fn along_route(corners: &[[f64; 2]; 4], s: f64, lateral: f64, reverse: bool) -> [f64; 3] {
+    let len = |i: usize| {
+        let (a, b) = (corners[i], corners[(i + 1) % 4]);
+        (b[0] - a[0]).hypot(b[1] - a[1])
+    };
+    let total: f64 = (0..4).map(len).sum();
+    let mut s = s.rem_euclid(total);
+    if reverse {
+        s = total - s;
+    }
+    let mut i = 0;
+    while s > len(i) {
+        s -= len(i);
+        i = (i + 1) % 4;
+    }
+    let (a, b) = (corners[i], corners[(i + 1) % 4]);
+    let l = len(i);
+    let dir = [(b[0] - a[0]) / l, (b[1] - a[1]) / l];
+    let dir = if reverse { [-dir[0], -dir[1]] } else { dir };
+    let right = [dir[1], -dir[0]];
+    [
+        a[0] + (b[0] - a[0]) * s / l + right[0] * lateral,
+        a[1] + (b[1] - a[1]) * s / l + right[1] * lateral,
+        dir[1].atan2(dir[0]),
+    ]
+}
+
+/// Loop length (m).
+pub fn route_length(t: &TownParams) -> f64 {
+    let c = route_corners(t);
+    (0..4).map(|i| (c[(i + 1) % 4][0] - c[i][0]).hypot(c[(i + 1) % 4][1] - c[i][1])).sum()
+}
+
+fn gaussian(rng: &mut SplitMix64) -> f64 {
+    let u1 = rng.next_f64().max(1e-300);
+    let u2 = rng.next_f64();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// Scans per session (explicit or one loop).
+pub fn scans_per_session(p: &SimParams) -> usize {
+    p.scans.unwrap_or_else(|| (route_length(&p.town) / (p.speed / p.rate)).floor().max(1.0) as usize)
+}
+
+/// The pose of scan `index` of `session`.
+pub fn pose(p: &SimParams, session: usize, index: usize) -> [f64; 4] {
+    let mut rng = SplitMix64(p.seed ^ 0x726F_7574 ^ (session as u64).wrapping_mul(0xA24B_AED4_963E_E407));
+    let lane = if session % 2 == 0 { -1.0 } else { 1.0 } * p.lane_offset / 2.0 + 0.3 * gaussian(&mut rng);
+    let start = 0.37 * session as f64 * p.speed / p.rate;
+    let mut scan_rng = SplitMix64(rng.next_u64() ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let s = start + index as f64 * p.speed / p.rate;
+    let reverse = p.reverse && session % 2 == 1;
+    let [x, y, yaw] = along_route(&route_corners(&p.town), s, lane, reverse);
+    [x, y, 0.0, yaw + (p.heading_noise * gaussian(&mut scan_rng)).to_radians()]
+}
+
+/// Ray-casts one scan.
+pub fn scan(
+    p: &SimParams,
+    scene: &Scene,
+    session: usize,
+    index: usize,
+    mailbox: &mut scene::Mailbox,
+) -> SimScan {
+    let sensor = &p.sensor;
+    let [x, y, _, yaw] = pose(p, session, index);
+    let z = scene.ground_z(x, y) + sensor.height;
+    let mut rng = SplitMix64(p.seed ^ (session as u64) << 32 ^ index as u64 ^ 0x7363_616E);
+    let cols = sensor.columns();
+    let mut out = SimScan {
+        session,
+        index,
+        utime: session_base_utime(session) + (index as f64 * 1e6 / p.rate).round() as i64,
+        pose: [x, y, z, yaw],
+        points: Vec::with_capacity(sensor.rays() * 2 / 3),
+        intensity: Vec::new(),
+        ring: Vec::new(),
+    };
+    let ego = scene::Shape::Box { c: [0.0, 0.0, -EGO_ROOF - 0.75], h: [2.25, 0.9, 0.75], yaw: 0.0 };
+    let elevations: Vec<(f64, f64)> = sensor.elevations.iter().map(|e| e.to_radians().sin_cos()).collect();
+    for c in 0..cols {
+        let (sa, ca) = ((c as f64 * sensor.azimuth_res).to_radians()).sin_cos();
+        let (sw, cw) = ((c as f64 * sensor.azimuth_res).to_radians() + yaw).sin_cos();
+        for (ring, &(se, ce)) in elevations.iter().enumerate() {
+            let d_world = [ce * cw, ce * sw, se];
+            // The ego vehicle's roof blocks the steep beams fore and aft (filtered, as drivers do).
+            if ego.intersect([0.0; 3], [ce * ca, ce * sa, se]).is_some() {
+                continue;
+            }
+            let hit = scene.cast([x, y, z], d_world, sensor.max_range, mailbox);
+            let chance = rng.next_f64();
+            let noise = gaussian(&mut rng) * sensor.range_noise;
+            let jitter = rng.next_f64();
+            if let Some((t, material)) = hit
+                && chance < return_probability(sensor, t, se, material)
+            {
+                let r = t + noise;
+                out.points.push([(r * ce * ca) as f32, (r * ce * sa) as f32, (r * se) as f32]);
+                out.intensity.push((material.intensity() * (0.85 + 0.3 * jitter)).clamp(0.0, 255.0) as u8);
+                out.ring.push(ring as u16);
+            }
+        }
+    }
+    out
+}
+
+/// Height of the sensor above the ego vehicle's roof (m).
+const EGO_ROOF: f64 = 0.6;
+
+/// Probability that a hit gives a return: the sensor's dropout, weaker echoes far away
+/// (−60 % at max range), glass (15 % of facade hits lost), and road hit at grazing angles
+/// (fading below 3° of elevation).
+fn return_probability(sensor: &Sensor, range: f64, sin_elevation: f64, material: scene::Material) -> f64 {
+    let mut p = (1.0 - sensor.dropout) * (1.0 - 0.6 * (range / sensor.max_range).powi(2));
+    match material {
+        scene::Material::Building => p *= 0.85,
+        scene::Material::Ground => p *= (sin_elevation.abs() / 3f64.to_radians().sin()).min(1.0),
+        _ => {}
+    }
+    p
+}
+
+/// Writes all sessions in `formats` under `out`; returns the number of scans written.
+pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> {
+    let per = scans_per_session(p);
+    let mut total = 0;
+    for session in 0..p.sessions {
+        let scene = Scene::town(&p.town, p.seed, session as u64);
+        let mut writers: Vec<Box<dyn SessionWriter>> = formats
+            .iter()
+            .map(|f| -> Result<Box<dyn SessionWriter>> {
+                Ok(match f {
+                    Format::Nclt => Box::new(NcltWriter::new(out, session)?),
+                    Format::Mcap => Box::new(McapWriter::new(out, session)?),
+                    Format::Kitti => Box::new(KittiWriter::new(out, session, p.rate)?),
+                })
+            })
+            .collect::<Result<_>>()?;
+        let chunk = 4 * rayon::current_num_threads().max(1);
+        for start in (0..per).step_by(chunk) {
+            let scans: Vec<SimScan> = (start..(start + chunk).min(per))
+                .into_par_iter()
+                .map_init(|| scene.mailbox(), |mb, i| scan(p, &scene, session, i, mb))
+                .collect();
+            for s in &scans {
+                for w in &mut writers {
+                    w.write(s)?;
+                }
+            }
+            total += scans.len();
+        }
+        for w in writers {
+            w.finish()?;
+        }
+    }
+    Ok(total)
+}
+
+trait SessionWriter {
+    fn write(&mut self, s: &SimScan) -> Result<()>;
+    fn finish(self: Box<Self>) -> Result<()>;
+}
+
+/// NCLT: `velodyne_data/<date>/velodyne_sync/<utime>.bin` (5 mm, z down) and
+/// `ground_truth/groundtruth_<date>.csv` (x north, y east, z down, heading).
+struct NcltWriter {
+    dir: PathBuf,
+    gt_path: PathBuf,
+    gt: String,
+}
+
+impl NcltWriter {
+    fn new(out: &Path, session: usize) -> Result<Self> {
+        let name = session_name(session);
+        let dir = out.join("velodyne_data").join(&name).join("velodyne_sync");
+        std::fs::create_dir_all(&dir).with_context(|| format!("{}: creating", dir.display()))?;
+        let gt_path = out.join("ground_truth").join(format!("groundtruth_{name}.csv"));
+        Ok(NcltWriter { dir, gt_path, gt: String::new() })
+    }
+}
+
+impl SessionWriter for NcltWriter {
+    fn write(&mut self, s: &SimScan) -> Result<()> {
+        let mut bytes = Vec::with_capacity(s.points.len() * 8);
+        for ((p, &i), &r) in s.points.iter().zip(&s.intensity).zip(&s.ring) {
+            let q = [p[0] as f64, -p[1] as f64, -p[2] as f64]
+                .map(|v| ((v + 100.0) / 0.005).round().clamp(0.0, 65535.0) as u16);
+            q.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
+            bytes.push(i);
+            bytes.push(r as u8);
+        }
+        crate::fsutil::write_atomic(&self.dir.join(format!("{}.bin", s.utime)), &bytes)?;
+        let [x, y, z, yaw] = s.pose;
+        self.gt += &format!("{},{:?},{:?},{:?},0.0,0.0,{:?}\n", s.utime, x, -y, -z, -yaw);
+        Ok(())
+    }
+
+    fn finish(self: Box<Self>) -> Result<()> {
+        crate::fsutil::write_atomic(&self.gt_path, self.gt.as_bytes())
+    }
+}
+
+/// MCAP: `mcap/<date>.mcap` (ROS 2 PointCloud2 on /velodyne_points, zstd chunks) and
+/// `mcap/groundtruth_<date>.csv`.
+struct McapWriter {
+    path: PathBuf,
+    tmp: PathBuf,
+    writer: ::mcap::Writer<std::io::BufWriter<std::fs::File>>,
+    channel: u16,
+    gt_path: PathBuf,
+    gt: String,
+}
+
+const POINTCLOUD2_MSG: &str = "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n";
+
+impl McapWriter {
+    fn new(out: &Path, session: usize) -> Result<Self> {
+        let name = session_name(session);
+        let dir = out.join("mcap");
+        std::fs::create_dir_all(&dir)?;
+        let path = dir.join(format!("{name}.mcap"));
+        let tmp = crate::fsutil::temp_path(&path);
+        let file = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let mut writer = ::mcap::WriteOptions::new()
+            .compression(Some(::mcap::Compression::Zstd))
+            .profile("ros2")
+            .library("toporec-simulate")
+            .create(file)?;
+        let schema =
+            writer.add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSG.as_bytes())?;
+        let channel = writer.add_channel(schema, "/velodyne_points", "cdr", &Default::default())?;
+        let gt_path = dir.join(format!("groundtruth_{name}.csv"));
+        Ok(McapWriter { path, tmp, writer, channel, gt_path, gt: String::new() })
+    }
+}
+
+impl SessionWriter for McapWriter {
+    fn write(&mut self, s: &SimScan) -> Result<()> {
+        let mut data = Vec::with_capacity(s.points.len() * 20);
+        for ((p, &i), &r) in s.points.iter().zip(&s.intensity).zip(&s.ring) {
+            p.iter().for_each(|v| data.extend(v.to_le_bytes()));
+            data.extend((i as f32).to_le_bytes());
+            data.extend(r.to_le_bytes());
+            data.extend([0u8; 2]);
+        }
+        let f = |name: &str, offset, dt| PointField { name: name.into(), offset, datatype: dt, count: 1 };
+        let cloud = PointCloud2 {
+            stamp_ns: s.utime * 1000,
+            frame_id: "velodyne".into(),
+            height: 1,
+            width: s.points.len() as u32,
+            fields: vec![
+                f("x", 0, datatype::FLOAT32),
+                f("y", 4, datatype::FLOAT32),
+                f("z", 8, datatype::FLOAT32),
+                f("intensity", 12, datatype::FLOAT32),
+                f("ring", 16, datatype::UINT16),
+            ],
+            is_bigendian: false,
+            point_step: 20,
+            row_step: 20 * s.points.len() as u32,
+            data: &data,
+        };
+        let bytes = pointcloud2::serialize(&cloud, Encoding::Cdr);
+        let t = (s.utime * 1000) as u64;
+        let header = ::mcap::records::MessageHeader {
+            channel_id: self.channel,
+            sequence: s.index as u32,
+            log_time: t,
+            publish_time: t,
+        };
+        self.writer.write_to_known_channel(&header, &bytes)?;
+        let [x, y, z, yaw] = s.pose;
+        self.gt += &format!("{},{:?},{:?},{:?},0.0,0.0,{:?}\n", s.utime, x, -y, -z, -yaw);
+        Ok(())
+    }
+
+    fn finish(mut self: Box<Self>) -> Result<()> {
+        self.writer.finish()?;
+        drop(self.writer);
+        std::fs::rename(&self.tmp, &self.path)?;
+        crate::fsutil::write_atomic(&self.gt_path, self.gt.as_bytes())
+    }
+}
+
+/// KITTI: `kitti/sequences/<NN>/velodyne/<frame>.bin`, `times.txt`, `poses.txt` (camera 0
+/// frame: x right, y down, z forward; in the town frame, not relative to frame 0).
+struct KittiWriter {
+    dir: PathBuf,
+    rate: f64,
+    times: String,
+    poses: String,
+}
+
+impl KittiWriter {
+    fn new(out: &Path, session: usize, rate: f64) -> Result<Self> {
+        let dir = out.join("kitti").join("sequences").join(format!("{session:02}"));
+        std::fs::create_dir_all(dir.join("velodyne"))?;
+        Ok(KittiWriter { dir, rate, times: String::new(), poses: String::new() })
+    }
+}
+
+impl SessionWriter for KittiWriter {
+    fn write(&mut self, s: &SimScan) -> Result<()> {
+        let mut bytes = Vec::with_capacity(s.points.len() * 16);
+        for (p, &i) in s.points.iter().zip(&s.intensity) {
+            p.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
+            bytes.extend((i as f32 / 255.0).to_le_bytes());
+        }
+        crate::fsutil::write_atomic(&self.dir.join("velodyne").join(format!("{:06}.bin", s.index)), &bytes)?;
+        self.times += &format!("{:e}\n", s.index as f64 / self.rate);
+        let [x, y, z, yaw] = s.pose;
+        let (sy, cy) = yaw.sin_cos();
+        // Columns: camera x (right), y (down), z (forward) in camera-0 coordinates
+        // (x_c = −y, y_c = −z, z_c = x of the town frame); translation likewise.
+        let r = [[cy, 0.0, -sy], [0.0, 1.0, 0.0], [sy, 0.0, cy]];
+        let t = [-y, -z, x];
+        let row = |k: usize| format!("{:e} {:e} {:e} {:e}", r[k][0], r[k][1], r[k][2], t[k]);
+        self.poses += &format!("{} {} {}\n", row(0), row(1), row(2));
+        Ok(())
+    }
+
+    fn finish(self: Box<Self>) -> Result<()> {
+        crate::fsutil::write_atomic(&self.dir.join("times.txt"), self.times.as_bytes())?;
+        crate::fsutil::write_atomic(&self.dir.join("poses.txt"), self.poses.as_bytes())
+    }
+}

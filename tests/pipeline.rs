@@ -1,0 +1,290 @@
+//! `toporec run` end to end: every shipped pipeline file, the Parquet tables read back by
+//! arrow-rs and by an independent reader (DuckDB/pyarrow), determinism across thread counts,
+//! bad scans mid-run, validation errors, schemas kept in sync.
+
+use crate::util::*;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use toporec::pipeline::config::Pipeline;
+use toporec::sinks::index;
+
+fn toporec(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_toporec")).args(args).output().expect("run toporec")
+}
+
+fn run(pipeline: &Path, index: &Path, threads: usize) -> Output {
+    toporec(&[
+        "run",
+        pipeline.to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "-t",
+        &threads.to_string(),
+        "--no-progress",
+    ])
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// The parquet files of one table, sorted.
+fn parts(index: &Path, table: &str) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for session in std::fs::read_dir(index.join(table)).unwrap().flatten() {
+        for f in std::fs::read_dir(session.path()).unwrap().flatten() {
+            out.push(f.path());
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Descriptor rows (scan_id, values) via arrow-rs.
+fn descriptors(index: &Path) -> Vec<(String, Vec<f32>)> {
+    use arrow::array::{AsArray, Float32Array};
+    let mut out = Vec::new();
+    for p in parts(index, "descriptors") {
+        let f = std::fs::File::open(&p).unwrap();
+        let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(f)
+            .unwrap()
+            .build()
+            .unwrap();
+        for b in reader {
+            let b = b.unwrap();
+            let ids = b.column_by_name("scan_id").unwrap().as_string::<i32>().clone();
+            let vec = b.column_by_name("descriptor").unwrap().as_fixed_size_list().clone();
+            for i in 0..b.num_rows() {
+                let v = vec.value(i);
+                let v = v.as_any().downcast_ref::<Float32Array>().unwrap();
+                out.push((ids.value(i).to_string(), v.values().to_vec()));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn sample_pipeline_end_to_end_and_thread_count_invariant() {
+    let dir = scratch_dir("pipeline_sample");
+    let pipeline = root().join("pipelines/sample.toml");
+    let one = dir.join("t1");
+    let o = run(&pipeline, &one, 1);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let summary = text(&o.stderr);
+    assert!(summary.contains("scans: 64 read, 64 indexed, 0 skipped, 0 errors"), "{summary}");
+    for name in ["codebook.json", "pipeline.toml", "manifest.json"] {
+        assert!(one.join(name).is_file(), "{name}");
+    }
+    assert_eq!(parts(&one, "scans").len(), 2, "one partition per session");
+    assert!(one.join("scans/session=2026-01-01/part-0.parquet").is_file());
+    assert!(
+        std::fs::read_dir(&one)
+            .unwrap()
+            .flatten()
+            .all(|e| !e.file_name().to_string_lossy().starts_with(".staging"))
+    );
+    // The effective pipeline is itself a valid pipeline that names the same index.
+    let eff = Pipeline::load(&one.join("pipeline.toml")).unwrap();
+    assert_eq!(eff.preprocess, Pipeline::load(&pipeline).unwrap().preprocess);
+
+    // arrow-rs read-back: scans and diagrams agree with each other and with the engine.
+    let scans = index::ok_scans(&one.join("scans/session=2026-01-02/part-0.parquet")).unwrap();
+    assert_eq!(scans.len(), 32);
+    assert!(scans.iter().all(|s| s.2.is_some()), "every sample scan has its ground-truth pose");
+    let diagrams: Vec<_> = index::diagrams(&one.join("diagrams/session=2026-01-02/part-0.parquet"))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(diagrams.len(), 32);
+    let h0 = diagrams[0].1.dimension(0);
+    assert_eq!(h0.iter().filter(|p| p.death.is_infinite()).count(), 1, "one essential class");
+    assert!(h0.len() > 1000, "H0 has one pair per kept point: {}", h0.len());
+    let d = descriptors(&one);
+    assert_eq!(d.len(), 64);
+    assert!(d.iter().all(|(_, v)| v.len() == 50 && v.iter().all(|x| x.is_finite())));
+
+    // 2 threads: identical tables.
+    let two = dir.join("t2");
+    let o = run(&pipeline, &two, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(descriptors(&two), d, "descriptors independent of the thread count");
+    for table in ["scans", "diagrams", "descriptors"] {
+        for (a, b) in parts(&one, table).iter().zip(parts(&two, table)) {
+            assert_eq!(
+                std::fs::read(a).unwrap(),
+                std::fs::read(&b).unwrap(),
+                "{table}: byte-identical files"
+            );
+        }
+    }
+    // A second run into the same index replaces it cleanly.
+    let o = run(&pipeline, &two, 2);
+    assert!(o.status.success());
+    assert_eq!(descriptors(&two), d);
+
+    // An independent reader, when installed (.ci/run installs duckdb and pyarrow).
+    independent_reader_check(&one);
+}
+
+fn independent_reader_check(index: &Path) {
+    let script = format!(
+        r#"
+import duckdb, pyarrow.dataset as ds
+idx = "{idx}"
+con = duckdb.connect()
+rows = con.sql(f"select session, status, count(*) from read_parquet('{{idx}}/scans/*/*.parquet', hive_partitioning=true, hive_types_autocast=false) group by all order by 1").fetchall()
+assert rows == [("2026-01-01", "ok", 32), ("2026-01-02", "ok", 32)], rows
+h = con.sql(f"select dim, count(*), count(*) filter (where isinf(death)) from read_parquet('{{idx}}/diagrams/*/*.parquet', hive_partitioning=true) group by dim order by dim").fetchall()
+assert h[0][0] == 0 and h[0][2] == 64, h
+t = ds.dataset(f"{{idx}}/descriptors", format="parquet", partitioning="hive").to_table()
+assert t.num_rows == 64 and str(t.schema.field("descriptor").type) == "fixed_size_list<item: float not null>[50]", t.schema
+assert set(t.column_names) >= {{"scan_id", "utime", "pose_x", "pose_y", "pose_z", "dim_used", "descriptor", "codebook_id", "session"}}
+md = ds.dataset(f"{{idx}}/scans", format="parquet").files
+import pyarrow.parquet as pq
+meta = pq.read_metadata(md[0]).metadata
+assert meta[b"toporec.schema_version"] == b"1" and meta[b"toporec.table"] == b"scans", meta
+print("independent reader ok")
+"#,
+        idx = index.display()
+    );
+    let probe = Command::new("python3").args(["-c", "import duckdb, pyarrow"]).output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        println!("SKIP independent reader: python3 with duckdb and pyarrow not installed");
+        return;
+    }
+    let o = Command::new("python3").args(["-c", &script]).output().unwrap();
+    assert!(o.status.success(), "{}{}", text(&o.stdout), text(&o.stderr));
+}
+
+#[test]
+fn shipped_pipelines_run_on_shared_data() {
+    let Some(_) = shared_data("shipped_pipelines_run_on_shared_data") else { return };
+    let dir = scratch_dir("pipeline_shipped");
+    for (name, read, sessions) in [("nclt", 14, 1), ("mcap", 6, 2), ("kitti", 48, 11)] {
+        let index = dir.join(name);
+        let o = run(&root().join(format!("pipelines/{name}.toml")), &index, 2);
+        assert!(o.status.success(), "{name}: {}", text(&o.stderr));
+        assert!(
+            text(&o.stderr).contains(&format!("scans: {read} read, {read} indexed")),
+            "{name}: {}",
+            text(&o.stderr)
+        );
+        assert_eq!(parts(&index, "descriptors").len(), sessions, "{name}");
+    }
+    // The NCLT session's poses made it into the descriptors.
+    let scans = index::ok_scans(&dir.join("nclt/scans/session=2011-10-03/part-0.parquet")).unwrap();
+    assert!(scans.iter().all(|s| s.2.is_some()));
+}
+
+#[test]
+fn bad_scans_mid_run_are_recorded_and_the_run_is_partial() {
+    let dir = scratch_dir("pipeline_bad_scan");
+    // A copy of one sample session with one truncated and one empty scan.
+    let src = root().join("samples/town/velodyne_data/2026-01-01/velodyne_sync");
+    let session = dir.join("data/velodyne_data/2026-01-01/velodyne_sync");
+    std::fs::create_dir_all(&session).unwrap();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&src).unwrap().flatten().map(|e| e.path()).collect();
+    files.sort();
+    for f in files.iter().take(6) {
+        std::fs::copy(f, session.join(f.file_name().unwrap())).unwrap();
+    }
+    let bad = session.join(files[2].file_name().unwrap());
+    let bytes = std::fs::read(&bad).unwrap();
+    std::fs::write(&bad, &bytes[..bytes.len() - 3]).unwrap();
+    std::fs::write(session.join("1767261600999999.bin"), b"").unwrap();
+    let pipeline = dir.join("p.toml");
+    std::fs::write(&pipeline, "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [\"data/velodyne_data\"]\n[preprocess]\nsubsample = 1024\nnormalize = true\n[vectorize]\nb = 4\n").unwrap();
+    let o = toporec(&["run", pipeline.to_str().unwrap(), "--no-progress"]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    let err = text(&o.stderr);
+    assert!(err.contains("partial: 1 of 7 scans failed"), "{err}");
+    assert!(err.contains("1 skipped"), "the empty scan is skipped: {err}");
+    assert!(err.contains(&format!("{}: truncated", bad.display())), "{err}");
+    // The scans table holds the error row, in input order.
+    let probe = Command::new("python3").args(["-c", "import duckdb"]).output();
+    if probe.is_ok_and(|o| o.status.success()) {
+        let q = format!(
+            "import duckdb; print(duckdb.sql(\"select seq, status, error from read_parquet('{}/idx/scans/*/*.parquet') order by seq\").fetchall())",
+            dir.display()
+        );
+        let out = text(&Command::new("python3").args(["-c", &q]).output().unwrap().stdout);
+        // Sorted by utime: the empty scan (…0999999) comes before the truncated one.
+        assert!(out.contains("(2, 'skipped', '0 points after preprocessing"), "{out}");
+        assert!(out.contains("(3, 'error'") && out.contains("truncated"), "{out}");
+    }
+    assert_eq!(descriptors(&dir.join("idx")).len(), 5);
+}
+
+#[test]
+fn validation_reports_every_error_with_its_key_path() {
+    let dir = scratch_dir("pipeline_validate");
+    let p = dir.join("bad.toml");
+    std::fs::write(
+        &p,
+        r#"
+[output]
+index = "x"
+colour = "red"
+[[sources]]
+kind = "nclt"
+sessions = ["missing-folder"]
+[[sources]]
+kind = "mcap"
+fils = ["a.mcap"]
+[preprocess]
+voxel = -1.0
+subsample = "many"
+range = { min = 5.0, max = 1.0 }
+[persistence]
+dims = [2]
+[vectorize]
+b = 0
+contrast = "sharp"
+"#,
+    )
+    .unwrap();
+    let o = toporec(&["validate", p.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    let e = text(&o.stderr);
+    for needle in [
+        "output.colour: unknown key",
+        "sources[0].sessions:",
+        "missing-folder does not exist",
+        "sources[1]: unknown field `fils`",
+        "preprocess.voxel: the cell size must be > 0",
+        "preprocess.subsample:",
+        "preprocess.range: need 0 <= min < max",
+        "vectorize.b: must be at least 1",
+        "vectorize.contrast:",
+        "persistence.dims: the descriptor needs H0",
+    ] {
+        assert!(e.contains(needle), "missing `{needle}` in:\n{e}");
+    }
+    assert!(e.contains("9 error(s)"), "{e}");
+    // Syntax errors name the line.
+    std::fs::write(&p, "[output\nindex = 1").unwrap();
+    let e = text(&toporec(&["validate", p.to_str().unwrap()]).stderr);
+    assert!(e.contains("bad.toml") && e.contains("line 1"), "{e}");
+    // Every shipped pipeline validates.
+    for f in std::fs::read_dir(root().join("pipelines")).unwrap().flatten() {
+        let o = toporec(&["validate", f.path().to_str().unwrap()]);
+        if shared_data("validate shipped").is_some() || f.file_name() == "sample.toml" {
+            assert!(o.status.success(), "{}: {}", f.path().display(), text(&o.stderr));
+        }
+    }
+}
+
+#[test]
+fn schema_files_equal_the_code() {
+    for t in toporec::sinks::schema::all() {
+        let path = root().join(format!("schemas/{}.json", t.name));
+        let on_disk = std::fs::read_to_string(&path).unwrap_or_default();
+        assert_eq!(
+            on_disk,
+            toporec::sinks::schema::render_json(&t),
+            "{} is stale: run `cargo run -- schemas schemas`",
+            path.display()
+        );
+    }
+}
