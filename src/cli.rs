@@ -33,6 +33,14 @@ pub struct Cli {
 pub enum Command {
     /// Run a pipeline file: sources → preprocess → persistence → vectorize → Parquet index.
     Run(RunArgs),
+    /// Find the k nearest indexed scans of new scans (files, MCAPs, sessions, sequences).
+    Query(QueryArgs),
+    /// Evaluate place recognition on indexes (Recall@N, Recall@1%), with a JSON report and plots.
+    #[command(subcommand)]
+    Eval(EvalCommand),
+    /// Plots from an index.
+    #[command(subcommand)]
+    Plot(PlotCommand),
     /// Check a pipeline file (every error at once, with key paths) without reading data.
     Validate(ValidateArgs),
     /// Generate multi-session LiDAR drives through a procedural town (NCLT, MCAP, KITTI files).
@@ -115,6 +123,114 @@ pub struct SimulateArgs {
     /// Worker threads (default: all cores).
     #[arg(long, short)]
     pub threads: Option<usize>,
+}
+
+/// Arguments of `toporec query`.
+#[derive(clap::Args, Debug)]
+pub struct QueryArgs {
+    /// The index to search.
+    #[arg(long)]
+    pub index: PathBuf,
+    /// Query inputs: cloud files, MCAPs, NCLT sessions, KITTI sequences.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Neighbours per query.
+    #[arg(short, default_value_t = 25)]
+    pub k: usize,
+    /// Database sessions (default: all).
+    #[arg(long = "session")]
+    pub sessions: Vec<String>,
+    /// MCAP topic.
+    #[arg(long)]
+    pub topic: Option<String>,
+    /// Output CSV (default stdout).
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+}
+
+/// `toporec eval` protocols.
+#[derive(Subcommand, Debug)]
+pub enum EvalCommand {
+    /// Database scans vs query scans, true matches within R metres.
+    Places(PlacesCli),
+    /// The paper's object protocol: perturbed index scans must find themselves.
+    Perturbation(PerturbationCli),
+}
+
+/// Arguments of `toporec eval places`.
+#[derive(clap::Args, Debug)]
+pub struct PlacesCli {
+    /// The database index.
+    #[arg(long)]
+    pub db: PathBuf,
+    /// Database sessions (repeatable; default all).
+    #[arg(long = "db-session")]
+    pub db_sessions: Vec<String>,
+    /// The query index (default: the database index; must share its codebook).
+    #[arg(long)]
+    pub queries: Option<PathBuf>,
+    /// Query sessions (repeatable; default all).
+    #[arg(long = "query-session")]
+    pub query_sessions: Vec<String>,
+    /// Revisit thresholds R (m).
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50")]
+    pub thresholds: Vec<f64>,
+    /// Largest N of Recall@N.
+    #[arg(long, default_value_t = 25)]
+    pub max_n: usize,
+    /// Keep a map scan only if farther than this (m) from the last kept (RING).
+    #[arg(long)]
+    pub map_every: Option<f64>,
+    /// Same for query scans.
+    #[arg(long)]
+    pub query_every: Option<f64>,
+    /// Ignore database scans of the query's session closer in time than this (s).
+    #[arg(long, default_value_t = 0.0)]
+    pub min_time_gap: f64,
+    /// Output folder for report.json, report.txt and the plots.
+    #[arg(long, short)]
+    pub out: PathBuf,
+}
+
+/// Arguments of `toporec eval perturbation`.
+#[derive(clap::Args, Debug)]
+pub struct PerturbationCli {
+    /// The index.
+    #[arg(long)]
+    pub index: PathBuf,
+    /// Share of the scans used as queries.
+    #[arg(long, default_value_t = 0.2)]
+    pub fraction: f64,
+    /// Seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Largest N of Recall@N.
+    #[arg(long, default_value_t = 25)]
+    pub max_n: usize,
+    /// Output folder.
+    #[arg(long, short)]
+    pub out: PathBuf,
+}
+
+/// `toporec plot` kinds.
+#[derive(Subcommand, Debug)]
+pub enum PlotCommand {
+    /// The persistence diagram of one indexed scan (PNG + SVG).
+    Diagram(PlotDiagramArgs),
+}
+
+/// Arguments of `toporec plot diagram`.
+#[derive(clap::Args, Debug)]
+pub struct PlotDiagramArgs {
+    /// The index.
+    #[arg(long)]
+    pub index: PathBuf,
+    /// The scan id.
+    #[arg(long)]
+    pub scan: String,
+    /// Output file stem (default: diagram_<scan> in the current folder).
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
 }
 
 /// Arguments of `toporec validate`.
@@ -229,6 +345,35 @@ pub fn main() -> ExitCode {
         Command::Run(args) => return run(args),
         Command::Validate(args) => validate(args),
         Command::Schemas(args) => schemas(args),
+        Command::Query(args) => query(args),
+        Command::Eval(EvalCommand::Places(a)) => {
+            let args = crate::eval::PlacesArgs {
+                db: a.db,
+                db_sessions: a.db_sessions,
+                queries: a.queries,
+                query_sessions: a.query_sessions,
+                thresholds: a.thresholds,
+                max_n: a.max_n,
+                map_every: a.map_every,
+                query_every: a.query_every,
+                min_time_gap: a.min_time_gap,
+                out: a.out.clone(),
+            };
+            crate::eval::places(&args)
+                .map(|t| print!("{t}written: {}\n", a.out.join("report.json").display()))
+        }
+        Command::Eval(EvalCommand::Perturbation(a)) => {
+            let args = crate::eval::PerturbationArgs {
+                index: a.index,
+                fraction: a.fraction,
+                seed: a.seed,
+                max_n: a.max_n,
+                out: a.out.clone(),
+            };
+            crate::eval::perturbation(&args)
+                .map(|t| print!("{t}written: {}\n", a.out.join("report.json").display()))
+        }
+        Command::Plot(PlotCommand::Diagram(a)) => plot_diagram(a),
         Command::Simulate(args) => simulate(args),
         Command::Diagram(args) => diagram(args),
         Command::Inspect(args) => crate::inspect::inspect(&args.path).map(|report| print!("{report}")),
@@ -330,6 +475,87 @@ fn simulate(a: SimulateArgs) -> Result<()> {
         a.out.display(),
         n as f64 / secs
     );
+    Ok(())
+}
+
+fn query(a: QueryArgs) -> Result<()> {
+    use rayon::prelude::*;
+    let engine = crate::query::Engine::open(&a.index, &a.sessions)?;
+    let mut out = String::from("query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z\n");
+    let mut times = Vec::new();
+    let mut failures = 0;
+    for input in &a.inputs {
+        let scans: Vec<_> = crate::query::open_path(input, a.topic.as_deref())?.collect();
+        let results: Vec<_> = scans
+            .into_par_iter()
+            .map(|item| {
+                let scan = item.map_err(|f| f.error)?;
+                let id = scan.id.clone();
+                let points = engine.preprocess(scan)?;
+                let (v, mut t) = engine.describe(&points, &id)?;
+                let start = std::time::Instant::now();
+                let hits = engine.search(&v, a.k);
+                t.search = start.elapsed().as_secs_f64();
+                Ok::<_, String>((id, hits, t))
+            })
+            .collect();
+        for r in results {
+            match r {
+                Ok((id, hits, t)) => {
+                    times.push(t);
+                    for (rank, (row, dist)) in hits.iter().enumerate() {
+                        let s = &engine.scans[*row];
+                        let p = s.pose.map(|p| p.map(|x| format!("{x:?}"))).unwrap_or([
+                            String::new(),
+                            String::new(),
+                            String::new(),
+                        ]);
+                        out += &format!(
+                            "{},{},{},{},{dist:?},{},{},{}\n",
+                            csv_field(&id),
+                            rank + 1,
+                            csv_field(&s.scan_id),
+                            csv_field(&s.session),
+                            p[0],
+                            p[1],
+                            p[2]
+                        );
+                    }
+                }
+                Err(e) => {
+                    failures += 1;
+                    eprintln!("error: {e}");
+                }
+            }
+        }
+    }
+    match &a.out {
+        Some(p) => crate::fsutil::write_atomic(p, out.as_bytes())?,
+        None => std::io::stdout().lock().write_all(out.as_bytes()).or_else(ignore_broken_pipe)?,
+    }
+    let stat = |f: fn(&crate::query::StepTimes) -> f64| {
+        crate::query::mean_p95_ms(&times.iter().map(f).collect::<Vec<_>>())
+    };
+    let ((pm, pp), (vm, vp), (sm, sp)) = (stat(|t| t.persistence), stat(|t| t.vectorize), stat(|t| t.search));
+    eprintln!(
+        "{} queries against {} scans; per query (mean / p95 ms): persistence {pm:.2} / {pp:.2}, vectorize {vm:.3} / {vp:.3}, search {sm:.3} / {sp:.3}",
+        times.len(),
+        engine.scans.len()
+    );
+    if failures > 0 {
+        bail!("{failures} quer(ies) failed");
+    }
+    Ok(())
+}
+
+fn plot_diagram(a: PlotDiagramArgs) -> Result<()> {
+    let d = crate::sinks::index::diagram_of(&a.index, &a.scan)?
+        .with_context(|| format!("{}: no scan {} in the diagrams table", a.index.display(), a.scan))?;
+    let stem =
+        a.out.unwrap_or_else(|| PathBuf::from(format!("diagram_{}", a.scan.replace(['/', '\\'], "_"))));
+    for p in crate::plot::diagram(&stem, &format!("persistence diagram of {}", a.scan), &d)? {
+        println!("{}", p.display());
+    }
     Ok(())
 }
 

@@ -19,12 +19,16 @@
 
 pub mod cli;
 pub mod diagram_csv;
+pub mod eval;
 pub mod fsutil;
 pub mod homology;
 pub mod inspect;
 pub mod pipeline;
+pub mod plot;
 pub mod preprocess;
+pub mod query;
 pub mod rng;
+pub mod search;
 pub mod simulate;
 pub mod sinks;
 pub mod sources;

@@ -3,6 +3,7 @@
 mod atol;
 mod cli;
 mod codebook;
+mod eval;
 mod homology;
 mod pipeline;
 mod simulate;

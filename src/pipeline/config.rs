@@ -195,13 +195,27 @@ impl Pipeline {
         Self::parse(&text, path)
     }
 
+    /// Reads a pipeline file without checking that its inputs exist (an index's effective
+    /// pipeline, read for its settings).
+    pub fn load_settings(path: &Path) -> Result<Self, ConfigErrors> {
+        let fail = |errors| ConfigErrors { path: path.to_owned(), errors };
+        let text = std::fs::read_to_string(path).map_err(|e| fail(vec![e.to_string()]))?;
+        Self::parse_with(&text, path, false)
+    }
+
     /// Parses pipeline text; `path` names the file and anchors relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigErrors> {
+        Self::parse_with(text, path, true)
+    }
+
+    fn parse_with(text: &str, path: &Path, check_inputs: bool) -> Result<Self, ConfigErrors> {
         let mut errors = Vec::new();
         let fail = |errors| ConfigErrors { path: path.to_owned(), errors };
         let doc: Table =
             text.parse().map_err(|e: toml::de::Error| fail(vec![e.to_string().trim().to_string()]))?;
-        let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")).to_owned();
+        // Absolute, so the effective pipeline written into an index stays valid anywhere.
+        let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let base = std::path::absolute(base).unwrap_or_else(|_| base.to_owned());
         let resolve = |p: PathBuf| clean(&if p.is_relative() { base.join(p) } else { p });
         let mut root = Section::new(&doc, "");
 
@@ -226,7 +240,9 @@ impl Pipeline {
                         Ok(mut s) => {
                             s.resolve_paths(&base);
                             s.clean_paths(clean);
-                            check_source_paths(&s, i, &mut errors);
+                            if check_inputs {
+                                check_source_paths(&s, i, &mut errors);
+                            }
                             sources.push(s);
                         }
                         Err(e) => errors.push(format!("sources[{i}]: {}", e.message().trim())),

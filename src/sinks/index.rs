@@ -265,3 +265,124 @@ pub fn diagrams(path: &Path) -> Result<impl Iterator<Item = Result<(String, Diag
         }
     }))
 }
+
+/// Decodes a `session=<name>` partition folder name.
+pub fn session_of(partition: &str) -> Option<String> {
+    let enc = partition.strip_prefix("session=")?;
+    let bytes = enc.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i] == b'%' && i + 2 < bytes.len() {
+            let hex = std::str::from_utf8(&bytes[i + 1..i + 3]).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(bytes[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// The part files of `table` in an index, with their sessions, sorted by (session, part).
+pub fn table_files(root: &Path, table: &str) -> Result<Vec<(String, PathBuf)>> {
+    let dir = root.join(table);
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(&dir)
+        .with_context(|| format!("{}: not an index (no {table}/)", root.display()))?
+        .flatten()
+    {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(session) = session_of(&name) else { continue };
+        for f in std::fs::read_dir(e.path())?.flatten() {
+            let p = f.path();
+            if p.extension().is_some_and(|x| x == "parquet") {
+                out.push((session.clone(), p));
+            }
+        }
+    }
+    out.sort_by(|a, b| {
+        let part = |p: &Path| {
+            p.file_stem()
+                .and_then(|s| s.to_str())
+                .and_then(|s| s.strip_prefix("part-"))
+                .and_then(|n| n.parse::<u64>().ok())
+        };
+        a.0.cmp(&b.0).then(part(&a.1).cmp(&part(&b.1)))
+    });
+    Ok(out)
+}
+
+/// One row of `descriptors`, with its session.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IndexedScan {
+    /// Scan id.
+    pub scan_id: String,
+    /// Session.
+    pub session: String,
+    /// Timestamp (µs).
+    pub utime: Option<i64>,
+    /// Position, when known.
+    pub pose: Option<[f64; 3]>,
+    /// The descriptor.
+    pub descriptor: Vec<f32>,
+    /// Codebook id.
+    pub codebook_id: String,
+}
+
+/// Reads the descriptors of an index (only `sessions`, when not empty), in (session, part,
+/// row) order.
+pub fn read_descriptors(root: &Path, sessions: &[String]) -> Result<Vec<IndexedScan>> {
+    use arrow::array::Float32Array;
+    let mut out = Vec::new();
+    for (session, path) in table_files(root, "descriptors")? {
+        if !sessions.is_empty() && !sessions.contains(&session) {
+            continue;
+        }
+        for batch in open(&path)? {
+            let b = batch?;
+            let col = |name: &str| {
+                b.column_by_name(name)
+                    .cloned()
+                    .with_context(|| format!("{}: no column {name}", path.display()))
+            };
+            let ids = col("scan_id")?;
+            let ids = ids.as_string::<i32>();
+            let utime = col("utime")?;
+            let utime = utime.as_primitive::<Int64Type>();
+            let [x, y, z] = [col("pose_x")?, col("pose_y")?, col("pose_z")?];
+            let [x, y, z] = [&x, &y, &z].map(|c| c.as_primitive::<Float64Type>().clone());
+            let vec = col("descriptor")?;
+            let vec = vec.as_fixed_size_list();
+            let cb = col("codebook_id")?;
+            let cb = cb.as_string::<i32>();
+            for i in 0..b.num_rows() {
+                let v = vec.value(i);
+                let v = v.as_any().downcast_ref::<Float32Array>().context("descriptor items are float32")?;
+                out.push(IndexedScan {
+                    scan_id: ids.value(i).to_string(),
+                    session: session.clone(),
+                    utime: (!utime.is_null(i)).then(|| utime.value(i)),
+                    pose: (!x.is_null(i)).then(|| [x.value(i), y.value(i), z.value(i)]),
+                    descriptor: v.values().to_vec(),
+                    codebook_id: cb.value(i).to_string(),
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The diagram of one scan (searching every diagrams file of the index).
+pub fn diagram_of(root: &Path, scan_id: &str) -> Result<Option<Diagram>> {
+    for (_, path) in table_files(root, "diagrams")? {
+        for d in diagrams(&path)? {
+            let (id, diagram) = d?;
+            if id == scan_id {
+                return Ok(Some(diagram));
+            }
+        }
+    }
+    Ok(None)
+}

@@ -1,0 +1,236 @@
+//! Plots (plotters; PNG and SVG side by side; the DejaVu Sans font is embedded, so no system
+//! library or font is needed): Recall@N curves, persistence diagrams, and bird's-eye
+//! trajectories coloured by retrieval success.
+
+use crate::homology::Diagram;
+use anyhow::{Result, anyhow};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+
+static FONT: std::sync::Once = std::sync::Once::new();
+
+fn register_font() {
+    FONT.call_once(|| {
+        let bytes: &'static [u8] = include_bytes!("../assets/DejaVuSans.ttf");
+        // Failure only means plots without text; not worth stopping for.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, bytes);
+    });
+}
+
+const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+];
+
+fn e(err: impl std::fmt::Display) -> anyhow::Error {
+    anyhow!("plot: {err}")
+}
+
+/// Something that draws itself on any plotters backend.
+trait Figure {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static;
+}
+
+/// Renders `fig` into `<stem>.png` and `<stem>.svg`.
+fn render(stem: &Path, size: (u32, u32), fig: &impl Figure) -> Result<Vec<PathBuf>> {
+    register_font();
+    if let Some(dir) = stem.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    {
+        let root = BitMapBackend::new(&png, size).into_drawing_area();
+        root.fill(&WHITE).map_err(e)?;
+        fig.draw(&root)?;
+        root.present().map_err(|x| anyhow!("{}: {x}", png.display()))?;
+    }
+    {
+        let root = SVGBackend::new(&svg, size).into_drawing_area();
+        root.fill(&WHITE).map_err(e)?;
+        fig.draw(&root)?;
+        root.present().map_err(|x| anyhow!("{}: {x}", svg.display()))?;
+    }
+    Ok(vec![png, svg])
+}
+
+struct Curves<'a> {
+    title: &'a str,
+    series: &'a [(String, Vec<f64>)],
+}
+
+impl Figure for Curves<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        let max_n = self.series.iter().map(|s| s.1.len()).max().unwrap_or(1).max(2);
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d(1f64..max_n as f64, 0f64..101f64)
+            .map_err(e)?;
+        chart.configure_mesh().x_desc("N (top N retrieved)").y_desc("Recall@N (%)").draw().map_err(e)?;
+        for (i, (name, values)) in self.series.iter().enumerate() {
+            let color = PALETTE[i % PALETTE.len()];
+            let points: Vec<(f64, f64)> =
+                values.iter().enumerate().map(|(k, &v)| ((k + 1) as f64, v)).collect();
+            chart
+                .draw_series(LineSeries::new(points, color.stroke_width(2)))
+                .map_err(e)?
+                .label(name.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+        Ok(())
+    }
+}
+
+/// Recall@N curves, one line per named series (values for N = 1, 2, …, in percent).
+pub fn recall_curves(stem: &Path, title: &str, series: &[(String, Vec<f64>)]) -> Result<Vec<PathBuf>> {
+    render(stem, (800, 560), &Curves { title, series })
+}
+
+struct DiagramFigure<'a> {
+    title: &'a str,
+    diagram: &'a Diagram,
+}
+
+impl Figure for DiagramFigure<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        let finite = self.diagram.pairs().iter().filter(|p| p.death.is_finite());
+        let top = finite.map(|p| p.death).fold(0.0f64, f64::max).max(1e-12) * 1.08;
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0f64..top, 0f64..top)
+            .map_err(e)?;
+        chart.configure_mesh().x_desc("birth").y_desc("death (inf drawn at the top)").draw().map_err(e)?;
+        chart.draw_series(LineSeries::new(vec![(0.0, 0.0), (top, top)], BLACK.mix(0.5))).map_err(e)?;
+        for dim in 0..3u8 {
+            let color = PALETTE[dim as usize];
+            let pts: Vec<(f64, f64)> = self
+                .diagram
+                .dimension(dim)
+                .iter()
+                .map(|p| (p.birth, if p.death.is_finite() { p.death } else { top * 0.99 }))
+                .collect();
+            let n = pts.len();
+            chart
+                .draw_series(pts.into_iter().map(|(x, y)| Circle::new((x, y), 2, color.filled())))
+                .map_err(e)?
+                .label(format!("H{dim} ({n})"))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 4, color.filled()));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+        Ok(())
+    }
+}
+
+/// A persistence diagram (birth vs death, one colour per dimension).
+pub fn diagram(stem: &Path, title: &str, d: &Diagram) -> Result<Vec<PathBuf>> {
+    render(stem, (700, 700), &DiagramFigure { title, diagram: d })
+}
+
+struct Trajectory<'a> {
+    title: &'a str,
+    database: &'a [[f64; 2]],
+    queries: &'a [([f64; 2], bool)],
+}
+
+impl Figure for Trajectory<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        let all = self.database.iter().chain(self.queries.iter().map(|q| &q.0));
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for p in all {
+            for k in 0..2 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        if !lo[0].is_finite() {
+            (lo, hi) = ([0.0; 2], [1.0; 2]);
+        }
+        // Equal scales on both axes.
+        let span = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) * 1.1;
+        let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(c[0] - span / 2.0..c[0] + span / 2.0, c[1] - span / 2.0..c[1] + span / 2.0)
+            .map_err(e)?;
+        chart.configure_mesh().x_desc("x (m)").y_desc("y (m)").draw().map_err(e)?;
+        let grey = RGBColor(170, 170, 170);
+        chart
+            .draw_series(self.database.iter().map(|p| Circle::new((p[0], p[1]), 3, grey.filled())))
+            .map_err(e)?
+            .label("database")
+            .legend(move |(x, y)| Circle::new((x + 10, y), 4, grey.filled()));
+        for (ok, color, label) in
+            [(true, PALETTE[2], "query: top-1 correct"), (false, PALETTE[3], "query: top-1 wrong")]
+        {
+            let n = self.queries.iter().filter(|q| q.1 == ok).count();
+            chart
+                .draw_series(
+                    self.queries
+                        .iter()
+                        .filter(|q| q.1 == ok)
+                        .map(|q| Circle::new((q.0[0], q.0[1]), 2, color.filled())),
+                )
+                .map_err(e)?
+                .label(format!("{label} ({n})"))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 4, color.filled()));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+        Ok(())
+    }
+}
+
+/// Bird's-eye view: database positions in grey, queries green (top-1 correct) or red.
+pub fn trajectory(
+    stem: &Path,
+    title: &str,
+    database: &[[f64; 2]],
+    queries: &[([f64; 2], bool)],
+) -> Result<Vec<PathBuf>> {
+    render(stem, (800, 800), &Trajectory { title, database, queries })
+}

@@ -1,0 +1,218 @@
+//! Search, metrics, `query`, `eval places`, `eval perturbation` and plots.
+
+use crate::util::*;
+use std::process::{Command, Output};
+use toporec::eval::metrics::{Denominator, first_hit, one_percent_k, recall};
+use toporec::rng::SplitMix64;
+use toporec::search::Database;
+
+fn toporec(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_toporec")).args(args).output().expect("run toporec")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+#[test]
+fn recall_metrics_on_hand_made_cases() {
+    // Python 3 rounding (half to even) for the Recall@1% k.
+    assert_eq!([50, 149, 150, 250, 350, 1000, 1].map(one_percent_k), [1, 1, 2, 2, 4, 10, 1]);
+    // 4 queries, n_db = 300 (k1 = 3): hits at rank 0, 2, none-with-match, none-without-match.
+    let hits = [Some(0), Some(2), None, None];
+    let has = [true, true, true, false];
+    let with = recall(&hits, &has, 5, 300, Denominator::WithMatch);
+    assert_eq!(with.evaluated, 3);
+    let third = 100.0 / 3.0;
+    assert_eq!(with.at_n, vec![third, third, 2.0 * third, 2.0 * third, 2.0 * third]);
+    assert_eq!((with.one_percent_k, with.at_one_percent), (3, 2.0 * third));
+    let all = recall(&hits, &has, 5, 300, Denominator::All);
+    assert_eq!(
+        (all.evaluated, all.at_n[0], all.at_one_percent),
+        (4, 25.0, 50.0),
+        "a query without match is a failure"
+    );
+    assert_eq!(recall(&[], &[], 3, 10, Denominator::All).at_n, vec![0.0; 3], "no queries: 0, not NaN");
+    // First hit over a retrieval list.
+    assert_eq!(first_hit(&[7, 3, 9], |r| r == 9), Some(2));
+    assert_eq!(first_hit(&[7, 3], |r| r == 9), None);
+    // Ties in distance go to the lower row, on every route.
+    for b in [2, 40] {
+        let mut v = vec![0.0f32; 4 * b];
+        v[0] = 1.0; // row 0 at distance 1 from the origin
+        v[b] = -1.0; // row 1 at distance 1 too
+        v[2 * b] = 3.0;
+        v[3 * b + 1] = 1.0; // row 3 at distance 1
+        let db = Database::new(v, b);
+        let hits: Vec<usize> = db.search(&vec![0.0; b], 3).iter().map(|h| h.0).collect();
+        assert_eq!(hits, [0, 1, 3], "b = {b}");
+    }
+}
+
+#[test]
+fn every_search_route_equals_brute_force() {
+    let mut rng = SplitMix64(9);
+    for (n, b) in [(3000, 3), (3000, 8), (3000, 13), (2500, 50), (800, 300)] {
+        let data: Vec<f32> = (0..n * b).map(|_| (rng.next_f64() * 4.0).powi(2) as f32).collect();
+        let db = Database::new(data, b);
+        let queries: Vec<f32> = (0..70 * b).map(|_| (rng.next_f64() * 4.0).powi(2) as f32).collect();
+        let many = db.search_many(&queries, 10);
+        for (i, q) in queries.chunks(b).enumerate() {
+            let brute = db.brute_force(q, 10);
+            assert_eq!(many[i], brute, "n {n} b {b} query {i} (batched)");
+            assert_eq!(db.search(q, 10), brute, "n {n} b {b} query {i} (single)");
+        }
+        // k larger than the database.
+        assert_eq!(db.search(&queries[..b], n + 5).len(), n);
+    }
+}
+
+#[test]
+fn query_and_eval_places_on_the_sample_and_on_nclt() {
+    let dir = scratch_dir("eval_places");
+    let index = dir.join("index");
+    let o = toporec(&[
+        "run",
+        root().join("pipelines/sample.toml").to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "--no-progress",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+
+    // Query with a whole session: each scan finds itself first, at distance 0.
+    let session = root().join("samples/town/velodyne_data/2026-01-02");
+    let o = toporec(&["query", "--index", index.to_str().unwrap(), session.to_str().unwrap(), "-k", "3"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    let rows: Vec<Vec<&str>> = out.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 32 * 3);
+    for r in rows.iter().filter(|r| r[1] == "1") {
+        assert_eq!((r[0], r[4]), (r[2], "0.0"), "{r:?}");
+    }
+    assert!(text(&o.stderr).contains("per query (mean / p95 ms): persistence"), "{}", text(&o.stderr));
+
+    // Day 2 against day 1.
+    let eval = dir.join("eval");
+    let o = toporec(&[
+        "eval",
+        "places",
+        "--db",
+        index.to_str().unwrap(),
+        "--db-session",
+        "2026-01-01",
+        "--query-session",
+        "2026-01-02",
+        "-o",
+        eval.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(eval.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["database"]["scans"], 32);
+    assert_eq!(report["one_percent_k"], 1);
+    let results = report["results"].as_array().unwrap();
+    assert_eq!(
+        results.iter().map(|r| r["threshold_m"].as_f64().unwrap()).collect::<Vec<_>>(),
+        [5.0, 10.0, 20.0, 50.0]
+    );
+    for r in results {
+        let at_n = r["with_match"]["at_n"].as_array().unwrap();
+        assert_eq!(at_n.len(), 25);
+        let v: Vec<f64> = at_n.iter().map(|x| x.as_f64().unwrap()).collect();
+        assert!(v.windows(2).all(|w| w[0] <= w[1]), "Recall@N is non-decreasing");
+        assert_eq!(r["all_queries"]["evaluated"], 32);
+    }
+    // The largest threshold covers the 160 m loop: everything is a match.
+    assert_eq!(results[3]["with_match"]["at_n"][0].as_f64(), Some(100.0));
+    for f in ["recall_at_n.png", "recall_at_n.svg", "trajectory.png", "trajectory.svg", "report.txt"] {
+        assert!(eval.join(f).metadata().unwrap().len() > 500, "{f}");
+    }
+    // A persistence diagram plot.
+    let stem = dir.join("diagram");
+    let id = rows[0][2];
+    let o = toporec(&[
+        "plot",
+        "diagram",
+        "--index",
+        index.to_str().unwrap(),
+        "--scan",
+        id,
+        "-o",
+        stem.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(dir.join("diagram.png").is_file() && dir.join("diagram.svg").is_file());
+    let o = toporec(&[
+        "plot",
+        "diagram",
+        "--index",
+        index.to_str().unwrap(),
+        "--scan",
+        "nope",
+        "-o",
+        stem.to_str().unwrap(),
+    ]);
+    assert!(text(&o.stderr).contains("no scan nope"), "{}", text(&o.stderr));
+
+    // nclt_from_kitti against itself (a query never retrieves itself).
+    let Some(_) = shared_data("eval places on nclt_from_kitti") else { return };
+    let nidx = dir.join("nclt");
+    let o = toporec(&[
+        "run",
+        root().join("pipelines/nclt.toml").to_str().unwrap(),
+        "--index",
+        nidx.to_str().unwrap(),
+        "--no-progress",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let neval = dir.join("nclt-eval");
+    let o = toporec(&["eval", "places", "--db", nidx.to_str().unwrap(), "-o", neval.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(neval.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["queries"]["scans"], 14);
+}
+
+#[test]
+fn perturbation_protocol_on_kitti() {
+    let Some(_) = shared_data("perturbation_protocol_on_kitti") else { return };
+    let dir = scratch_dir("eval_perturbation");
+    let index = dir.join("index");
+    let o = toporec(&[
+        "run",
+        root().join("pipelines/kitti.toml").to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "--no-progress",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = dir.join("eval");
+    let o = toporec(&[
+        "eval",
+        "perturbation",
+        "--index",
+        index.to_str().unwrap(),
+        "--fraction",
+        "1",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    println!("{}", text(&o.stdout));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["queries"], 48);
+    for r in report["results"].as_array().unwrap() {
+        let name = r["perturbation"].as_str().unwrap();
+        let r1 = r["recall"]["at_n"][0].as_f64().unwrap();
+        if name == "original" || name.starts_with("translate") || name.starts_with("rotate") {
+            assert_eq!(r1, 100.0, "{name}: the descriptor is invariant");
+        } else {
+            assert!(r1 >= 80.0, "{name}: {r1}");
+        }
+    }
+    for k in ["persistence", "vectorize", "search"] {
+        assert!(report["timing_ms"][k]["p95"].as_f64().unwrap() > 0.0, "{k}");
+    }
+}
