@@ -257,7 +257,8 @@ pub struct InspectArgs {
 /// Arguments of `toporec fit`.
 #[derive(clap::Args, Debug)]
 pub struct FitArgs {
-    /// Diagram CSV files (dim,birth,death), as `toporec diagram` writes them.
+    /// Diagram CSV files (dim,birth,death) as `toporec diagram` writes them, or index folders
+    /// (their diagrams tables).
     #[arg(required = true)]
     pub diagrams: Vec<PathBuf>,
     /// Where to write the codebook (JSON).
@@ -292,13 +293,14 @@ pub struct FitArgs {
 /// Arguments of `toporec vectorize`.
 #[derive(clap::Args, Debug)]
 pub struct VectorizeArgs {
-    /// Diagram CSV files.
+    /// Diagram CSV files or index folders.
     #[arg(required = true)]
     pub diagrams: Vec<PathBuf>,
     /// The codebook (JSON from `toporec fit`).
     #[arg(long, short)]
     pub codebook: PathBuf,
-    /// Output CSV (default stdout): diagram,dim_used,v1..vb.
+    /// Output: `*.parquet` for a descriptors table (the index's schema), else CSV
+    /// `diagram,dim_used,v1..vb` (default stdout).
     #[arg(long, short)]
     pub out: Option<PathBuf>,
 }
@@ -629,8 +631,8 @@ fn fit(args: FitArgs) -> Result<()> {
         squared_radii: !args.radius,
     };
     let mut fitter = CodebookFitter::new(spec);
-    for path in &args.diagrams {
-        fitter.add(&diagram_csv::read(path)?);
+    for item in diagram_inputs(&args.diagrams) {
+        fitter.add(&item?.1);
     }
     let start = std::time::Instant::now();
     let codebook = fitter.finish().context("fitting the codebook")?;
@@ -646,17 +648,61 @@ fn fit(args: FitArgs) -> Result<()> {
     Ok(())
 }
 
+/// Diagrams from CSV files (id = the path) or index folders (id = the scan id), streamed.
+fn diagram_inputs(
+    paths: &[PathBuf],
+) -> impl Iterator<Item = Result<(String, crate::homology::Diagram)>> + '_ {
+    paths.iter().flat_map(|path| -> Box<dyn Iterator<Item = Result<(String, crate::homology::Diagram)>>> {
+        if path.is_dir() {
+            match crate::sinks::index::table_files(path, "diagrams") {
+                Ok(files) => {
+                    Box::new(files.into_iter().flat_map(|(_, f)| match crate::sinks::index::diagrams(&f) {
+                        Ok(it) => Box::new(it) as Box<dyn Iterator<Item = _>>,
+                        Err(e) => Box::new(std::iter::once(Err(e))),
+                    }))
+                }
+                Err(e) => Box::new(std::iter::once(Err(e))),
+            }
+        } else {
+            Box::new(std::iter::once(diagram_csv::read(path).map(|d| (path.display().to_string(), d))))
+        }
+    })
+}
+
 fn vectorize(args: VectorizeArgs) -> Result<()> {
     let codebook = Codebook::load(&args.codebook)?;
+    if let Some(out) = args.out.as_ref().filter(|o| o.extension().is_some_and(|e| e == "parquet")) {
+        let tmp = crate::fsutil::temp_path(out);
+        let mut file = crate::sinks::parquet::DescriptorsFile::create(&tmp, codebook.len(), &codebook.id())?;
+        let mut rows = 0;
+        for item in diagram_inputs(&args.diagrams) {
+            let (id, diagram) = item?;
+            let d = codebook.vectorize(&diagram);
+            let values = d.values.iter().map(|&v| v as f32).collect();
+            file.push(crate::sinks::parquet::DescriptorRow {
+                scan_id: id,
+                utime: None,
+                pose: None,
+                dim_used: d.dim_used,
+                values,
+            })?;
+            rows += 1;
+        }
+        file.finish()?;
+        std::fs::rename(&tmp, out).with_context(|| out.display().to_string())?;
+        eprintln!("{rows} descriptors (length {}) written to {}", codebook.len(), out.display());
+        return Ok(());
+    }
     let mut text = String::from("diagram,dim_used");
     for j in 1..=codebook.len() {
         text += &format!(",v{j}");
     }
     text.push('\n');
-    for path in &args.diagrams {
-        let d = codebook.vectorize(&diagram_csv::read(path)?);
+    for item in diagram_inputs(&args.diagrams) {
+        let (id, diagram) = item?;
+        let d = codebook.vectorize(&diagram);
         let dim = d.dim_used.map(|d| d.to_string()).unwrap_or_default();
-        text += &format!("{},{dim}", csv_field(&path.display().to_string()));
+        text += &format!("{},{dim}", csv_field(&id));
         for v in &d.values {
             text += &format!(",{v:?}");
         }

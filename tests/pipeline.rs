@@ -125,6 +125,28 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
 
     // An independent reader, when installed (.ci/run installs duckdb and pyarrow).
     independent_reader_check(&one);
+
+    // `fit` and `vectorize` read the index's diagrams table and write a descriptors table.
+    let cb = dir.join("cb.json");
+    let o = toporec(&["fit", one.to_str().unwrap(), "-o", cb.to_str().unwrap(), "-b", "8"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let table = dir.join("standalone.parquet");
+    let o = toporec(&[
+        "vectorize",
+        one.to_str().unwrap(),
+        "-c",
+        cb.to_str().unwrap(),
+        "-o",
+        table.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("64 descriptors (length 8)"), "{}", text(&o.stderr));
+    let f = std::fs::File::open(&table).unwrap();
+    let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(f).unwrap();
+    let meta = reader.schema().metadata().clone();
+    let id = toporec::vectorize::codebook::Codebook::load(&cb).unwrap().id();
+    assert_eq!(meta.get("toporec.codebook_id"), Some(&id));
+    assert_eq!(reader.build().unwrap().map(|b| b.unwrap().num_rows()).sum::<usize>(), 64);
 }
 
 fn independent_reader_check(index: &Path) {

@@ -182,7 +182,7 @@ impl IndexWriter {
     }
 }
 
-fn open(path: &Path) -> Result<impl Iterator<Item = Result<RecordBatch, arrow::error::ArrowError>>> {
+fn open(path: &Path) -> Result<impl Iterator<Item = Result<RecordBatch, arrow::error::ArrowError>> + use<>> {
     let file = std::fs::File::open(path).with_context(|| format!("{}: opening", path.display()))?;
     Ok(ParquetRecordBatchReaderBuilder::try_new(file)?.with_batch_size(8192).build()?)
 }
@@ -219,7 +219,7 @@ pub fn ok_scans(path: &Path) -> Result<Vec<(String, Option<i64>, Option<Pose>)>>
 }
 
 /// Streams the diagrams of a `diagrams` file, one scan at a time, in file order.
-pub fn diagrams(path: &Path) -> Result<impl Iterator<Item = Result<(String, Diagram)>>> {
+pub fn diagrams(path: &Path) -> Result<impl Iterator<Item = Result<(String, Diagram)>> + use<>> {
     let mut batches = open(path)?;
     let mut current: Option<(String, Vec<Pair>)> = None;
     let mut buffered: std::collections::VecDeque<(String, Diagram)> = Default::default();

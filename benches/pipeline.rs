@@ -1,0 +1,107 @@
+//! End-to-end pipeline benchmark: simulated HDL-32E scans (NCLT files) → preprocess to 4096
+//! points → alpha persistence → ATOL (b = 50, fitted) → Parquet, with 1 and 2 worker threads,
+//! on 200 and 2,000 scans. Reports scans/s, the speed-up of 2 threads over 1 (target ≥ 1.7×),
+//! the pipeline overhead = share of wall time not spent in persistence or vectorizing (target
+//! < 10 %), and peak RSS (target: 2,000 scans within 20 % of 200), measured by /usr/bin/time.
+//!
+//! Run: `cargo bench --bench pipeline` (about 2 minutes on 2 cores).
+
+use std::path::Path;
+use std::process::Command;
+
+struct Run {
+    wall: f64,
+    rss_kb: u64,
+    scans_per_s: f64,
+    persistence: f64,
+    vectorize: f64,
+}
+
+fn run(bin: &str, pipeline: &Path, index: &Path, threads: usize) -> Run {
+    let out = Command::new("/usr/bin/time")
+        .args(["-f", "RSS_KB %M"])
+        .arg(bin)
+        .args([
+            "run",
+            pipeline.to_str().unwrap(),
+            "--index",
+            index.to_str().unwrap(),
+            "-t",
+            &threads.to_string(),
+            "--no-progress",
+        ])
+        .output()
+        .expect("/usr/bin/time");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{err}");
+    let find = |key: &str| -> f64 {
+        let line = err.lines().find(|l| l.contains(key)).unwrap_or_else(|| panic!("no `{key}` in {err}"));
+        let after = &line[line.find(key).unwrap() + key.len()..];
+        after.trim_start().split(|c: char| !(c.is_ascii_digit() || c == '.')).next().unwrap().parse().unwrap()
+    };
+    Run {
+        wall: find("wall time:"),
+        rss_kb: find("RSS_KB") as u64,
+        scans_per_s: find("s,"),
+        persistence: find("persistence"),
+        vectorize: find("vectorize"),
+    }
+}
+
+fn main() {
+    let bin = env!("CARGO_BIN_EXE_toporec");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/tmp/bench-pipeline");
+    let mut results = Vec::new();
+    for scans in [200usize, 2000] {
+        let data = root.join(format!("data-{scans}"));
+        if !data.join("velodyne_data").is_dir() {
+            let st = Command::new(bin)
+                .args([
+                    "simulate",
+                    "-o",
+                    data.to_str().unwrap(),
+                    "--sessions",
+                    "1",
+                    "--scans",
+                    &scans.to_string(),
+                    "--azimuth-res",
+                    "0.4",
+                    "--seed",
+                    "3",
+                ])
+                .status()
+                .unwrap();
+            assert!(st.success());
+        }
+        let pipeline = root.join(format!("bench-{scans}.toml"));
+        std::fs::write(
+            &pipeline,
+            format!(
+                "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [\"{}\"]\n[preprocess]\nsubsample = 4096\nnormalize = true\n[vectorize]\nb = 50\n",
+                data.join("velodyne_data").display()
+            ),
+        )
+        .unwrap();
+        for threads in [1, 2] {
+            let r = run(bin, &pipeline, &root.join(format!("index-{scans}-{threads}")), threads);
+            let overhead = 1.0 - (r.persistence + r.vectorize) / (r.wall * threads as f64);
+            println!(
+                "{scans:>5} scans, {threads} thread(s): {:.1} scans/s, wall {:.1} s, overhead {:.1} %, peak RSS {} MB",
+                r.scans_per_s,
+                r.wall,
+                100.0 * overhead,
+                r.rss_kb / 1024
+            );
+            results.push((scans, threads, r));
+        }
+    }
+    let get = |s, t| &results.iter().find(|r| r.0 == s && r.1 == t).unwrap().2;
+    println!(
+        "speed-up 2 vs 1 thread (2,000 scans): {:.2}x (target >= 1.7x)",
+        get(2000, 2).scans_per_s / get(2000, 1).scans_per_s
+    );
+    println!(
+        "peak RSS 2,000 vs 200 scans (2 threads): {:.2}x (target <= 1.2x)",
+        get(2000, 2).rss_kb as f64 / get(200, 2).rss_kb as f64
+    );
+}
