@@ -310,3 +310,32 @@ fn schema_files_equal_the_code() {
         );
     }
 }
+
+#[test]
+fn saved_codebook_run_replaces_only_its_sessions() {
+    let dir = scratch_dir("pipeline_saved_codebook");
+    let index = dir.join("index");
+    let o = run(&root().join("pipelines/sample.toml"), &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let before = descriptors(&index);
+    // Keep the codebook outside the index, then re-index day 2 only with it.
+    let cb = dir.join("codebook.json");
+    std::fs::copy(index.join("codebook.json"), &cb).unwrap();
+    let p = dir.join("day2.toml");
+    let sample = std::fs::read_to_string(root().join("pipelines/sample.toml")).unwrap();
+    let body = sample.split("[vectorize]").next().unwrap().replace(
+        "sessions = [\"../samples/town/velodyne_data\"]",
+        &format!("sessions = [\"{}\"]", root().join("samples/town/velodyne_data/2026-01-02").display()),
+    );
+    std::fs::write(&p, format!("{body}[vectorize]\ncodebook = \"{}\"\n", cb.display())).unwrap();
+    let o = run(&p, &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("scans: 32 read, 32 indexed"), "{}", text(&o.stderr));
+    // Day 1 kept, day 2 rewritten with identical descriptors (same codebook, same preprocessing).
+    assert_eq!(parts(&index, "scans").len(), 2);
+    assert_eq!(descriptors(&index), before);
+    // A codebook with fit keys beside it is refused at validation.
+    std::fs::write(&p, format!("{body}[vectorize]\ncodebook = \"{}\"\nb = 10\n", cb.display())).unwrap();
+    let e = text(&toporec(&["validate", p.to_str().unwrap()]).stderr);
+    assert!(e.contains("vectorize: b given with a saved codebook"), "{e}");
+}
