@@ -280,7 +280,7 @@ pub struct FitArgs {
     #[arg(long, value_enum, default_value = "minibatch")]
     pub kmeans: Algorithm,
     /// Points kept (uniform reservoir sample) per codebook for fitting.
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, default_value_t = 100_000)]
     pub sample_size: usize,
     /// Seed of sampling and k-means.
     #[arg(long, default_value_t = 0)]

@@ -389,7 +389,8 @@ fn vectorize_pass(writer: &mut IndexWriter, codebook: &Codebook, threads: usize)
         let mut file = writer.descriptors_file(&s.session, codebook.len(), &id)?;
         let mut groups = index::diagrams(&d.path)?.peekable();
         let ok = index::ok_scans(&s.path)?;
-        for chunk in ok.chunks(256) {
+        // Small batches: each holds its diagrams in memory.
+        for chunk in ok.chunks(64) {
             let mut batch = Vec::with_capacity(chunk.len());
             for (scan_id, utime, pose) in chunk {
                 // A scan whose stored dimensions hold no pair has no diagram rows.

@@ -115,7 +115,7 @@ impl Default for CodebookSpec {
             contrast: Contrast::Laplacian,
             weighting: Weighting::Cloud,
             kmeans: KMeansParams::default(),
-            sample_size: 1_000_000,
+            sample_size: 100_000,
             seed: 0,
             squared_radii: true,
         }
