@@ -13,7 +13,7 @@ pub struct Skip(pub String);
 
 /// A stable 64-bit seed from a scan id (FNV-1a).
 pub fn seed_of(id: &str) -> u64 {
-    id.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
+    crate::rng::fnv1a64(id.as_bytes())
 }
 
 /// Runs the stage; `Err` when fewer than `min_points` points remain.

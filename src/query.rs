@@ -130,14 +130,7 @@ pub fn open_path(path: &Path, topic: Option<&str>) -> Result<ScanStream> {
                     ring: None,
                     pose: None,
                 }),
-                Err(e) => Err(ScanFailure {
-                    id,
-                    session: "query".into(),
-                    path: path.to_owned(),
-                    message_index: None,
-                    utime: None,
-                    error: e.to_string(),
-                }),
+                Err(e) => Err(ScanFailure::of_file(id, "query", path, None, e.to_string())),
             };
             return Ok(Box::new(std::iter::once(item)));
         }

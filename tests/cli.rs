@@ -2,18 +2,14 @@
 
 use crate::util::*;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn toporec(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_toporec")).args(args).output().expect("run toporec")
-}
+use std::process::Output;
 
 fn stdout(o: &Output) -> String {
-    String::from_utf8(o.stdout.clone()).unwrap()
+    text(&o.stdout)
 }
 
 fn stderr(o: &Output) -> String {
-    String::from_utf8(o.stderr.clone()).unwrap()
+    text(&o.stderr)
 }
 
 #[test]

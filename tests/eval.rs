@@ -1,18 +1,9 @@
 //! Search, metrics, `query`, `eval places`, `eval perturbation` and plots.
 
 use crate::util::*;
-use std::process::{Command, Output};
 use toporec::eval::metrics::{Denominator, first_hit, one_percent_k, recall};
 use toporec::rng::SplitMix64;
 use toporec::search::Database;
-
-fn toporec(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_toporec")).args(args).output().expect("run toporec")
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
 
 #[test]
 fn recall_metrics_on_hand_made_cases() {
@@ -71,13 +62,7 @@ fn every_search_route_equals_brute_force() {
 fn query_and_eval_places_on_the_sample_and_on_nclt() {
     let dir = scratch_dir("eval_places");
     let index = dir.join("index");
-    let o = toporec(&[
-        "run",
-        root().join("pipelines/sample.toml").to_str().unwrap(),
-        "--index",
-        index.to_str().unwrap(),
-        "--no-progress",
-    ]);
+    let o = run_pipeline(&root().join("pipelines/sample.toml"), &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
 
     // Query with a whole session: each scan finds itself first, at distance 0.
@@ -158,13 +143,7 @@ fn query_and_eval_places_on_the_sample_and_on_nclt() {
     // nclt_from_kitti against itself (a query never retrieves itself).
     let Some(_) = shared_data("eval places on nclt_from_kitti") else { return };
     let nidx = dir.join("nclt");
-    let o = toporec(&[
-        "run",
-        root().join("pipelines/nclt.toml").to_str().unwrap(),
-        "--index",
-        nidx.to_str().unwrap(),
-        "--no-progress",
-    ]);
+    let o = run_pipeline(&root().join("pipelines/nclt.toml"), &nidx, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let neval = dir.join("nclt-eval");
     let o = toporec(&["eval", "places", "--db", nidx.to_str().unwrap(), "-o", neval.to_str().unwrap()]);
@@ -179,13 +158,7 @@ fn perturbation_protocol_on_kitti() {
     let Some(_) = shared_data("perturbation_protocol_on_kitti") else { return };
     let dir = scratch_dir("eval_perturbation");
     let index = dir.join("index");
-    let o = toporec(&[
-        "run",
-        root().join("pipelines/kitti.toml").to_str().unwrap(),
-        "--index",
-        index.to_str().unwrap(),
-        "--no-progress",
-    ]);
+    let o = run_pipeline(&root().join("pipelines/kitti.toml"), &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let out = dir.join("eval");
     let o = toporec(&[

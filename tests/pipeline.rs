@@ -4,29 +4,9 @@
 
 use crate::util::*;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use toporec::pipeline::config::Pipeline;
 use toporec::sinks::index;
-
-fn toporec(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_toporec")).args(args).output().expect("run toporec")
-}
-
-fn run(pipeline: &Path, index: &Path, threads: usize) -> Output {
-    toporec(&[
-        "run",
-        pipeline.to_str().unwrap(),
-        "--index",
-        index.to_str().unwrap(),
-        "-t",
-        &threads.to_string(),
-        "--no-progress",
-    ])
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
 
 /// The parquet files of one table, sorted.
 fn parts(index: &Path, table: &str) -> Vec<PathBuf> {
@@ -69,7 +49,7 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
     let dir = scratch_dir("pipeline_sample");
     let pipeline = root().join("pipelines/sample.toml");
     let one = dir.join("t1");
-    let o = run(&pipeline, &one, 1);
+    let o = run_pipeline(&pipeline, &one, 1);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let summary = text(&o.stderr);
     assert!(summary.contains("scans: 64 read, 64 indexed, 0 skipped, 0 errors"), "{summary}");
@@ -106,7 +86,7 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
 
     // 2 threads: identical tables.
     let two = dir.join("t2");
-    let o = run(&pipeline, &two, 2);
+    let o = run_pipeline(&pipeline, &two, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     assert_eq!(descriptors(&two), d, "descriptors independent of the thread count");
     for table in ["scans", "diagrams", "descriptors"] {
@@ -119,7 +99,7 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
         }
     }
     // A second run into the same index replaces it cleanly.
-    let o = run(&pipeline, &two, 2);
+    let o = run_pipeline(&pipeline, &two, 2);
     assert!(o.status.success());
     assert_eq!(descriptors(&two), d);
 
@@ -185,7 +165,7 @@ fn shipped_pipelines_run_on_shared_data() {
     let dir = scratch_dir("pipeline_shipped");
     for (name, read, sessions) in [("nclt", 14, 1), ("mcap", 6, 2), ("kitti", 48, 11)] {
         let index = dir.join(name);
-        let o = run(&root().join(format!("pipelines/{name}.toml")), &index, 2);
+        let o = run_pipeline(&root().join(format!("pipelines/{name}.toml")), &index, 2);
         assert!(o.status.success(), "{name}: {}", text(&o.stderr));
         assert!(
             text(&o.stderr).contains(&format!("scans: {read} read, {read} indexed")),
@@ -315,7 +295,7 @@ fn schema_files_equal_the_code() {
 fn saved_codebook_run_replaces_only_its_sessions() {
     let dir = scratch_dir("pipeline_saved_codebook");
     let index = dir.join("index");
-    let o = run(&root().join("pipelines/sample.toml"), &index, 2);
+    let o = run_pipeline(&root().join("pipelines/sample.toml"), &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let before = descriptors(&index);
     // Keep the codebook outside the index, then re-index day 2 only with it.
@@ -328,7 +308,7 @@ fn saved_codebook_run_replaces_only_its_sessions() {
         &format!("sessions = [\"{}\"]", root().join("samples/town/velodyne_data/2026-01-02").display()),
     );
     std::fs::write(&p, format!("{body}[vectorize]\ncodebook = \"{}\"\n", cb.display())).unwrap();
-    let o = run(&p, &index, 2);
+    let o = run_pipeline(&p, &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     assert!(text(&o.stderr).contains("scans: 32 read, 32 indexed"), "{}", text(&o.stderr));
     // Day 1 kept, day 2 rewritten with identical descriptors (same codebook, same preprocessing).

@@ -89,3 +89,27 @@ pub fn scratch_dir(test: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
+
+/// Runs the `toporec` binary.
+pub fn toporec(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_toporec")).args(args).output().expect("run toporec")
+}
+
+/// Lossy UTF-8 of captured output.
+pub fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// `toporec run PIPELINE --index INDEX -t THREADS --no-progress`.
+pub fn run_pipeline(pipeline: &Path, index: &Path, threads: usize) -> std::process::Output {
+    let threads = threads.to_string();
+    toporec(&[
+        "run",
+        pipeline.to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "-t",
+        &threads,
+        "--no-progress",
+    ])
+}

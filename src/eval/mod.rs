@@ -274,8 +274,7 @@ impl Perturbation {
                 for _ in 0..n {
                     let i = rng.below(p.len());
                     for c in p[i].iter_mut() {
-                        let (u1, u2) = (rng.next_f64().max(1e-300), rng.next_f64());
-                        *c += 1e-3 * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+                        *c += 1e-3 * rng.normal();
                     }
                 }
                 p

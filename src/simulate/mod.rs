@@ -199,12 +199,6 @@ pub fn route_length(t: &TownParams) -> f64 {
     (0..4).map(|i| (c[(i + 1) % 4][0] - c[i][0]).hypot(c[(i + 1) % 4][1] - c[i][1])).sum()
 }
 
-fn gaussian(rng: &mut SplitMix64) -> f64 {
-    let u1 = rng.next_f64().max(1e-300);
-    let u2 = rng.next_f64();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-}
-
 /// Scans per session (explicit or one loop).
 pub fn scans_per_session(p: &SimParams) -> usize {
     p.scans.unwrap_or_else(|| (route_length(&p.town) / (p.speed / p.rate)).floor().max(1.0) as usize)
@@ -213,13 +207,13 @@ pub fn scans_per_session(p: &SimParams) -> usize {
 /// The pose of scan `index` of `session`.
 pub fn pose(p: &SimParams, session: usize, index: usize) -> [f64; 4] {
     let mut rng = SplitMix64(p.seed ^ 0x726F_7574 ^ (session as u64).wrapping_mul(0xA24B_AED4_963E_E407));
-    let lane = if session % 2 == 0 { -1.0 } else { 1.0 } * p.lane_offset / 2.0 + 0.3 * gaussian(&mut rng);
+    let lane = if session % 2 == 0 { -1.0 } else { 1.0 } * p.lane_offset / 2.0 + 0.3 * rng.normal();
     let start = 0.37 * session as f64 * p.speed / p.rate;
     let mut scan_rng = SplitMix64(rng.next_u64() ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let s = start + index as f64 * p.speed / p.rate;
     let reverse = p.reverse && session % 2 == 1;
     let [x, y, yaw] = along_route(&route_corners(&p.town), s, lane, reverse);
-    [x, y, 0.0, yaw + (p.heading_noise * gaussian(&mut scan_rng)).to_radians()]
+    [x, y, 0.0, yaw + (p.heading_noise * scan_rng.normal()).to_radians()]
 }
 
 /// Ray-casts one scan.
@@ -257,7 +251,7 @@ pub fn scan(
             }
             let hit = scene.cast([x, y, z], d_world, sensor.max_range, mailbox);
             let chance = rng.next_f64();
-            let noise = gaussian(&mut rng) * sensor.range_noise;
+            let noise = rng.normal() * sensor.range_noise;
             let jitter = rng.next_f64();
             if let Some((t, material)) = hit
                 && chance < return_probability(sensor, t, se, material)
@@ -324,6 +318,12 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
     Ok(total)
 }
 
+/// A row of an NCLT ground-truth CSV (x north, y east, z down, heading) for a scan's pose.
+fn ground_truth_row(s: &SimScan) -> String {
+    let [x, y, z, yaw] = s.pose;
+    format!("{},{:?},{:?},{:?},0.0,0.0,{:?}\n", s.utime, x, -y, -z, -yaw)
+}
+
 trait SessionWriter {
     fn write(&mut self, s: &SimScan) -> Result<()>;
     fn finish(self: Box<Self>) -> Result<()>;
@@ -358,8 +358,7 @@ impl SessionWriter for NcltWriter {
             bytes.push(r as u8);
         }
         crate::fsutil::write_atomic(&self.dir.join(format!("{}.bin", s.utime)), &bytes)?;
-        let [x, y, z, yaw] = s.pose;
-        self.gt += &format!("{},{:?},{:?},{:?},0.0,0.0,{:?}\n", s.utime, x, -y, -z, -yaw);
+        self.gt += &ground_truth_row(s);
         Ok(())
     }
 
@@ -438,8 +437,7 @@ impl SessionWriter for McapWriter {
             publish_time: t,
         };
         self.writer.write_to_known_channel(&header, &bytes)?;
-        let [x, y, z, yaw] = s.pose;
-        self.gt += &format!("{},{:?},{:?},{:?},0.0,0.0,{:?}\n", s.utime, x, -y, -z, -yaw);
+        self.gt += &ground_truth_row(s);
         Ok(())
     }
 

@@ -117,14 +117,7 @@ fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFa
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let frame: Option<usize> = name.parse().ok();
     let utime = frame.and_then(|f| seq.times.get(f)).map(|t| (t * 1e6).round() as i64);
-    let fail = |error: String| ScanFailure {
-        id: format!("{session}/{name}"),
-        session: session.to_string(),
-        path: path.to_owned(),
-        message_index: None,
-        utime,
-        error,
-    };
+    let fail = |error: String| ScanFailure::of_file(format!("{session}/{name}"), session, path, utime, error);
     let Some(frame) = frame else {
         return Err(fail(format!("{}: file name is not a frame number", path.display())));
     };

@@ -75,6 +75,20 @@ pub struct ScanFailure {
     pub error: String,
 }
 
+impl ScanFailure {
+    /// A failure of the scan stored in `path` (no message index).
+    pub fn of_file(id: String, session: &str, path: &Path, utime: Option<i64>, error: String) -> Self {
+        ScanFailure {
+            id,
+            session: session.to_string(),
+            path: path.to_owned(),
+            message_index: None,
+            utime,
+            error,
+        }
+    }
+}
+
 impl std::fmt::Display for ScanFailure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(&self.error)

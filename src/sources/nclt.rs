@@ -189,14 +189,7 @@ fn sync_scan(
     tolerance: i64,
 ) -> Result<Scan, ScanFailure> {
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let fail = |error: String| ScanFailure {
-        id: format!("{session}/{name}"),
-        session: session.to_string(),
-        path: path.to_owned(),
-        message_index: None,
-        utime,
-        error,
-    };
+    let fail = |error: String| ScanFailure::of_file(format!("{session}/{name}"), session, path, utime, error);
     let Some(utime) = utime else {
         return Err(fail(format!("{}: file name is not a utime (µs)", path.display())));
     };

@@ -280,9 +280,7 @@ impl Codebook {
     /// A short stable id: FNV-1a 64 of the compact JSON, in hex.
     pub fn id(&self) -> String {
         let bytes = serde_json::to_vec(&self.to_json()).expect("JSON of plain values");
-        let hash =
-            bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3));
-        format!("{hash:016x}")
+        format!("{:016x}", crate::rng::fnv1a64(&bytes))
     }
 
     /// Writes the codebook (pretty JSON) atomically: a temporary file renamed into place.
