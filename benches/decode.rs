@@ -30,7 +30,7 @@ fn first_message(path: &Path) -> Option<(Vec<u8>, Encoding)> {
         .ok()?
         .filter_map(Result::ok)
         .find(|m| m.channel.schema_name.contains("PointCloud2"))?;
-    let enc = if m.channel.message_encoding == "cdr" { Encoding::Cdr } else { Encoding::Ros1 };
+    let enc = Encoding::of_channel(&m.channel.message_encoding);
     Some((m.data, enc))
 }
 

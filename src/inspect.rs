@@ -184,7 +184,7 @@ fn mcap_report(path: &Path, out: &mut String) -> anyhow::Result<()> {
         t.first = Some(t.first.map_or(utime, |f| f.min(utime)));
         t.last = Some(t.last.map_or(utime, |l| l.max(utime)));
         if is_point_cloud(&m.channel) {
-            let encoding = if m.channel.message_encoding == "cdr" { Encoding::Cdr } else { Encoding::Ros1 };
+            let encoding = Encoding::of_channel(&m.channel.message_encoding);
             match pointcloud2::parse(&m.data, encoding).and_then(|c| c.decode()) {
                 Ok(c) => {
                     t.kept.push(c.points.len());

@@ -641,8 +641,8 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: FUZZ_CASES, failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
-    fn fuzz_pointcloud2_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400), ros1 in any::<bool>()) {
-        let enc = if ros1 { Encoding::Ros1 } else { Encoding::Cdr };
+    fn fuzz_pointcloud2_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400), kind in 0u8..3) {
+        let enc = [Encoding::Ros1, Encoding::Cdr, Encoding::FoxgloveProtobuf][kind as usize];
         if let Ok(c) = pointcloud2::parse(&bytes, enc) {
             let _ = c.decode();
         }
@@ -699,4 +699,92 @@ fn fuzz_mutated_mcap_files_never_panic() {
         let _ = toporec::inspect::inspect(&target);
     }
     let _ = Arc::new(());
+}
+
+/// Protobuf encoding helpers for a `foxglove.PointCloud` fixture.
+fn pb_varint(out: &mut Vec<u8>, mut v: u64) {
+    while v >= 0x80 {
+        out.push((v as u8) | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}
+
+fn pb_bytes(out: &mut Vec<u8>, field: u64, bytes: &[u8]) {
+    pb_varint(out, field << 3 | 2);
+    pb_varint(out, bytes.len() as u64);
+    out.extend(bytes);
+}
+
+fn foxglove_cloud(points: &[[f64; 5]]) -> Vec<u8> {
+    let mut ts = Vec::new();
+    pb_varint(&mut ts, 1 << 3);
+    pb_varint(&mut ts, 1_700_000_000);
+    pb_varint(&mut ts, 2 << 3);
+    pb_varint(&mut ts, 250_000_000);
+    let mut m = Vec::new();
+    pb_bytes(&mut m, 1, &ts);
+    pb_bytes(&mut m, 2, b"lidar");
+    pb_bytes(&mut m, 3, &[0x0a, 0x00]); // pose: an empty position (ignored)
+    m.push(4 << 3 | 5);
+    m.extend(14u32.to_le_bytes()); // point_stride: x, y, z f32 + intensity u16
+    // NumericType: FLOAT32 = 7, UINT16 = 3.
+    for (name, offset, ty) in [("x", 0u32, 7u64), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 3)] {
+        let mut f = Vec::new();
+        pb_bytes(&mut f, 1, name.as_bytes());
+        f.push(2 << 3 | 5);
+        f.extend(offset.to_le_bytes());
+        pb_varint(&mut f, 3 << 3);
+        pb_varint(&mut f, ty);
+        pb_bytes(&mut m, 5, &f);
+    }
+    let mut data = Vec::new();
+    for p in points {
+        for v in &p[..3] {
+            data.extend((*v as f32).to_le_bytes());
+        }
+        data.extend((p[3] as u16).to_le_bytes());
+    }
+    pb_bytes(&mut m, 6, &data);
+    pb_varint(&mut m, 100 << 3 | 2); // an unknown newer field (uuid): skipped
+    pb_varint(&mut m, 2);
+    m.extend(b"id");
+    m
+}
+
+#[test]
+fn foxglove_pointcloud_protobuf_in_mcap() {
+    let dir = scratch_dir("mcap_foxglove");
+    let path = dir.join("fox.mcap");
+    let points = sample_points();
+    {
+        let file = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+        let mut w =
+            mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)).create(file).unwrap();
+        let schema = w.add_schema("foxglove.PointCloud", "protobuf", b"(FileDescriptorSet)").unwrap();
+        let ch = w.add_channel(schema, "/lidar", "protobuf", &BTreeMap::new()).unwrap();
+        for i in 0..3u32 {
+            let h = mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: i,
+                log_time: i as u64,
+                publish_time: i as u64,
+            };
+            w.write_to_known_channel(&h, &foxglove_cloud(&points)).unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&path)));
+    assert!(bad.is_empty(), "{bad:?}");
+    assert_eq!(scans.len(), 3);
+    let expected: Vec<[f64; 3]> = points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    assert_eq!(scans[0].points, expected);
+    assert_eq!(scans[0].utime, 1_700_000_000_250_000);
+    assert_eq!(scans[0].intensity.as_ref().unwrap()[5], 50.0);
+    // Truncated protobuf: an error for that message, not a panic.
+    let msg = foxglove_cloud(&points);
+    for cut in [1, 5, 17, msg.len() - 3] {
+        let r = pointcloud2::parse(&msg[..cut], Encoding::FoxgloveProtobuf).and_then(|c| c.decode());
+        assert!(r.is_err(), "cut at {cut}");
+    }
 }

@@ -154,8 +154,7 @@ impl Iterator for McapScans {
             let index = self.index;
             self.index += 1;
             let id = format!("{}/{index:06}", self.session);
-            let encoding =
-                if message.channel.message_encoding == "cdr" { Encoding::Cdr } else { Encoding::Ros1 };
+            let encoding = Encoding::of_channel(&message.channel.message_encoding);
             let decoded =
                 pointcloud2::parse(&message.data, encoding).and_then(|c| Ok((c.stamp_ns, c.decode()?)));
             let (stamp_ns, cloud) = match decoded {

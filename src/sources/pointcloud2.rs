@@ -78,6 +78,19 @@ pub enum Encoding {
     Cdr,
     /// ROS 1 serialization.
     Ros1,
+    /// `foxglove.PointCloud` in protobuf.
+    FoxgloveProtobuf,
+}
+
+impl Encoding {
+    /// The encoding of an MCAP channel's messages.
+    pub fn of_channel(message_encoding: &str) -> Self {
+        match message_encoding {
+            "cdr" => Encoding::Cdr,
+            "protobuf" => Encoding::FoxgloveProtobuf,
+            _ => Encoding::Ros1,
+        }
+    }
 }
 
 /// A cursor over a serialized message: CDR (aligned from `origin`, either byte order) or ROS 1
@@ -129,9 +142,10 @@ impl<'a> Cursor<'a> {
     }
 }
 
-/// Parses a serialized `PointCloud2`.
+/// Parses a serialized `PointCloud2` (or `foxglove.PointCloud`).
 pub fn parse(buf: &[u8], encoding: Encoding) -> Result<PointCloud2<'_>, String> {
     let mut c = match encoding {
+        Encoding::FoxgloveProtobuf => return parse_foxglove(buf),
         Encoding::Cdr => {
             if buf.len() < 4 {
                 return Err("message shorter than the 4-byte CDR header".into());
@@ -158,6 +172,7 @@ pub fn parse(buf: &[u8], encoding: Encoding) -> Result<PointCloud2<'_>, String> 
             let sec = c.u32("header.stamp.secs")? as i64;
             sec * 1_000_000_000 + c.u32("header.stamp.nsecs")? as i64
         }
+        Encoding::FoxgloveProtobuf => unreachable!("returned above"),
     };
     let frame_id = c.string("header.frame_id")?;
     let height = c.u32("height")?;
@@ -291,6 +306,7 @@ impl PointCloud2<'_> {
 /// Serializes a `PointCloud2` little-endian (test fixtures, the simulator's MCAP writer).
 pub fn serialize(cloud: &PointCloud2<'_>, encoding: Encoding) -> Vec<u8> {
     let mut out = Vec::with_capacity(cloud.data.len() + 256);
+    assert_ne!(encoding, Encoding::FoxgloveProtobuf, "serialize writes PointCloud2");
     let cdr = encoding == Encoding::Cdr;
     let align = |out: &mut Vec<u8>, n: usize| {
         if cdr {
@@ -335,4 +351,136 @@ pub fn serialize(cloud: &PointCloud2<'_>, encoding: Encoding) -> Vec<u8> {
     out.extend_from_slice(cloud.data);
     out.push(1); // is_dense
     out
+}
+
+/// Parses a `foxglove.PointCloud` protobuf message (REFERENCE §7.4) into the PointCloud2 form
+/// (one row, little-endian), mapping Foxglove's numeric types onto PointField codes. The
+/// message's `pose` is ignored: points stay in the cloud's own frame.
+pub fn parse_foxglove(buf: &[u8]) -> Result<PointCloud2<'_>, String> {
+    let mut pb = Protobuf { buf, pos: 0 };
+    let mut cloud = PointCloud2 {
+        stamp_ns: 0,
+        frame_id: String::new(),
+        height: 1,
+        width: 0,
+        fields: Vec::new(),
+        is_bigendian: false,
+        point_step: 0,
+        row_step: 0,
+        data: &[],
+    };
+    while let Some((field, wire)) = pb.key()? {
+        match (field, wire) {
+            (1, 2) => {
+                let mut ts = Protobuf { buf: pb.bytes()?, pos: 0 };
+                let (mut sec, mut nsec) = (0i64, 0i64);
+                while let Some((f, w)) = ts.key()? {
+                    match (f, w) {
+                        (1, 0) => sec = ts.varint()? as i64,
+                        (2, 0) => nsec = ts.varint()? as i32 as i64,
+                        _ => ts.skip(w)?,
+                    }
+                }
+                cloud.stamp_ns = sec * 1_000_000_000 + nsec;
+            }
+            (2, 2) => cloud.frame_id = String::from_utf8_lossy(pb.bytes()?).into_owned(),
+            (4, 5) => cloud.point_step = pb.fixed32()?,
+            (5, 2) => {
+                let mut f = Protobuf { buf: pb.bytes()?, pos: 0 };
+                let mut field = PointField { name: String::new(), offset: 0, datatype: 0, count: 1 };
+                while let Some((k, w)) = f.key()? {
+                    match (k, w) {
+                        (1, 2) => field.name = String::from_utf8_lossy(f.bytes()?).into_owned(),
+                        (2, 5) => field.offset = f.fixed32()?,
+                        (3, 0) => {
+                            // Foxglove NumericType → PointField datatype.
+                            field.datatype = match f.varint()? {
+                                1 => datatype::UINT8,
+                                2 => datatype::INT8,
+                                3 => datatype::UINT16,
+                                4 => datatype::INT16,
+                                5 => datatype::UINT32,
+                                6 => datatype::INT32,
+                                7 => datatype::FLOAT32,
+                                8 => datatype::FLOAT64,
+                                other => {
+                                    return Err(format!(
+                                        "field `{}`: unknown numeric type {other}",
+                                        field.name
+                                    ));
+                                }
+                            }
+                        }
+                        _ => f.skip(w)?,
+                    }
+                }
+                cloud.fields.push(field);
+            }
+            (6, 2) => cloud.data = pb.bytes()?,
+            _ => pb.skip(wire)?,
+        }
+    }
+    if cloud.point_step > 0 {
+        cloud.width = (cloud.data.len() / cloud.point_step as usize) as u32;
+        cloud.row_step = cloud.width * cloud.point_step;
+    } else if !cloud.data.is_empty() {
+        return Err("point_stride is 0".into());
+    }
+    Ok(cloud)
+}
+
+/// A protobuf wire-format cursor (just what `foxglove.PointCloud` needs).
+struct Protobuf<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Protobuf<'a> {
+    fn varint(&mut self) -> Result<u64, String> {
+        let mut v = 0u64;
+        for shift in (0..64).step_by(7) {
+            let b = *self.buf.get(self.pos).ok_or("protobuf: truncated varint")?;
+            self.pos += 1;
+            v |= ((b & 0x7f) as u64) << shift;
+            if b & 0x80 == 0 {
+                return Ok(v);
+            }
+        }
+        Err("protobuf: varint too long".into())
+    }
+
+    fn key(&mut self) -> Result<Option<(u64, u8)>, String> {
+        if self.pos >= self.buf.len() {
+            return Ok(None);
+        }
+        let k = self.varint()?;
+        Ok(Some((k >> 3, (k & 7) as u8)))
+    }
+
+    fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
+        let end =
+            self.pos.checked_add(n).filter(|&e| e <= self.buf.len()).ok_or("protobuf: truncated field")?;
+        let s = &self.buf[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+
+    fn bytes(&mut self) -> Result<&'a [u8], String> {
+        let n = usize::try_from(self.varint()?).map_err(|_| "protobuf: length overflow")?;
+        self.take(n)
+    }
+
+    fn fixed32(&mut self) -> Result<u32, String> {
+        Ok(u32::from_le_bytes(self.take(4)?.try_into().unwrap()))
+    }
+
+    fn skip(&mut self, wire: u8) -> Result<(), String> {
+        match wire {
+            0 => self.varint().map(drop),
+            1 => self.take(8).map(drop),
+            2 => self.bytes().map(drop),
+            5 => self.take(4).map(drop),
+            w => Err(format!("protobuf: unsupported wire type {w}")),
+        }
+    }
 }
