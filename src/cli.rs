@@ -120,6 +120,15 @@ pub struct SimulateArgs {
     /// Probability that a return is lost.
     #[arg(long, default_value_t = 0.08)]
     pub dropout: f64,
+    /// Maximum range (m).
+    #[arg(long, default_value_t = 100.0)]
+    pub max_range: f64,
+    /// Range noise σ (m).
+    #[arg(long, default_value_t = 0.02)]
+    pub range_noise: f64,
+    /// Sensor height above the ground (m).
+    #[arg(long, default_value_t = 1.9)]
+    pub height: f64,
     /// Worker threads (default: all cores).
     #[arg(long, short)]
     pub threads: Option<usize>,
@@ -445,6 +454,9 @@ fn simulate(a: SimulateArgs) -> Result<()> {
     let mut sensor = Sensor::new(a.sensor);
     sensor.azimuth_res = a.azimuth_res;
     sensor.dropout = a.dropout;
+    sensor.max_range = a.max_range;
+    sensor.range_noise = a.range_noise;
+    sensor.height = a.height;
     let p = SimParams {
         town: TownParams {
             blocks: a.blocks,
