@@ -495,57 +495,74 @@ fn simulate(a: SimulateArgs) -> Result<()> {
 fn query(a: QueryArgs) -> Result<()> {
     use rayon::prelude::*;
     let engine = crate::query::Engine::open(&a.index, &a.sessions)?;
-    let mut out = String::from("query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z\n");
+    // Rows stream out: to a temporary file renamed at the end, or to stdout.
+    let tmp = a.out.as_ref().map(|p| crate::fsutil::temp_path(p));
+    let mut out: Box<dyn Write> = match &tmp {
+        Some(t) => Box::new(std::io::BufWriter::new(
+            std::fs::File::create(t).with_context(|| t.display().to_string())?,
+        )),
+        None => Box::new(std::io::BufWriter::new(std::io::stdout().lock())),
+    };
+    writeln!(out, "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z")
+        .or_else(ignore_broken_pipe)?;
     let mut times = Vec::new();
     let mut failures = 0;
+    // Streamed a chunk at a time: descriptors in parallel, then one batched search per chunk.
+    let chunk = 64;
     for input in &a.inputs {
-        let scans: Vec<_> = crate::query::open_path(input, a.topic.as_deref())?.collect();
-        let results: Vec<_> = scans
-            .into_par_iter()
-            .map(|item| {
-                let scan = item.map_err(|f| f.error)?;
-                let id = scan.id.clone();
-                let points = engine.preprocess(scan)?;
-                let (v, mut t) = engine.describe(&points, &id)?;
-                let start = std::time::Instant::now();
-                let hits = engine.search(&v, a.k);
-                t.search = start.elapsed().as_secs_f64();
-                Ok::<_, String>((id, hits, t))
-            })
-            .collect();
-        for r in results {
-            match r {
-                Ok((id, hits, t)) => {
-                    times.push(t);
-                    for (rank, (row, dist)) in hits.iter().enumerate() {
-                        let s = &engine.scans[*row];
-                        let p = s.pose.map(|p| p.map(|x| format!("{x:?}"))).unwrap_or([
-                            String::new(),
-                            String::new(),
-                            String::new(),
-                        ]);
-                        out += &format!(
-                            "{},{},{},{},{dist:?},{},{},{}\n",
-                            csv_field(&id),
-                            rank + 1,
-                            csv_field(&s.scan_id),
-                            csv_field(&s.session),
-                            p[0],
-                            p[1],
-                            p[2]
-                        );
+        let mut stream = crate::query::open_path(input, a.topic.as_deref())?.peekable();
+        while stream.peek().is_some() {
+            let scans: Vec<_> = stream.by_ref().take(chunk).collect();
+            let described: Vec<_> = scans
+                .into_par_iter()
+                .map(|item| {
+                    let scan = item.map_err(|f| f.error)?;
+                    let id = scan.id.clone();
+                    let points = engine.preprocess(scan)?;
+                    let (v, t) = engine.describe(&points, &id)?;
+                    Ok::<_, String>((id, v, t))
+                })
+                .collect();
+            let ok: Vec<&(String, Vec<f32>, crate::query::StepTimes)> =
+                described.iter().filter_map(|r| r.as_ref().ok()).collect();
+            let start = std::time::Instant::now();
+            let flat: Vec<f32> = ok.iter().flat_map(|r| r.1.iter().copied()).collect();
+            let hits = engine.db.search_many(&flat, a.k);
+            let per_query = start.elapsed().as_secs_f64() / ok.len().max(1) as f64;
+            let mut hits = hits.into_iter();
+            for r in &described {
+                let (id, _, t) = match r {
+                    Ok(x) => x,
+                    Err(e) => {
+                        failures += 1;
+                        eprintln!("error: {e}");
+                        continue;
                     }
-                }
-                Err(e) => {
-                    failures += 1;
-                    eprintln!("error: {e}");
+                };
+                times.push(crate::query::StepTimes { search: per_query, ..*t });
+                for (rank, (row, dist)) in hits.next().expect("one result per query").iter().enumerate() {
+                    let s = &engine.scans[*row];
+                    let p = s.pose.map(|p| p.map(|x| format!("{x:?}"))).unwrap_or_default();
+                    writeln!(
+                        out,
+                        "{},{},{},{},{dist:?},{},{},{}",
+                        csv_field(id),
+                        rank + 1,
+                        csv_field(&s.scan_id),
+                        csv_field(&s.session),
+                        p[0],
+                        p[1],
+                        p[2]
+                    )
+                    .or_else(ignore_broken_pipe)?;
                 }
             }
         }
     }
-    match &a.out {
-        Some(p) => crate::fsutil::write_atomic(p, out.as_bytes())?,
-        None => std::io::stdout().lock().write_all(out.as_bytes()).or_else(ignore_broken_pipe)?,
+    out.flush().or_else(ignore_broken_pipe)?;
+    drop(out);
+    if let (Some(t), Some(p)) = (&tmp, &a.out) {
+        std::fs::rename(t, p).with_context(|| p.display().to_string())?;
     }
     let stat = |f: fn(&crate::query::StepTimes) -> f64| {
         crate::query::mean_p95_ms(&times.iter().map(f).collect::<Vec<_>>())
