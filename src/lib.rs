@@ -11,10 +11,17 @@
 //! (NCLT, MCAP, KITTI, CSV)                                                     (Parquet)
 //! ```
 //!
-//! * [`sources`] decode point clouds from files; they know nothing of topology.
+//! * [`sources`] decode scans from files (streams; a bad scan is an item, not an abort);
+//!   they know nothing of topology.
+//! * [`preprocess`] crops, removes the ground, downsamples, normalizes.
 //! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs.
-//! * [`vectorize`] turns diagrams into ATOL descriptors.
-//! * [`cli`] wires them into the `toporec` command.
+//! * [`vectorize`] turns diagrams into ATOL descriptors with a saved codebook.
+//! * [`sinks`] write the index: Hive-partitioned Parquet tables, committed atomically.
+//! * [`pipeline`] connects the stages with bounded channels (`toporec run`).
+//!
+//! Downstream of the index: [`search`] (exact k-NN), [`query`], [`eval`] (Recall@N,
+//! Recall@1 %), [`plot`]. Beside it: [`simulate`] makes multi-session drives in the formats
+//! the sources read, and [`inspect`] describes files. [`cli`] wires all of it into `toporec`.
 #![deny(missing_docs)]
 
 pub mod cli;
