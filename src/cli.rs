@@ -237,7 +237,7 @@ pub struct PlotDiagramArgs {
     /// The scan id.
     #[arg(long)]
     pub scan: String,
-    /// Output file stem (default: diagram_<scan> in the current folder).
+    /// Output file stem (default: `diagram_<scan id>` in the current folder).
     #[arg(long, short)]
     pub out: Option<PathBuf>,
 }

@@ -3,7 +3,7 @@
 //!
 //! Owns: the cell/neighbour arrays, point location by a stochastic visibility walk, cavity
 //! search and re-triangulation. Does not own: deduplication, the choice of dimension and the
-//! insertion order (see [`super::triangulate`]), nor anything about filtrations.
+//! insertion order (see [`super::complex::DelaunayComplex::new`]), nor anything about filtrations.
 //!
 //! Cells are `[u32; K]` vertex arrays (K = 4 tetrahedra, K = 3 triangles) in flat vectors;
 //! neighbour `i` of a cell is the cell across the facet opposite vertex `i`. Every cell is
