@@ -126,7 +126,7 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
         Vectorize::Load(..) => None,
     };
     let mut summary = RunSummary { index: index_dir.clone(), ..Default::default() };
-    let progress = Progress::new(opts.progress);
+    let progress = Progress::new(opts.progress, || p.sources.iter().map(|s| s.count_hint()).sum());
 
     // Pass 1: sources → workers → ordered writer.
     let window = 4 * threads + 8;
@@ -459,16 +459,22 @@ struct Progress {
 }
 
 impl Progress {
-    fn new(enabled: bool) -> Self {
+    /// `total`: the number of scans when the sources can tell cheaply (a bar with ETA),
+    /// else a spinner.
+    fn new(enabled: bool, total: impl FnOnce() -> Option<u64>) -> Self {
         use std::io::IsTerminal;
         let bar = (enabled && std::io::stderr().is_terminal()).then(|| {
-            let b = indicatif::ProgressBar::new_spinner();
-            b.set_style(
-                indicatif::ProgressStyle::with_template(
+            let (b, template) = match total() {
+                Some(n) => (
+                    indicatif::ProgressBar::new(n),
+                    "{elapsed_precise} [{bar:30}] {pos}/{len} scans ({per_sec}, ETA {eta}) {msg}",
+                ),
+                None => (
+                    indicatif::ProgressBar::new_spinner(),
                     "{spinner} {elapsed_precise} {pos} scans ({per_sec}) {msg}",
-                )
-                .expect("template"),
-            );
+                ),
+            };
+            b.set_style(indicatif::ProgressStyle::with_template(template).expect("template"));
             b.enable_steady_tick(Duration::from_millis(200));
             b
         });

@@ -121,6 +121,19 @@ impl SourceSpec {
         }
     }
 
+    /// The number of scans, when a directory listing tells (NCLT `velodyne_sync`, KITTI);
+    /// None when only reading would (MCAP, `velodyne_hits`).
+    pub fn count_hint(&self) -> Option<u64> {
+        let count = |dir: &Path| list_files(dir, "bin").ok().map(|f| f.len() as u64);
+        match self {
+            SourceSpec::Nclt(s) if s.reader == nclt::NcltReader::Sync => {
+                s.session_dirs().ok()?.iter().map(|d| count(&d.join("velodyne_sync"))).sum()
+            }
+            SourceSpec::Kitti(s) => s.sequences.iter().map(|d| count(&d.join("velodyne"))).sum(),
+            _ => None,
+        }
+    }
+
     /// Makes relative paths relative to `base` (the pipeline file's folder).
     pub fn resolve_paths(&mut self, base: &Path) {
         self.clean_paths(|p| if p.is_relative() { base.join(p) } else { p.to_owned() });
