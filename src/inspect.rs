@@ -1,13 +1,14 @@
 //! `toporec inspect PATH`: what a file or folder holds, read the way a run would read it.
 
 use crate::sources::kitti::KittiSpec;
+use crate::sources::mcap::McapSpec;
 use crate::sources::mcap_reader::{McapMessages, is_point_cloud};
 use crate::sources::nclt::{NcltReader, NcltSpec, is_session};
 use crate::sources::pointcloud2::{self, Encoding};
-use crate::sources::{CloudFormat, Scan, ScanStream, SourceError, read_cloud};
+use crate::sources::{CloudFormat, Scan, ScanStream, SourceError, SourceSpec, read_cloud};
 use std::collections::BTreeMap;
 use std::fmt::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// What a path is.
 pub fn detect(path: &Path) -> Result<&'static str, SourceError> {
@@ -51,38 +52,46 @@ pub fn is_mcap(path: &Path) -> bool {
         && magic == ::mcap::MAGIC
 }
 
+/// The source a path of kind `kind` (from [`detect`]) stands for; None for a single cloud
+/// file. `topic` picks the MCAP topic.
+pub fn source_spec(path: &Path, kind: &str, topic: Option<&str>) -> Result<Option<SourceSpec>, SourceError> {
+    Ok(Some(match kind {
+        "mcap" => SourceSpec::Mcap(McapSpec { topic: topic.map(String::from), ..McapSpec::file(path) }),
+        "nclt session" | "nclt sessions" => SourceSpec::Nclt(NcltSpec::sessions(vec![path.to_owned()])),
+        "nclt velodyne_hits" => {
+            let dir = path.parent().unwrap_or(Path::new(".")).to_owned();
+            SourceSpec::Nclt(NcltSpec { reader: NcltReader::Hits, ..NcltSpec::sessions(vec![dir]) })
+        }
+        "kitti sequence" => SourceSpec::Kitti(KittiSpec { sequences: vec![path.to_owned()] }),
+        "kitti sequences" => {
+            let entries = std::fs::read_dir(path)
+                .map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+            let mut sequences: Vec<PathBuf> =
+                entries.flatten().map(|e| e.path()).filter(|p| p.join("velodyne").is_dir()).collect();
+            sequences.sort();
+            SourceSpec::Kitti(KittiSpec { sequences })
+        }
+        _ => return Ok(None),
+    }))
+}
+
 /// The report, as text.
 pub fn inspect(path: &Path) -> anyhow::Result<String> {
     let kind = detect(path)?;
     let mut out = format!("path: {}\nformat: {kind}\n", path.display());
-    match kind {
-        "mcap" => mcap_report(path, &mut out)?,
-        "nclt session" | "nclt sessions" => {
-            let spec = NcltSpec::sessions(vec![path.to_owned()]);
-            let sessions = spec.session_dirs()?;
-            writeln!(out, "sessions: {}", sessions.len())?;
+    match source_spec(path, kind, None)? {
+        Some(SourceSpec::Mcap(_)) => mcap_report(path, &mut out)?,
+        Some(spec) => {
+            match &spec {
+                SourceSpec::Nclt(n) if n.reader == NcltReader::Sync => {
+                    writeln!(out, "sessions: {}", n.session_dirs()?.len())?
+                }
+                SourceSpec::Kitti(k) => writeln!(out, "sequences: {}", k.sequences.len())?,
+                _ => {}
+            }
             scans_report(spec.open()?, &mut out)?;
         }
-        "nclt velodyne_hits" => {
-            let dir = path.parent().unwrap_or(Path::new("."));
-            let spec = NcltSpec { reader: NcltReader::Hits, ..NcltSpec::sessions(vec![dir.to_owned()]) };
-            scans_report(spec.open()?, &mut out)?;
-        }
-        "kitti sequence" | "kitti sequences" => {
-            let sequences = if kind == "kitti sequence" {
-                vec![path.to_owned()]
-            } else {
-                let mut s: Vec<_> = std::fs::read_dir(path)?
-                    .filter_map(|e| e.ok().map(|e| e.path()))
-                    .filter(|p| p.join("velodyne").is_dir())
-                    .collect();
-                s.sort();
-                s
-            };
-            writeln!(out, "sequences: {}", sequences.len())?;
-            scans_report(KittiSpec { sequences }.open()?, &mut out)?;
-        }
-        _ => {
+        None => {
             let points = read_cloud(path, None)?;
             writeln!(out, "points: {}", points.len())?;
             writeln!(out, "range: max {:.2} m", max_range(&points))?;

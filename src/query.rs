@@ -8,13 +8,10 @@ use crate::pipeline::config::Pipeline;
 use crate::preprocess::{Skip, preprocess};
 use crate::search::{Database, Hit};
 use crate::sinks::index::{IndexedScan, read_descriptors};
-use crate::sources::kitti::KittiSpec;
-use crate::sources::mcap::McapSpec;
-use crate::sources::nclt::{NcltReader, NcltSpec};
-use crate::sources::{Scan, ScanFailure, ScanStream, SourceSpec, read_cloud};
+use crate::sources::{Scan, ScanFailure, ScanStream, read_cloud};
 use crate::vectorize::codebook::Codebook;
 use anyhow::{Context, Result, bail};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 /// An opened index, ready to answer queries.
@@ -97,45 +94,27 @@ impl Engine {
 /// sessions, or `velodyne_hits.bin`), a KITTI sequence (or `sequences/`), or one cloud file.
 pub fn open_path(path: &Path, topic: Option<&str>) -> Result<ScanStream> {
     let kind = inspect::detect(path)?;
-    let spec = match kind {
-        "mcap" => SourceSpec::Mcap(McapSpec { topic: topic.map(String::from), ..McapSpec::file(path) }),
-        "nclt session" | "nclt sessions" => SourceSpec::Nclt(NcltSpec::sessions(vec![path.to_owned()])),
-        "nclt velodyne_hits" => {
-            let dir = path.parent().unwrap_or(Path::new(".")).to_owned();
-            SourceSpec::Nclt(NcltSpec { reader: NcltReader::Hits, ..NcltSpec::sessions(vec![dir]) })
-        }
-        "kitti sequence" => SourceSpec::Kitti(KittiSpec { sequences: vec![path.to_owned()] }),
-        "kitti sequences" => {
-            let mut s: Vec<PathBuf> = std::fs::read_dir(path)?
-                .flatten()
-                .map(|e| e.path())
-                .filter(|p| p.join("velodyne").is_dir())
-                .collect();
-            s.sort();
-            SourceSpec::Kitti(KittiSpec { sequences: s })
-        }
-        _ => {
-            let points = read_cloud(path, None);
-            let id = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-            let item = match points {
-                Ok(points) => Ok(Scan {
-                    id: id.clone(),
-                    session: "query".into(),
-                    path: path.to_owned(),
-                    message_index: None,
-                    utime: 0,
-                    raw_points: points.len(),
-                    points,
-                    intensity: None,
-                    ring: None,
-                    pose: None,
-                }),
-                Err(e) => Err(ScanFailure::of_file(id, "query", path, None, e.to_string())),
-            };
-            return Ok(Box::new(std::iter::once(item)));
-        }
+    if let Some(spec) = inspect::source_spec(path, kind, topic)? {
+        return spec.open().with_context(|| path.display().to_string());
+    }
+    let points = read_cloud(path, None);
+    let id = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let item = match points {
+        Ok(points) => Ok(Scan {
+            id: id.clone(),
+            session: "query".into(),
+            path: path.to_owned(),
+            message_index: None,
+            utime: 0,
+            raw_points: points.len(),
+            points,
+            intensity: None,
+            ring: None,
+            pose: None,
+        }),
+        Err(e) => Err(ScanFailure::of_file(id, "query", path, None, e.to_string())),
     };
-    spec.open().with_context(|| path.display().to_string())
+    Ok(Box::new(std::iter::once(item)))
 }
 
 /// Mean and 95th percentile (nearest rank) of a sample, in milliseconds.
