@@ -706,15 +706,12 @@ fn vectorize(args: VectorizeArgs) -> Result<()> {
         let mut rows = 0;
         for item in diagram_inputs(&args.diagrams) {
             let (id, diagram) = item?;
-            let d = codebook.vectorize(&diagram);
-            let values = d.values.iter().map(|&v| v as f32).collect();
-            file.push(crate::sinks::parquet::DescriptorRow {
-                scan_id: id,
-                utime: None,
-                pose: None,
-                dim_used: d.dim_used,
-                values,
-            })?;
+            file.push(crate::sinks::parquet::DescriptorRow::new(
+                id,
+                None,
+                None,
+                &codebook.vectorize(&diagram),
+            ))?;
             rows += 1;
         }
         file.finish()?;

@@ -79,7 +79,7 @@ impl Engine {
         let d = if self.pipeline.persistence.squared { d } else { d.to_radii() };
         t.persistence = start.elapsed().as_secs_f64();
         let start = Instant::now();
-        let v = self.codebook.vectorize(&d).values.iter().map(|&x| x as f32).collect();
+        let v = self.codebook.vectorize(&d).to_f32();
         t.vectorize = start.elapsed().as_secs_f64();
         Ok((v, t))
     }

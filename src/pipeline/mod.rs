@@ -207,7 +207,7 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
                         let f = writer.descriptors_file(&session, cb.len(), &cb.id())?;
                         descriptor_files.insert(session.clone(), f);
                     }
-                    let row = descriptor_row(&o.row, d);
+                    let row = DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, &d);
                     descriptor_files.get_mut(&session).expect("inserted").push(row)?;
                 }
                 writer.write_scan(o.row, o.diagram.as_ref(), &p.persistence.dims)?;
@@ -285,16 +285,6 @@ fn account(s: &mut RunSummary, row: &ScanRow) {
                 s.first_errors.push(row.error.clone().unwrap_or_default());
             }
         }
-    }
-}
-
-fn descriptor_row(row: &ScanRow, d: Descriptor) -> DescriptorRow {
-    DescriptorRow {
-        scan_id: row.scan_id.clone(),
-        utime: row.utime,
-        pose: row.pose,
-        dim_used: d.dim_used,
-        values: d.values.iter().map(|&v| v as f32).collect(),
     }
 }
 
@@ -405,14 +395,7 @@ fn vectorize_pass(writer: &mut IndexWriter, codebook: &Codebook, threads: usize)
                 batch
                     .par_iter()
                     .map(|(scan_id, utime, pose, diagram)| {
-                        let d = codebook.vectorize(diagram);
-                        DescriptorRow {
-                            scan_id: scan_id.to_string(),
-                            utime: *utime,
-                            pose: *pose,
-                            dim_used: d.dim_used,
-                            values: d.values.iter().map(|&v| v as f32).collect(),
-                        }
+                        DescriptorRow::new(scan_id.to_string(), *utime, *pose, &codebook.vectorize(diagram))
                     })
                     .collect()
             });

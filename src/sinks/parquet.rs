@@ -5,6 +5,7 @@
 use super::schema::{self, Table};
 use crate::homology::Diagram;
 use crate::sources::Pose;
+use crate::vectorize::codebook::Descriptor;
 use anyhow::{Context, Result};
 use arrow::array::{
     ArrayRef, FixedSizeListBuilder, Float32Builder, Float64Builder, Int64Builder, RecordBatch, StringBuilder,
@@ -82,6 +83,13 @@ pub struct DescriptorRow {
     pub dim_used: Option<u8>,
     /// The vector.
     pub values: Vec<f32>,
+}
+
+impl DescriptorRow {
+    /// The row of one scan's descriptor.
+    pub fn new(scan_id: String, utime: Option<i64>, pose: Option<Pose>, d: &Descriptor) -> Self {
+        DescriptorRow { scan_id, utime, pose, dim_used: d.dim_used, values: d.to_f32() }
+    }
 }
 
 fn properties(schema: &Schema) -> WriterProperties {

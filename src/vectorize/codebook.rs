@@ -153,6 +153,13 @@ pub struct Descriptor {
     pub dim_used: Option<u8>,
 }
 
+impl Descriptor {
+    /// The vector as stored in the index: float32.
+    pub fn to_f32(&self) -> Vec<f32> {
+        self.values.iter().map(|&v| v as f32).collect()
+    }
+}
+
 /// Streams diagrams into the fitters of a codebook.
 #[derive(Clone, Debug)]
 pub struct CodebookFitter {
