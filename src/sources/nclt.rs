@@ -287,6 +287,16 @@ impl<R: std::io::Read> HitsScans<R> {
         }
     }
 
+    /// Ends the stream: the scan in progress, then `error` if any.
+    fn stop(&mut self, error: Option<String>) {
+        self.flush();
+        if let Some(e) = error {
+            let f = self.failure(e);
+            self.pending.push_back(Err(f));
+        }
+        self.done = true;
+    }
+
     fn flush(&mut self) {
         if let Some(utime) = self.start_utime.take()
             && !self.current.points.is_empty()
@@ -412,33 +422,17 @@ impl<R: std::io::Read> Iterator for HitsScans<R> {
             }
             match self.packet() {
                 Ok(Some((utime, body))) => self.add_packet(utime, &body),
-                Ok(None) => {
-                    self.flush();
-                    self.done = true;
-                }
+                Ok(None) => self.stop(None),
                 Err(e) if e == BAD_MAGIC => {
                     let f = self.failure(e);
                     self.pending.push_back(Err(f));
                     match self.resync() {
                         Ok(true) => {}
-                        Ok(false) => {
-                            self.flush();
-                            self.done = true;
-                        }
-                        Err(e) => {
-                            self.flush();
-                            let f = self.failure(e);
-                            self.pending.push_back(Err(f));
-                            self.done = true;
-                        }
+                        Ok(false) => self.stop(None),
+                        Err(e) => self.stop(Some(e)),
                     }
                 }
-                Err(e) => {
-                    self.flush();
-                    let f = self.failure(e);
-                    self.pending.push_back(Err(f));
-                    self.done = true;
-                }
+                Err(e) => self.stop(Some(e)),
             }
         }
     }
