@@ -230,13 +230,19 @@ pub(crate) fn list_files(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, SourceEr
     Ok(files)
 }
 
-/// Drops non-finite and exact-zero points (no-returns), keeping channels aligned.
+/// Whether a point is a real return: finite, and not the exact `(0, 0, 0)` that sensors
+/// write for no-returns.
+pub(crate) fn is_return(p: &Point) -> bool {
+    p.iter().all(|v| v.is_finite()) && *p != [0.0; 3]
+}
+
+/// Drops points that are not returns ([`is_return`]), keeping channels aligned.
 pub(crate) fn drop_invalid(
     points: &mut Vec<Point>,
     intensity: &mut Option<Vec<f32>>,
     ring: &mut Option<Vec<u16>>,
 ) {
-    let keep: Vec<bool> = points.iter().map(|p| p.iter().all(|v| v.is_finite()) && *p != [0.0; 3]).collect();
+    let keep: Vec<bool> = points.iter().map(is_return).collect();
     if keep.iter().all(|&k| k) {
         return;
     }

@@ -287,7 +287,7 @@ impl PointCloud2<'_> {
             let row_bytes = &self.data[row * rs..row * rs + w * ps];
             for p in row_bytes.chunks_exact(ps) {
                 let q = [x.1(&p[x.0..]), y.1(&p[y.0..]), z.1(&p[z.0..])];
-                if !q.iter().all(|v| v.is_finite()) || q == [0.0; 3] {
+                if !super::is_return(&q) {
                     continue;
                 }
                 out.points.push(q);
