@@ -42,24 +42,7 @@ impl Engine {
     pub fn open(index: &Path, sessions: &[String]) -> Result<Self> {
         let pipeline =
             Pipeline::load_settings(&index.join("pipeline.toml")).map_err(|e| anyhow::anyhow!("{e}"))?;
-        let codebook = Codebook::load(&index.join("codebook.json"))?;
-        let scans = read_descriptors(index, sessions)?;
-        if scans.is_empty() {
-            bail!(
-                "{}: no descriptors{}",
-                index.display(),
-                if sessions.is_empty() { String::new() } else { format!(" in sessions {sessions:?}") }
-            );
-        }
-        let id = codebook.id();
-        if let Some(s) = scans.iter().find(|s| s.codebook_id != id) {
-            bail!(
-                "{}: scan {} was made with codebook {}, the index's codebook.json is {id}",
-                index.display(),
-                s.scan_id,
-                s.codebook_id
-            );
-        }
+        let (codebook, scans) = load_descriptors(index, sessions)?;
         let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
         let db = Database::new(vectors, codebook.len());
         Ok(Engine { pipeline, codebook, scans, db })
@@ -88,6 +71,30 @@ impl Engine {
     pub fn search(&self, descriptor: &[f32], k: usize) -> Vec<Hit> {
         self.db.search(descriptor, k)
     }
+}
+
+/// An index's codebook and its descriptors (only `sessions`, when not empty), checked to have
+/// been made with that codebook.
+pub fn load_descriptors(index: &Path, sessions: &[String]) -> Result<(Codebook, Vec<IndexedScan>)> {
+    let codebook = Codebook::load(&index.join("codebook.json"))?;
+    let scans = read_descriptors(index, sessions)?;
+    if scans.is_empty() {
+        bail!(
+            "{}: no descriptors{}",
+            index.display(),
+            if sessions.is_empty() { String::new() } else { format!(" in sessions {sessions:?}") }
+        );
+    }
+    let id = codebook.id();
+    if let Some(s) = scans.iter().find(|s| s.codebook_id != id) {
+        bail!(
+            "{}: scan {} was made with codebook {}, the index's codebook.json is {id}",
+            index.display(),
+            s.scan_id,
+            s.codebook_id
+        );
+    }
+    Ok((codebook, scans))
 }
 
 /// A scan stream for a path given on the command line: an MCAP, an NCLT session (or folder of

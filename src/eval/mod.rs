@@ -11,7 +11,7 @@
 
 pub mod metrics;
 
-use crate::query::{Engine, StepTimes, mean_p95_ms};
+use crate::query::{Engine, StepTimes, load_descriptors, mean_p95_ms};
 use crate::rng::SplitMix64;
 use crate::sinks::index::IndexedScan;
 use anyhow::{Context, Result, bail};
@@ -71,27 +71,23 @@ fn subsample(scans: Vec<IndexedScan>, every: Option<f64>) -> Vec<IndexedScan> {
 
 /// Runs the places protocol; returns the report text (also written beside the JSON).
 pub fn places(a: &PlacesArgs) -> Result<String> {
-    let mut engine = Engine::open(&a.db, &a.db_sessions)?;
+    // Descriptors only: the search structure is built once, over the scans kept below.
+    let (codebook, db_all) = load_descriptors(&a.db, &a.db_sessions)?;
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
-    let queries = if a.queries.is_some() {
-        let other = Engine::open(&queries_index, &a.query_sessions)?;
-        if other.codebook.id() != engine.codebook.id() {
-            bail!(
-                "{} uses codebook {} but {} uses {}: index the queries with `vectorize.codebook = \"{}\"`",
-                queries_index.display(),
-                other.codebook.id(),
-                a.db.display(),
-                engine.codebook.id(),
-                a.db.join("codebook.json").display()
-            );
-        }
-        other.scans
-    } else {
-        crate::sinks::index::read_descriptors(&a.db, &a.query_sessions)?
-    };
-    let unposed = engine.scans.iter().filter(|s| s.pose.is_none()).count()
+    let (query_codebook, queries) = load_descriptors(&queries_index, &a.query_sessions)?;
+    if query_codebook.id() != codebook.id() {
+        bail!(
+            "{} uses codebook {} but {} uses {}: index the queries with `vectorize.codebook = \"{}\"`",
+            queries_index.display(),
+            query_codebook.id(),
+            a.db.display(),
+            codebook.id(),
+            a.db.join("codebook.json").display()
+        );
+    }
+    let unposed = db_all.iter().filter(|s| s.pose.is_none()).count()
         + queries.iter().filter(|s| s.pose.is_none()).count();
-    let db_scans = subsample(engine.scans.drain(..).filter(|s| s.pose.is_some()).collect(), a.map_every);
+    let db_scans = subsample(db_all.into_iter().filter(|s| s.pose.is_some()).collect(), a.map_every);
     let queries = subsample(queries.into_iter().filter(|s| s.pose.is_some()).collect(), a.query_every);
     if db_scans.is_empty() || queries.is_empty() {
         bail!(
@@ -101,7 +97,7 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         );
     }
     let vectors: Vec<f32> = db_scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
-    let db = crate::search::Database::new(vectors, engine.codebook.len());
+    let db = crate::search::Database::new(vectors, codebook.len());
     let n_db = db_scans.len();
     let k1 = one_percent_k(n_db);
     let gap_us = a.min_time_gap * 1e6;
@@ -200,8 +196,8 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         "toporec_version": env!("CARGO_PKG_VERSION"),
         "database": {"index": a.db, "sessions": a.db_sessions, "scans": n_db, "map_every_m": a.map_every},
         "queries": {"index": queries_index, "sessions": a.query_sessions, "scans": queries.len(), "query_every_m": a.query_every},
-        "codebook_id": engine.codebook.id(),
-        "descriptor_length": engine.codebook.len(),
+        "codebook_id": codebook.id(),
+        "descriptor_length": codebook.len(),
         "min_time_gap_s": a.min_time_gap,
         "one_percent_k": k1,
         "max_n": a.max_n,
