@@ -404,12 +404,7 @@ impl Pipeline {
         let sources: Vec<Value> =
             self.sources.iter().map(|s| Value::try_from(s).expect("plain data")).collect();
         doc.insert("sources".into(), Value::Array(sources));
-        let mut pre = Value::try_from(&self.preprocess).expect("plain data");
-        if let Some(Value::Table(range)) = pre.get_mut("range")
-            && range.get("max").and_then(Value::as_float).is_some_and(f64::is_infinite)
-        {
-            range.remove("max");
-        }
+        let pre = Value::try_from(&self.preprocess).expect("plain data");
         doc.insert("preprocess".into(), pre);
         doc.insert("persistence".into(), Value::try_from(&self.persistence).expect("plain data"));
         let mut v = Table::new();
