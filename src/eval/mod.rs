@@ -143,18 +143,28 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
     )?;
     let mut curves = Vec::new();
     let mut success_first = Vec::new();
+    let plan_distance = |q: &IndexedScan, row: usize| {
+        let (p, d) = (xy(q), xy(&db_scans[row]));
+        (p[0] - d[0]).hypot(p[1] - d[1])
+    };
+    // Distance from each query to its nearest eligible database scan: it has a true match
+    // within R iff this is ≤ R (one pass, not one per threshold).
+    let nearest: Vec<f64> = queries
+        .par_iter()
+        .map(|q| {
+            (0..n_db)
+                .filter(|&row| !is_excluded(q, &db_scans[row]))
+                .map(|row| plan_distance(q, row))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
     for &r in &a.thresholds {
-        let mut hits = Vec::with_capacity(queries.len());
-        let mut has = Vec::with_capacity(queries.len());
-        for (q, (rows, _)) in queries.iter().zip(&retrieved) {
-            let p = xy(q);
-            let is_match = |row: usize| {
-                let d = xy(&db_scans[row]);
-                (p[0] - d[0]).hypot(p[1] - d[1]) <= r
-            };
-            has.push((0..n_db).any(|row| !is_excluded(q, &db_scans[row]) && is_match(row)));
-            hits.push(first_hit(rows, is_match));
-        }
+        let has: Vec<bool> = nearest.iter().map(|&d| d <= r).collect();
+        let hits: Vec<Option<usize>> = queries
+            .iter()
+            .zip(&retrieved)
+            .map(|(q, (rows, _))| first_hit(rows, |row| plan_distance(q, row) <= r))
+            .collect();
         if success_first.is_empty() {
             success_first = hits.iter().map(|h| *h == Some(0)).collect();
         }
