@@ -4,7 +4,7 @@
 
 use crate::util::*;
 use std::path::{Path, PathBuf};
-use toporec::simulate::scene::{Material, Scene, Shape, TownParams};
+use toporec::simulate::scene::{Material, Scene, TownParams};
 use toporec::simulate::{self, Format, SensorModel, SimParams};
 use toporec::sources::{SourceSpec, kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec};
 
@@ -112,7 +112,6 @@ fn points_lie_on_surfaces_with_the_sensor_pattern_and_return_rate() {
     for (model, beams) in [(SensorModel::Hdl64, 64), (SensorModel::Vlp16, 16)] {
         assert_eq!(simulate::Sensor::new(model).elevations.len(), beams);
     }
-    let _ = Shape::Cylinder { c: [0.0; 2], r: 1.0, z0: 0.0, z1: 1.0 };
 }
 
 #[test]

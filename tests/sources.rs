@@ -5,7 +5,6 @@ use crate::util::*;
 use proptest::prelude::*;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use toporec::sources::groundtruth::GroundTruth;
 use toporec::sources::kitti::KittiSpec;
 use toporec::sources::mcap::McapSpec;
@@ -698,7 +697,6 @@ fn fuzz_mutated_mcap_files_never_panic() {
         let _ = McapMessages::open(&target).map(|m| m.count());
         let _ = toporec::inspect::inspect(&target);
     }
-    let _ = Arc::new(());
 }
 
 /// Protobuf encoding helpers for a `foxglove.PointCloud` fixture.
