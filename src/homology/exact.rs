@@ -96,6 +96,60 @@ pub fn radius2(v: &[Point]) -> Radius2 {
     }
 }
 
+/// The squared circumradius of the tetrahedron `v` and, for each facet `i` (opposite `v[i]`),
+/// whether that facet is Gabriel with respect to `v[i]` — `Some(false)` when `v[i]` lies
+/// strictly inside the facet's smallest circumsphere, `None` when the `f64` filter cannot
+/// decide (then ask [`triangle_gabriel`]).
+///
+/// Both spheres pass through the facet's circumcircle, so `v[i]` is inside the facet's
+/// sphere exactly when the tetrahedron's circumcentre lies strictly beyond facet `i`, i.e.
+/// when its barycentric coordinate `λ_i` is negative. With `a, b, c` the edges from `v[0]`,
+/// `d = a·(b×c)` and `N = |a|²(b×c) + |b|²(c×a) + |c|²(a×b)` (centre offset `N / 2d`),
+/// `λ_1..λ_3 = N·(b×c), N·(c×a), N·(a×b)` over `2d²` and `λ_0 = 2d² − N·(b×c + c×a + a×b)`
+/// over `2d²`: the quantities of the radius itself, so the four tests are nearly free.
+pub fn tet_circumsphere(v: &[Point; 4]) -> (Radius2, [Option<bool>; 4]) {
+    let a = sub(&v[1], &v[0]);
+    let b = sub(&v[2], &v[0]);
+    let c = sub(&v[3], &v[0]);
+    let bc = cross(&b, &c);
+    let ca = cross(&c, &a);
+    let ab = cross(&a, &b);
+    let d = dot(&a, &bc);
+    let (a2, b2, c2) = (dot(&a, &a), dot(&b, &b), dot(&c, &c));
+    let num = add(&add(&scale(&bc, a2), &scale(&ca, b2)), &scale(&ab, c2));
+    let (aa, ab_, ac) = (abs3(&a), abs3(&b), abs3(&c));
+    let pbc = cross_abs(&ab_, &ac);
+    let pca = cross_abs(&ac, &aa);
+    let pab = cross_abs(&aa, &ab_);
+    let perm_d = dot(&aa, &pbc);
+    let perm_n = add(&add(&scale(&pbc, a2), &scale(&pca, b2)), &scale(&pab, c2));
+    let n2 = dot(&num, &num);
+    let value = n2 / (4.0 * d * d);
+    let rel_err = 64.0 * EPS * (1.0 + dot(&perm_n, &perm_n).sqrt() / n2.sqrt() + perm_d / d.abs());
+    let radius = Radius2 { value, rel_err: if value.is_finite() { rel_err } else { f64::INFINITY } };
+    // Sign of a degree-6 polynomial evaluated in f64: certain when beyond 64ε × its
+    // permanent (the same kind of bound as the other filters here, with margin).
+    let decide = |x: f64, perm: f64| {
+        let bound = 64.0 * EPS * perm;
+        if x > bound {
+            Some(true)
+        } else if x < -bound {
+            Some(false)
+        } else {
+            None
+        }
+    };
+    let s = add(&add(&bc, &ca), &ab);
+    let ps = add(&add(&pbc, &pca), &pab);
+    let gabriel = [
+        decide(2.0 * d * d - dot(&num, &s), 2.0 * perm_d * perm_d + dot(&perm_n, &ps)),
+        decide(dot(&num, &bc), dot(&perm_n, &pbc)),
+        decide(dot(&num, &ca), dot(&perm_n, &pca)),
+        decide(dot(&num, &ab), dot(&perm_n, &pab)),
+    ];
+    (radius, gabriel)
+}
+
 #[inline]
 fn cross_abs(a: &Point, b: &Point) -> Point {
     [a[1] * b[2] + a[2] * b[1], a[2] * b[0] + a[0] * b[2], a[0] * b[1] + a[1] * b[0]]
@@ -358,6 +412,39 @@ mod tests {
             let exact = radius2_correctly_rounded(v);
             assert!((r.value - exact).abs() <= r.rel_err * exact, "{v:?}");
         }
+    }
+
+    #[test]
+    fn tet_facet_signs_agree_with_the_triangle_gabriel_test() {
+        // Random tetrahedra and integer-lattice ones (where the circumcentre often lies on a
+        // facet, so the filter must answer `None`, never a wrong sign).
+        let mut rng = crate::rng::SplitMix64(11);
+        let (mut decided, mut ties) = (0, 0);
+        for k in 0..20_000 {
+            let lattice = k % 2 == 1;
+            let v: [Point; 4] = std::array::from_fn(|_| {
+                [0, 1, 2].map(|_| {
+                    if lattice { (rng.below(4) as f64) * 0.5 - 1.0 } else { rng.next_f64() * 2.0 - 1.0 }
+                })
+            });
+            if crate::homology::delaunay::orient3d(&v[0], &v[1], &v[2], &v[3]) == 0.0 {
+                continue;
+            }
+            let (r, gabriel) = tet_circumsphere(&v);
+            assert_eq!(r.value, radius2(&v).value);
+            for i in 0..4 {
+                let f: Vec<Point> = (0..4).filter(|&j| j != i).map(|j| v[j]).collect();
+                let exact = triangle_gabriel(&f[0], &f[1], &f[2], &v[i]);
+                match gabriel[i] {
+                    Some(g) => {
+                        assert_eq!(g, exact, "{v:?} facet {i}");
+                        decided += 1;
+                    }
+                    None => ties += 1,
+                }
+            }
+        }
+        assert!(decided > 30_000 && ties > 100, "decided {decided}, undecided {ties}");
     }
 
     #[test]

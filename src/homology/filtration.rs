@@ -10,7 +10,8 @@
 
 use super::complex::DelaunayComplex;
 use super::exact::{
-    Point, Radius2, compare_radius2_exact, edge_gabriel, radius2, radius2_correctly_rounded, triangle_gabriel,
+    Point, Radius2, compare_radius2_exact, edge_gabriel, radius2, radius2_correctly_rounded,
+    tet_circumsphere, triangle_gabriel,
 };
 use std::cmp::Ordering;
 
@@ -19,8 +20,8 @@ use std::cmp::Ordering;
 pub struct Value {
     /// Squared radius (rounded).
     pub value: f64,
-    /// Relative error bound of `value`.
-    pub rel_err: f64,
+    /// Relative error bound of `value` (rounded up to `f32`: 16-byte values).
+    pub rel_err: f32,
     /// The simplex whose squared circumradius this is: `dim << 30 | index`.
     pub source: u32,
 }
@@ -39,7 +40,7 @@ impl Value {
     /// Absolute error bound of `value`.
     #[inline]
     pub fn abs_err(&self) -> f64 {
-        self.rel_err * self.value.abs()
+        self.rel_err as f64 * self.value.abs()
     }
 }
 
@@ -74,20 +75,21 @@ impl<'a> Filtration<'a> {
             triangle_order: Vec::new(),
             tet_order: Vec::new(),
         };
-        // Tetrahedra: own circumradius.
-        for (i, t) in complex.tets.iter().enumerate() {
-            let r =
-                radius2(&[pts[t[0] as usize], pts[t[1] as usize], pts[t[2] as usize], pts[t[3] as usize]]);
-            f.tets.push(own(r, 3, i));
-        }
-        // Triangles: attached to a tetrahedron whose opposite vertex is strictly inside.
+        // Tetrahedra: own circumradius. Triangles: attached to a tetrahedron whose opposite
+        // vertex is strictly inside their smallest circumsphere (decided from the
+        // tetrahedron's circumcentre, exactly when that is too close to call).
         for (ti, t) in complex.tets.iter().enumerate() {
+            let v = t.map(|x| pts[x as usize]);
+            let (r, gabriel) = tet_circumsphere(&v);
+            let cand = own(r, 3, ti);
+            f.tets.push(cand);
             for i in 0..4 {
                 let tri = complex.tet_tris[ti][i] as usize;
-                let v = complex.triangles[tri];
-                let (a, b, c) = (&pts[v[0] as usize], &pts[v[1] as usize], &pts[v[2] as usize]);
-                if !triangle_gabriel(a, b, c, &pts[t[i] as usize]) {
-                    let cand = f.tets[ti];
+                let is_gabriel = gabriel[i].unwrap_or_else(|| {
+                    let w = complex.triangles[tri];
+                    triangle_gabriel(&pts[w[0] as usize], &pts[w[1] as usize], &pts[w[2] as usize], &v[i])
+                });
+                if !is_gabriel {
                     let cur = f.triangles[tri];
                     if !cur.is_set() || f.cmp(cand, cur) == Ordering::Less {
                         f.triangles[tri] = cand;
@@ -101,33 +103,30 @@ impl<'a> Filtration<'a> {
                 f.triangles[i] = own(r, 2, i);
             }
         }
-        // Edges: attached iff some triangle coface is not Gabriel; then the minimum over all
-        // triangle cofaces (that minimum is reached at a non-Gabriel coface, so this equals
-        // GUDHI's top-down propagation whatever its visiting order).
+        // Edges: attached iff some triangle coface is not Gabriel (the opposite angle is
+        // obtuse); then the minimum over all triangle cofaces (that minimum is reached at a
+        // non-Gabriel coface, so this equals GUDHI's top-down propagation whatever its
+        // visiting order).
         let mut attached = vec![false; complex.edges.len()];
-        let mut min_coface = vec![Value::unset(); complex.edges.len()];
         for (ti, t) in complex.triangles.iter().enumerate() {
+            let v = t.map(|x| pts[x as usize]);
+            let cand = f.triangles[ti];
             for i in 0..3 {
                 let e = complex.tri_edges[ti][i] as usize;
-                let ev = complex.edges[e];
-                if !attached[e]
-                    && !edge_gabriel(&pts[ev[0] as usize], &pts[ev[1] as usize], &pts[t[i] as usize])
-                {
-                    attached[e] = true;
+                if !attached[e] {
+                    let (p, q) = ((i + 1) % 3, (i + 2) % 3);
+                    attached[e] = !edge_gabriel(&v[p], &v[q], &v[i]);
                 }
-                let cand = f.triangles[ti];
-                let cur = min_coface[e];
+                let cur = f.edges[e];
                 if !cur.is_set() || f.cmp(cand, cur) == Ordering::Less {
-                    min_coface[e] = cand;
+                    f.edges[e] = cand;
                 }
             }
         }
         for (i, e) in complex.edges.iter().enumerate() {
-            f.edges[i] = if attached[i] {
-                min_coface[i]
-            } else {
-                own(radius2(&[pts[e[0] as usize], pts[e[1] as usize]]), 1, i)
-            };
+            if !attached[i] {
+                f.edges[i] = own(radius2(&[pts[e[0] as usize], pts[e[1] as usize]]), 1, i);
+            }
         }
         f.edge_order = f.order(&f.edges);
         f.triangle_order = f.order(&f.triangles);
@@ -135,23 +134,46 @@ impl<'a> Filtration<'a> {
         f
     }
 
-    /// Simplex ids sorted by (exact value, id): a radix sort on the `f64` bits, then an exact
-    /// re-sort inside each cluster whose error intervals overlap (rare outside ties).
+    /// Simplex ids sorted by (exact value, id): a radix sort on the high 32 bits of the
+    /// `f64` (values are non-negative, so the bits order like the values), runs of equal
+    /// high bits sorted by the full value, then an exact re-sort inside each cluster whose
+    /// error intervals overlap (rare outside ties).
     fn order(&self, values: &[Value]) -> Vec<u32> {
-        let keyed: Vec<(u64, u32)> =
-            values.iter().enumerate().map(|(i, v)| (v.value.to_bits(), i as u32)).collect();
-        let mut o: Vec<u32> = radix_sort(keyed).into_iter().map(|(_, i)| i).collect();
-        let lower = |i: u32| values[i as usize].value - values[i as usize].abs_err();
-        let upper = |i: u32| values[i as usize].value + values[i as usize].abs_err();
+        let keyed: Vec<u64> = values
+            .iter()
+            .enumerate()
+            .map(|(i, v)| (v.value.to_bits() >> 32) << 32 | i as u64)
+            .collect();
+        let mut o: Vec<u32> = radix_sort_high32(keyed).into_iter().map(|k| k as u32).collect();
+        let bits = |i: u32| values[i as usize].value.to_bits();
         let n = o.len();
+        let mut start = 0;
+        while start < n {
+            let high = bits(o[start]) >> 32;
+            let mut end = start + 1;
+            while end < n && bits(o[end]) >> 32 == high {
+                end += 1;
+            }
+            if end - start > 1 {
+                o[start..end].sort_unstable_by_key(|&i| (bits(i), i));
+            }
+            start = end;
+        }
+        let sorted: Vec<(f64, f64)> = o
+            .iter()
+            .map(|&i| {
+                let v = values[i as usize];
+                (v.value, v.abs_err())
+            })
+            .collect();
         let mut suffix_min_lower = vec![f64::INFINITY; n + 1];
         for k in (0..n).rev() {
-            suffix_min_lower[k] = suffix_min_lower[k + 1].min(lower(o[k]));
+            suffix_min_lower[k] = suffix_min_lower[k + 1].min(sorted[k].0 - sorted[k].1);
         }
         let mut start = 0;
         let mut max_upper = f64::NEG_INFINITY;
         for k in 0..n {
-            max_upper = max_upper.max(upper(o[k]));
+            max_upper = max_upper.max(sorted[k].0 + sorted[k].1);
             // Split after k when nothing before can exceed anything after.
             if max_upper < suffix_min_lower[k + 1] {
                 if k > start {
@@ -226,33 +248,36 @@ impl<'a> Filtration<'a> {
 
 #[inline]
 fn own(r: Radius2, dim: u32, index: usize) -> Value {
-    Value { value: r.value, rel_err: r.rel_err, source: (dim << DIM_SHIFT) | index as u32 }
+    // Round the bound up: a wider bound only sends more comparisons to the exact path.
+    let rel_err = (r.rel_err as f32) * (1.0 + f32::EPSILON);
+    Value { value: r.value, rel_err, source: (dim << DIM_SHIFT) | index as u32 }
 }
 
-/// LSD radix sort by key (8-bit digits; digits equal across all keys are skipped), stable,
-/// so equal keys stay in id order.
-fn radix_sort(mut a: Vec<(u64, u32)>) -> Vec<(u64, u32)> {
-    let mut b = vec![(0u64, 0u32); a.len()];
+/// LSD radix sort of `key << 32 | id` words by their high 32 bits (11-bit digits; digits
+/// equal across all keys are skipped). Stable, so equal keys stay in id order.
+fn radix_sort_high32(mut a: Vec<u64>) -> Vec<u64> {
+    let mut b = vec![0u64; a.len()];
     let (mut and_all, mut or_all) = (u64::MAX, 0u64);
-    for &(k, _) in &a {
+    for &k in &a {
         and_all &= k;
         or_all |= k;
     }
-    let varying = and_all ^ or_all;
-    for shift in (0..64).step_by(8) {
-        if (varying >> shift) & 0xff == 0 {
+    let varying = (and_all ^ or_all) >> 32;
+    for shift in [32, 43, 54] {
+        let digit = |k: u64| ((k >> shift) & 0x7ff) as usize;
+        if (varying << 32 >> shift) & 0x7ff == 0 {
             continue;
         }
-        let mut count = [0usize; 257];
-        for &(k, _) in &a {
-            count[((k >> shift) & 0xff) as usize + 1] += 1;
+        let mut count = vec![0usize; 2049];
+        for &k in &a {
+            count[digit(k) + 1] += 1;
         }
-        for d in 0..256 {
+        for d in 0..2048 {
             count[d + 1] += count[d];
         }
-        for &x in &a {
-            let d = ((x.0 >> shift) & 0xff) as usize;
-            b[count[d]] = x;
+        for &k in &a {
+            let d = digit(k);
+            b[count[d]] = k;
             count[d] += 1;
         }
         std::mem::swap(&mut a, &mut b);
