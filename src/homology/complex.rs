@@ -101,7 +101,7 @@ impl DelaunayComplex {
                 let lift = planar_lift(&pts[a as usize], &pts[b as usize], &pts[cc as usize])
                     .expect("three non-collinear points have an off-plane lift");
                 let g = GeometryPlanar { pts, lift };
-                let mut t = Triangulation::<3>::new(&g, [a, b, cc], 2 * n + 8);
+                let mut t = Triangulation::<3>::new(&g, [a, b, cc], n, 2 * n + 8);
                 for &i in &order {
                     if i != a && i != b && i != cc {
                         t.insert(&g, i);
@@ -112,7 +112,7 @@ impl DelaunayComplex {
             Some(di) => {
                 let d = order[di];
                 let g = Geometry3 { pts };
-                let mut t = Triangulation::<4>::new(&g, [a, b, cc, d], 7 * n + 16);
+                let mut t = Triangulation::<4>::new(&g, [a, b, cc, d], n, 7 * n + 16);
                 for &i in &order {
                     if i != a && i != b && i != cc && i != d {
                         t.insert(&g, i);

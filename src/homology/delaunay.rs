@@ -57,6 +57,8 @@ pub struct Triangulation<const K: usize> {
     stack: Vec<u32>,
     cavity: Vec<u32>,
     boundary: Vec<BoundaryFacet<K>>,
+    locals: LocalIds,
+    local_ridges: Vec<u64>,
     ridges: RidgeTable,
     rng: u64,
     hint: u32,
@@ -64,14 +66,17 @@ pub struct Triangulation<const K: usize> {
 
 struct BoundaryFacet<const K: usize> {
     verts: [u32; K],
+    /// Cavity-local ids of `verts` (see [`LocalIds`]); the slot of the new point unused.
+    local: [u8; K],
     slot: u8,
     outside: u32,
     outside_slot: u8,
 }
 
 impl<const K: usize> Triangulation<K> {
-    /// Starts a triangulation with the positive simplex `first` and its `K` infinite cells.
-    pub fn new<G: Geometry<K>>(g: &G, mut first: [u32; K], capacity: usize) -> Self {
+    /// Starts a triangulation of vertices `0..vertices` with the positive simplex `first`
+    /// and its `K` infinite cells.
+    pub fn new<G: Geometry<K>>(g: &G, mut first: [u32; K], vertices: usize, capacity: usize) -> Self {
         if g.orient(&first) < 0.0 {
             first.swap(0, 1);
         }
@@ -83,6 +88,8 @@ impl<const K: usize> Triangulation<K> {
             stack: Vec::new(),
             cavity: Vec::new(),
             boundary: Vec::new(),
+            locals: LocalIds::new(vertices),
+            local_ridges: vec![0; LOCAL_IDS * LOCAL_IDS],
             ridges: RidgeTable::new(),
             rng: 0x9E37_79B9_7F4A_7C15,
             hint: 0,
@@ -228,6 +235,7 @@ impl<const K: usize> Triangulation<K> {
                     v[i] = p;
                     self.boundary.push(BoundaryFacet {
                         verts: v,
+                        local: [0; K],
                         slot: i as u8,
                         outside: n,
                         outside_slot: outside_slot as u8,
@@ -239,8 +247,15 @@ impl<const K: usize> Triangulation<K> {
             self.cells[c as usize].v[0] = DEAD;
             self.free.push(c);
         }
-        self.ridges.clear();
-        let boundary = std::mem::take(&mut self.boundary);
+        // Each ridge of the cavity boundary is shared by exactly two new cells. Ridges are
+        // matched in a small table indexed by cavity-local vertex ids (a cavity has ~15
+        // boundary vertices); a huge cavity (co-spherical input) falls back to hashing.
+        let mut boundary = std::mem::take(&mut self.boundary);
+        let local = self.locals.assign(&mut boundary);
+        let tag = (self.locals.stamp as u64) << 34;
+        if !local {
+            self.ridges.clear();
+        }
         let mut last_finite = NO_CELL;
         for f in &boundary {
             let nc = self.push_cell(f.verts);
@@ -251,14 +266,25 @@ impl<const K: usize> Triangulation<K> {
                 last_finite = nc;
             }
             for j in 0..K {
-                if j != i {
-                    // Each ridge of the cavity boundary is shared by exactly two new cells.
-                    if let Some((other, oj)) =
-                        self.ridges.take_or_insert(ridge_key(&f.verts, i, j), nc, j as u8)
-                    {
-                        self.cells[nc as usize].n[j] = other;
-                        self.cells[other as usize].n[oj as usize] = nc;
+                if j == i {
+                    continue;
+                }
+                let matched = if local {
+                    let e = &mut self.local_ridges[local_ridge_index(&f.local, i, j)];
+                    if *e >> 34 == tag >> 34 {
+                        let found = (*e as u32, ((*e >> 32) & 3) as u8);
+                        *e = 0;
+                        Some(found)
+                    } else {
+                        *e = tag | (j as u64) << 32 | nc as u64;
+                        None
                     }
+                } else {
+                    self.ridges.take_or_insert(ridge_key(&f.verts, i, j), nc, j as u8)
+                };
+                if let Some((other, oj)) = matched {
+                    self.cells[nc as usize].n[j] = other;
+                    self.cells[other as usize].n[oj as usize] = nc;
                 }
             }
         }
@@ -267,6 +293,71 @@ impl<const K: usize> Triangulation<K> {
             self.hint = last_finite;
         }
     }
+}
+
+/// Cavity-local vertex ids fit in a byte-sized table side.
+const LOCAL_IDS: usize = 64;
+
+/// Numbers the vertices of one cavity boundary `0..LOCAL_IDS` (per-vertex stamps, so no
+/// clearing between insertions).
+struct LocalIds {
+    tag: Vec<u32>,
+    id: Vec<u8>,
+    infinite_tag: u32,
+    infinite_id: u8,
+    /// Current insertion; below 2^30 (32-bit cell ids and 2-bit slots share the u64 entry).
+    stamp: u32,
+}
+
+impl LocalIds {
+    fn new(vertices: usize) -> Self {
+        LocalIds { tag: vec![0; vertices], id: vec![0; vertices], infinite_tag: 0, infinite_id: 0, stamp: 0 }
+    }
+
+    /// Gives every boundary vertex (the new point's slot excepted) a local id; false when
+    /// the boundary has more than [`LOCAL_IDS`] vertices.
+    fn assign<const K: usize>(&mut self, boundary: &mut [BoundaryFacet<K>]) -> bool {
+        self.stamp += 1;
+        let stamp = self.stamp;
+        let mut next = 0usize;
+        for f in boundary.iter_mut() {
+            for k in 0..K {
+                if k == f.slot as usize {
+                    continue;
+                }
+                let v = f.verts[k];
+                let (tag, id) = if v == INFINITE {
+                    (&mut self.infinite_tag, &mut self.infinite_id)
+                } else {
+                    (&mut self.tag[v as usize], &mut self.id[v as usize])
+                };
+                if *tag != stamp {
+                    if next == LOCAL_IDS {
+                        return false;
+                    }
+                    *tag = stamp;
+                    *id = next as u8;
+                    next += 1;
+                }
+                f.local[k] = *id;
+            }
+        }
+        true
+    }
+}
+
+/// Table index of the ridge of a new cell opposite slots `i` and `j`, from local ids.
+#[inline]
+fn local_ridge_index<const K: usize>(local: &[u8; K], i: usize, j: usize) -> usize {
+    let mut r = [0usize; 2];
+    let mut n = 0;
+    for (k, &x) in local.iter().enumerate() {
+        if k != i && k != j {
+            r[n] = x as usize;
+            n += 1;
+        }
+    }
+    if n == 1 { r[0] } else { r[0].min(r[1]) * LOCAL_IDS + r[0].max(r[1]) }
 }
 
 /// Open-addressing table matching the ridges of new cells during one insertion; cleared in

@@ -39,7 +39,7 @@ pub struct Diagram {
 impl Diagram {
     /// Sorts `pairs` into a diagram.
     pub fn new(mut pairs: Vec<Pair>) -> Self {
-        pairs.sort_by(|a, b| {
+        pairs.sort_unstable_by(|a, b| {
             a.dim.cmp(&b.dim).then(a.birth.total_cmp(&b.birth)).then(a.death.total_cmp(&b.death))
         });
         Diagram { pairs }

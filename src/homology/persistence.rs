@@ -106,7 +106,18 @@ fn reduce_h1(f: &Filtration, edge_positive: &[bool], tri_negative: &[bool], pair
                 col.push(edge_rank[e as usize]);
             }
         }
-        col.sort_unstable_by(|a, b| b.cmp(a));
+        // At most three entries: a sorting network.
+        if col.len() >= 2 && col[0] < col[1] {
+            col.swap(0, 1);
+        }
+        if col.len() == 3 {
+            if col[1] < col[2] {
+                col.swap(1, 2);
+            }
+            if col[0] < col[1] {
+                col.swap(0, 1);
+            }
+        }
         loop {
             let Some(&pivot) = col.first() else {
                 debug_assert!(false, "a negative triangle cannot reduce to zero");
@@ -175,16 +186,22 @@ impl UnionFind {
     /// Merges the sets of `a` and `b`; false if they were one set.
     #[inline]
     fn union(&mut self, a: u32, b: u32) -> bool {
-        let (mut a, mut b) = (self.find(a), self.find(b));
+        let (a, b) = (self.find(a), self.find(b));
         if a == b {
             return false;
         }
+        self.link(a, b);
+        true
+    }
+    /// Links two distinct roots (the smaller set under the larger); returns the new root.
+    #[inline]
+    fn link(&mut self, mut a: u32, mut b: u32) -> u32 {
         if self.size[a as usize] < self.size[b as usize] {
             std::mem::swap(&mut a, &mut b);
         }
         self.parent[b as usize] = a;
         self.size[a as usize] += self.size[b as usize];
-        true
+        a
     }
 }
 
@@ -221,10 +238,8 @@ impl ElderUnionFind {
         let (ea, eb) = (self.elder_rank[ra as usize], self.elder_rank[rb as usize]);
         let (young, old) = if ea < eb { (ra, rb) } else { (rb, ra) };
         let dying = self.cell_of_rank_root[young as usize];
-        let keep_rank = self.elder_rank[old as usize];
-        let keep_cell = self.cell_of_rank_root[old as usize];
-        self.uf.union(ra, rb);
-        let root = self.uf.find(ra);
+        let (keep_rank, keep_cell) = (self.elder_rank[old as usize], self.cell_of_rank_root[old as usize]);
+        let root = self.uf.link(ra, rb);
         self.elder_rank[root as usize] = keep_rank;
         self.cell_of_rank_root[root as usize] = keep_cell;
         Some(dying)
