@@ -597,3 +597,53 @@ impl Geometry<3> for GeometryPlanar<'_> {
         lo < q[k] && q[k] < hi
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Neighbour links are symmetric and neighbours share all but one vertex.
+    fn assert_linked<const K: usize>(t: &Triangulation<K>) {
+        for c in (0..t.cells.len()).filter(|&c| t.is_alive(c)) {
+            for i in 0..K {
+                let n = t.cells[c].n[i] as usize;
+                assert!(t.is_alive(n), "cell {c} links a dead cell");
+                assert!(t.cells[n].n.contains(&(c as u32)), "link {c} -> {n} is one-way");
+                let shared = t.cells[c].v.iter().filter(|v| t.cells[n].v.contains(v)).count();
+                assert_eq!(shared, K - 1);
+            }
+        }
+    }
+
+    #[test]
+    fn a_cavity_too_large_for_local_ids_is_linked_by_hashing() {
+        // Integer points on one sphere, then its centre: the centre is strictly inside every
+        // cell's circumsphere (the sphere itself), so its cavity is every finite cell and its
+        // boundary has all sphere points as vertices (> LOCAL_IDS). Each hull triangle then
+        // makes one tetrahedron with the centre: 2V - 4 of them.
+        let r2 = 425;
+        let mut pts: Vec<Point> = Vec::new();
+        for x in -21i32..=21 {
+            for y in -21i32..=21 {
+                for z in -21i32..=21 {
+                    if x * x + y * y + z * z == r2 {
+                        pts.push([x as f64, y as f64, z as f64]);
+                    }
+                }
+            }
+        }
+        let sphere = pts.len();
+        assert!(sphere > LOCAL_IDS, "{sphere} points");
+        pts.push([0.0; 3]);
+        let g = Geometry3 { pts: &pts };
+        let d = (3..sphere).find(|&d| orient3d(&pts[0], &pts[1], &pts[2], &pts[d]) != 0.0).unwrap();
+        let mut t = Triangulation::<4>::new(&g, [0, 1, 2, d as u32], pts.len(), 16);
+        for i in (3..sphere).filter(|&i| i != d) {
+            t.insert(&g, i as u32);
+        }
+        t.insert(&g, sphere as u32);
+        assert_linked(&t);
+        let finite = (0..t.cells.len()).filter(|&c| t.is_alive(c) && !t.is_infinite(c as u32)).count();
+        assert_eq!(finite, 2 * sphere - 4);
+    }
+}
