@@ -501,6 +501,12 @@ pub fn orient3d(a: &Point, b: &Point, c: &Point, d: &Point) -> f64 {
             return det;
         }
     }
+    orient3d_exact(a, b, c, d)
+}
+
+#[cold]
+#[inline(never)]
+fn orient3d_exact(a: &Point, b: &Point, c: &Point, d: &Point) -> f64 {
     robust::orient3d(c3(a), c3(b), c3(c), c3(d))
 }
 
@@ -534,6 +540,12 @@ pub fn insphere(a: &Point, b: &Point, c: &Point, d: &Point, e: &Point) -> f64 {
             return det;
         }
     }
+    insphere_exact(a, b, c, d, e)
+}
+
+#[cold]
+#[inline(never)]
+fn insphere_exact(a: &Point, b: &Point, c: &Point, d: &Point, e: &Point) -> f64 {
     robust::insphere(c3(a), c3(b), c3(c), c3(d), c3(e))
 }
 

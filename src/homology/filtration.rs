@@ -139,11 +139,8 @@ impl<'a> Filtration<'a> {
     /// high bits sorted by the full value, then an exact re-sort inside each cluster whose
     /// error intervals overlap (rare outside ties).
     fn order(&self, values: &[Value]) -> Vec<u32> {
-        let keyed: Vec<u64> = values
-            .iter()
-            .enumerate()
-            .map(|(i, v)| (v.value.to_bits() >> 32) << 32 | i as u64)
-            .collect();
+        let keyed: Vec<u64> =
+            values.iter().enumerate().map(|(i, v)| (v.value.to_bits() >> 32) << 32 | i as u64).collect();
         let mut o: Vec<u32> = radix_sort_high32(keyed).into_iter().map(|k| k as u32).collect();
         let bits = |i: u32| values[i as usize].value.to_bits();
         let n = o.len();
