@@ -141,10 +141,10 @@ fn main() {
         Ok(o) if o.status.success() => {
             for line in String::from_utf8_lossy(&o.stdout).lines() {
                 let f: Vec<&str> = line.split(',').collect();
-                if f.len() == 3 {
-                    if let Ok(t) = f[1].parse::<f64>() {
-                        gudhi.insert(f[0].to_string(), (t, f[2].to_string()));
-                    }
+                if f.len() == 3
+                    && let Ok(t) = f[1].parse::<f64>()
+                {
+                    gudhi.insert(f[0].to_string(), (t, f[2].to_string()));
                 }
             }
         }

@@ -371,7 +371,7 @@ pub fn main() -> ExitCode {
                 out: a.out.clone(),
             };
             crate::eval::places(&args)
-                .map(|t| print!("{t}written: {}\n", a.out.join("report.json").display()))
+                .map(|t| println!("{t}written: {}", a.out.join("report.json").display()))
         }
         Command::Eval(EvalCommand::Perturbation(a)) => {
             let args = crate::eval::PerturbationArgs {
@@ -382,7 +382,7 @@ pub fn main() -> ExitCode {
                 out: a.out.clone(),
             };
             crate::eval::perturbation(&args)
-                .map(|t| print!("{t}written: {}\n", a.out.join("report.json").display()))
+                .map(|t| println!("{t}written: {}", a.out.join("report.json").display()))
         }
         Command::Plot(PlotCommand::Diagram(a)) => plot_diagram(a),
         Command::Simulate(args) => simulate(args),

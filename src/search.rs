@@ -44,7 +44,7 @@ fn padded<const K: usize>(v: &[f32]) -> [f64; K] {
 impl Database {
     /// Builds the database over `vectors` (`n × b`, row-major).
     pub fn new(vectors: Vec<f32>, b: usize) -> Self {
-        assert!(b > 0 && vectors.len() % b == 0, "vectors must be n × b");
+        assert!(b > 0 && vectors.len().is_multiple_of(b), "vectors must be n × b");
         let rows: Vec<&[f32]> = vectors.chunks_exact(b).collect();
         // (A tree that cannot be built — kiddo refuses some degenerate inputs — means the
         // matrix route.)

@@ -123,7 +123,7 @@ fn written_formats_read_back_through_the_sources() {
     assert_eq!(n, 6);
     let read = |spec: SourceSpec| spec.open().unwrap().map(|r| r.unwrap()).collect::<Vec<_>>();
     let nclt = read(SourceSpec::Nclt(NcltSpec::sessions(vec![dir.join("velodyne_data")])));
-    let mcaps = vec![dir.join("mcap/2026-01-01.mcap"), dir.join("mcap/2026-01-02.mcap")];
+    let mcaps = [dir.join("mcap/2026-01-01.mcap"), dir.join("mcap/2026-01-02.mcap")];
     let mcap = read(SourceSpec::Mcap(McapSpec {
         poses: Some(dir.join("mcap/groundtruth_2026-01-01.csv")),
         ..McapSpec::file(&mcaps[0])
@@ -155,5 +155,5 @@ fn written_formats_read_back_through_the_sources() {
             && (q.yaw - yaw).abs() < 1e-9,
         "kitti {q:?}"
     );
-    assert_eq!(nclt[1].ring.as_ref().unwrap(), &truth.ring.iter().copied().collect::<Vec<_>>());
+    assert_eq!(nclt[1].ring.as_ref().unwrap(), &truth.ring.to_vec());
 }

@@ -207,7 +207,7 @@ pub fn scans_per_session(p: &SimParams) -> usize {
 /// The pose of scan `index` of `session`.
 pub fn pose(p: &SimParams, session: usize, index: usize) -> [f64; 4] {
     let mut rng = SplitMix64(p.seed ^ 0x726F_7574 ^ (session as u64).wrapping_mul(0xA24B_AED4_963E_E407));
-    let lane = if session % 2 == 0 { -1.0 } else { 1.0 } * p.lane_offset / 2.0 + 0.3 * rng.normal();
+    let lane = if session.is_multiple_of(2) { -1.0 } else { 1.0 } * p.lane_offset / 2.0 + 0.3 * rng.normal();
     let start = 0.37 * session as f64 * p.speed / p.rate;
     let mut scan_rng = SplitMix64(rng.next_u64() ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let s = start + index as f64 * p.speed / p.rate;

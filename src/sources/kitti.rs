@@ -22,7 +22,7 @@ pub struct KittiScan {
 
 /// Decodes a KITTI `.bin` buffer.
 pub fn decode(bytes: &[u8], path: &Path) -> Result<KittiScan, SourceError> {
-    if bytes.len() % RECORD != 0 {
+    if !bytes.len().is_multiple_of(RECORD) {
         return Err(SourceError::Truncated { path: path.to_owned(), len: bytes.len(), record: RECORD });
     }
     let n = bytes.len() / RECORD;

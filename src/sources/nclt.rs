@@ -30,7 +30,7 @@ pub struct NcltScan {
 
 /// Decodes one `velodyne_sync` buffer.
 pub fn decode_sync(bytes: &[u8], path: &Path) -> Result<NcltScan, SourceError> {
-    if bytes.len() % RECORD != 0 {
+    if !bytes.len().is_multiple_of(RECORD) {
         return Err(SourceError::Truncated { path: path.to_owned(), len: bytes.len(), record: RECORD });
     }
     let n = bytes.len() / RECORD;

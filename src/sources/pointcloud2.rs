@@ -310,7 +310,7 @@ pub fn serialize(cloud: &PointCloud2<'_>, encoding: Encoding) -> Vec<u8> {
     let cdr = encoding == Encoding::Cdr;
     let align = |out: &mut Vec<u8>, n: usize| {
         if cdr {
-            while (out.len() - 4) % n != 0 {
+            while !(out.len() - 4).is_multiple_of(n) {
                 out.push(0);
             }
         }
