@@ -3,7 +3,7 @@
 //! `scripts/gudhi_bench.py` on the very same clouds and prints both side by side.
 //!
 //! Run: `cargo bench --bench alpha` (add `-- --quick` for fewer repetitions).
-//! Clouds: synthetic (uniform cube, the LiDAR-like fixture) always; real KITTI / NCLT scans
+//! Clouds: synthetic (uniform cube, the LiDAR-like fixture, a simulated scan of `samples/`) always; real KITTI / NCLT scans
 //! from `../shared/data` when present, subsampled with a fixed seed.
 
 use std::path::{Path, PathBuf};
@@ -44,6 +44,11 @@ fn clouds() -> Vec<Cloud> {
     let mut out = vec![Cloud { name: "uniform_cube_4096".into(), points: uniform_cube(4096, 1) }];
     if let Some(p) = read_csv(&root.join("tests/fixtures/clouds/lidar_like_4096.csv")) {
         out.push(Cloud { name: "lidar_like_4096".into(), points: p });
+    }
+    // A simulated HDL-32E scan from samples/ (5 mm-quantized NCLT format, planar walls).
+    let town = root.join("samples/town/velodyne_data/2026-01-01/velodyne_sync/1767261600000000.bin");
+    if let Ok(p) = toporec::sources::read_cloud(&town, None) {
+        out.push(Cloud { name: format!("town_sample_full_{}", p.len()), points: p });
     }
     let data = root.join("../shared/data");
     let kitti = data.join("kitti/sequences/00/velodyne/000000.bin");
