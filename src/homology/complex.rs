@@ -5,7 +5,9 @@
 //! Owns the simplex numbering. Vertex ids index the *deduplicated* points (first occurrence
 //! kept); `input_index` maps them back.
 
-use super::delaunay::{Geometry3, GeometryPlanar, INFINITE, Triangulation, orient3d, planar_lift};
+use super::delaunay::{
+    Geometry3, GeometryPlanar, INFINITE, Triangulation, link_cell, link_mirror, orient3d, planar_lift,
+};
 use super::exact::Point;
 use super::spatial_sort::brio_order;
 use std::collections::HashMap;
@@ -65,7 +67,7 @@ impl DelaunayComplex {
     /// Builds the Delaunay complex of `input` (duplicates merged, as GUDHI does).
     pub fn new(input: &[Point]) -> Result<Self, ComplexError> {
         let (points, input_index) = dedup(input)?;
-        if points.len() >= (u32::MAX / 16) as usize {
+        if points.len() >= (u32::MAX / 64) as usize {
             return Err(ComplexError::TooLarge { points: points.len() });
         }
         // Vertices are renumbered in insertion (BRIO + Hilbert) order: spatially close
@@ -150,7 +152,7 @@ impl DelaunayComplex {
                 continue;
             }
             for i in 0..3 {
-                let nb = t.cells[c].n[i] as usize;
+                let nb = link_cell(t.cells[c].n[i]) as usize;
                 let other = cell_to_tri[nb];
                 if other == OUTSIDE || tid < other {
                     let v = t.cells[c].v;
@@ -192,7 +194,7 @@ impl DelaunayComplex {
                 continue;
             }
             for i in 0..4 {
-                let nb = t.cells[c].n[i] as usize;
+                let nb = link_cell(t.cells[c].n[i]) as usize;
                 let b = cell_to_tet[nb];
                 if b == OUTSIDE || a < b {
                     let tid = triangles.len() as u32;
@@ -209,7 +211,7 @@ impl DelaunayComplex {
                     tri_cofaces.push([a, b]);
                     tet_tris[a as usize][i] = tid;
                     if b != OUTSIDE {
-                        let j = t.cells[nb].n.iter().position(|&x| x as usize == c).expect("symmetric");
+                        let j = link_mirror(t.cells[c].n[i]);
                         tet_tris[b as usize][j] = tid;
                     }
                 }

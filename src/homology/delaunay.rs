@@ -39,8 +39,27 @@ pub trait Geometry<const K: usize> {
 pub struct Cell<const K: usize> {
     /// Vertices ([`INFINITE`] for the infinite vertex; `v[0] == DEAD` for a free slot).
     pub v: [u32; K],
-    /// Neighbours.
+    /// Neighbour links, `cell << 2 | mirror` (see [`link`]): the neighbour and the slot of the
+    /// shared facet in it, so that crossing a facet never searches for the way back.
     pub n: [u32; K],
+}
+
+/// A neighbour link: cell `c`, whose facet opposite slot `mirror` is the shared one.
+#[inline]
+pub fn link(c: u32, mirror: usize) -> u32 {
+    c << 2 | mirror as u32
+}
+
+/// The cell of a neighbour link.
+#[inline]
+pub fn link_cell(l: u32) -> u32 {
+    l >> 2
+}
+
+/// The mirror slot of a neighbour link.
+#[inline]
+pub fn link_mirror(l: u32) -> usize {
+    (l & 3) as usize
 }
 
 const DEAD: u32 = u32::MAX - 1;
@@ -112,8 +131,9 @@ impl<const K: usize> Triangulation<K> {
                 let va = t.cells[a].v;
                 let vb = t.cells[b].v;
                 let missing: Vec<usize> = (0..K).filter(|&s| !vb.contains(&va[s])).collect();
+                let mirror: Vec<usize> = (0..K).filter(|&s| !va.contains(&vb[s])).collect();
                 if missing.len() == 1 {
-                    t.cells[a].n[missing[0]] = b as u32;
+                    t.cells[a].n[missing[0]] = link(b as u32, mirror[0]);
                 }
             }
         }
@@ -126,6 +146,8 @@ impl<const K: usize> Triangulation<K> {
             self.cells[c as usize] = cell;
             c
         } else {
+            // Links keep a cell id in 30 bits.
+            assert!(self.cells.len() < 1 << 30, "more than 2^30 Delaunay cells");
             self.cells.push(cell);
             self.mark.push(0);
             (self.cells.len() - 1) as u32
@@ -140,7 +162,7 @@ impl<const K: usize> Triangulation<K> {
     /// Whether cell `c` has the infinite vertex.
     #[inline]
     pub fn is_infinite(&self, c: u32) -> bool {
-        self.cells[c as usize].v.contains(&INFINITE)
+        has_infinite(&self.cells[c as usize].v)
     }
 
     #[inline]
@@ -169,7 +191,7 @@ impl<const K: usize> Triangulation<K> {
                 let mut v = cell.v;
                 v[i] = p;
                 if g.orient(&v) < 0.0 {
-                    let n = cell.n[i];
+                    let n = link_cell(cell.n[i]);
                     if self.is_infinite(n) {
                         return n;
                     }
@@ -219,7 +241,7 @@ impl<const K: usize> Triangulation<K> {
             self.cavity.push(c);
             let cell = self.cells[c as usize];
             for i in 0..K {
-                let n = cell.n[i];
+                let n = link_cell(cell.n[i]);
                 let m = self.mark[n as usize];
                 if m == conflict {
                     continue;
@@ -229,8 +251,7 @@ impl<const K: usize> Triangulation<K> {
                     self.stack.push(n);
                 } else {
                     self.mark[n as usize] = outside;
-                    let outside_slot =
-                        self.cells[n as usize].n.iter().position(|&x| x == c).expect("symmetric");
+                    let outside_slot = link_mirror(cell.n[i]);
                     let mut v = cell.v;
                     v[i] = p;
                     self.boundary.push(BoundaryFacet {
@@ -260,9 +281,9 @@ impl<const K: usize> Triangulation<K> {
         for f in &boundary {
             let nc = self.push_cell(f.verts);
             let i = f.slot as usize;
-            self.cells[nc as usize].n[i] = f.outside;
-            self.cells[f.outside as usize].n[f.outside_slot as usize] = nc;
-            if !f.verts.contains(&INFINITE) {
+            self.cells[nc as usize].n[i] = link(f.outside, f.outside_slot as usize);
+            self.cells[f.outside as usize].n[f.outside_slot as usize] = link(nc, i);
+            if !has_infinite(&f.verts) {
                 last_finite = nc;
             }
             for j in 0..K {
@@ -283,8 +304,8 @@ impl<const K: usize> Triangulation<K> {
                     self.ridges.take_or_insert(ridge_key(&f.verts, i, j), nc, j as u8)
                 };
                 if let Some((other, oj)) = matched {
-                    self.cells[nc as usize].n[j] = other;
-                    self.cells[other as usize].n[oj as usize] = nc;
+                    self.cells[nc as usize].n[j] = link(other, oj as usize);
+                    self.cells[other as usize].n[oj as usize] = link(nc, j);
                 }
             }
         }
@@ -293,6 +314,12 @@ impl<const K: usize> Triangulation<K> {
             self.hint = last_finite;
         }
     }
+}
+
+/// Whether a cell holds the infinite vertex (branch-free: the walk asks this at every step).
+#[inline]
+pub fn has_infinite<const K: usize>(v: &[u32; K]) -> bool {
+    v.iter().fold(false, |any, &x| any | (x == INFINITE))
 }
 
 /// Cavity-local vertex ids fit in a byte-sized table side.
@@ -618,9 +645,10 @@ mod tests {
     fn assert_linked<const K: usize>(t: &Triangulation<K>) {
         for c in (0..t.cells.len()).filter(|&c| t.is_alive(c)) {
             for i in 0..K {
-                let n = t.cells[c].n[i] as usize;
+                let n = link_cell(t.cells[c].n[i]) as usize;
                 assert!(t.is_alive(n), "cell {c} links a dead cell");
-                assert!(t.cells[n].n.contains(&(c as u32)), "link {c} -> {n} is one-way");
+                let back = t.cells[n].n[link_mirror(t.cells[c].n[i])];
+                assert_eq!(back, link(c as u32, i), "link {c} -> {n} is one-way");
                 let shared = t.cells[c].v.iter().filter(|v| t.cells[n].v.contains(v)).count();
                 assert_eq!(shared, K - 1);
             }
