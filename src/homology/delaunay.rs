@@ -183,19 +183,26 @@ impl<const K: usize> Triangulation<K> {
                 .find(|&x| self.is_alive(x as usize) && !self.is_infinite(x))
                 .expect("a triangulation always has a finite cell");
         }
+        // The facet just crossed (`came_from`) has `p` on the inner side: not tested again.
+        let mut came_from = K;
         'walk: loop {
             let off = (self.next_random() % K as u64) as usize;
             for k in 0..K {
                 let i = (off + k) % K;
+                if i == came_from {
+                    continue;
+                }
                 let cell = &self.cells[c as usize];
                 let mut v = cell.v;
                 v[i] = p;
                 if g.orient(&v) < 0.0 {
-                    let n = link_cell(cell.n[i]);
+                    let l = cell.n[i];
+                    let n = link_cell(l);
                     if self.is_infinite(n) {
                         return n;
                     }
                     c = n;
+                    came_from = link_mirror(l);
                     continue 'walk;
                 }
             }
