@@ -61,15 +61,17 @@ pub fn persistence(f: &Filtration) -> Diagram {
                 rank[t as usize] = r as u32;
             }
             let mut dual = ElderUnionFind::new(&rank);
-            let mut tri_negative = vec![false; c.triangles.len()];
+            // Negative triangles, in reverse filtration order.
+            let mut negative = Vec::with_capacity(c.triangles.len() - c.tets.len() + 1);
             for &t in f.triangle_order.iter().rev() {
                 let [a, b] = c.tri_cofaces[t as usize];
                 match dual.union(a, b) {
                     Some(tet) => push_finite(f, &mut pairs, 2, f.triangles[t as usize], f.tets[tet as usize]),
-                    None => tri_negative[t as usize] = true,
+                    None => negative.push(t),
                 }
             }
-            reduce_h1(f, &edge_positive, &tri_negative, &mut pairs);
+            negative.reverse();
+            reduce_h1(f, &edge_positive, &negative, &mut pairs);
         }
         _ => {}
     }
@@ -83,8 +85,9 @@ fn push_finite(f: &Filtration, pairs: &mut Vec<Pair>, dim: u8, birth: Value, dea
     }
 }
 
-/// H1 pairs: reduce the columns (positive edges, by rank) of the negative triangles.
-fn reduce_h1(f: &Filtration, edge_positive: &[bool], tri_negative: &[bool], pairs: &mut Vec<Pair>) {
+/// H1 pairs: reduce the columns (positive edges, by rank) of the negative triangles, given
+/// in filtration order.
+fn reduce_h1(f: &Filtration, edge_positive: &[bool], negative: &[u32], pairs: &mut Vec<Pair>) {
     let c = f.complex;
     let mut edge_rank = vec![0u32; c.edges.len()];
     for (r, &e) in f.edge_order.iter().enumerate() {
@@ -96,10 +99,7 @@ fn reduce_h1(f: &Filtration, edge_positive: &[bool], tri_negative: &[bool], pair
     let mut store_start: Vec<u32> = Vec::new();
     let mut col: Vec<u32> = Vec::with_capacity(16);
     let mut tmp: Vec<u32> = Vec::with_capacity(16);
-    for &t in &f.triangle_order {
-        if !tri_negative[t as usize] {
-            continue;
-        }
+    for &t in negative {
         col.clear();
         for &e in &c.tri_edges[t as usize] {
             if edge_positive[e as usize] {
