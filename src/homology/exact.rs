@@ -139,20 +139,29 @@ fn cross_abs(a: &Point, b: &Point) -> Point {
 /// (GUDHI counts a point on the sphere as Gabriel).
 #[inline]
 pub fn edge_gabriel(p: &Point, q: &Point, w: &Point) -> bool {
+    !edge_obtuse(p, q, w)
+}
+
+/// `true` iff `w` lies strictly inside the diametral sphere of the edge `p q` (the angle at
+/// `w` is obtuse). The f64 filter decides without branching; the exact test is out of line.
+#[inline]
+pub fn edge_obtuse(p: &Point, q: &Point, w: &Point) -> bool {
     let a = sub(p, w);
     let b = sub(q, w);
     let d = dot(&a, &b);
     let perm = dot(&abs3(&a), &abs3(&b));
-    let bound = 16.0 * EPS * perm;
-    if d > bound {
-        return true;
+    if d.abs() <= 16.0 * EPS * perm {
+        return edge_obtuse_exact(p, q, w);
     }
-    if d < -bound {
-        return false;
-    }
+    d < 0.0
+}
+
+#[cold]
+#[inline(never)]
+fn edge_obtuse_exact(p: &Point, q: &Point, w: &Point) -> bool {
     let e = Exact::new(&[*p, *q, *w]);
     let (p, q, w) = (e.pt(0), e.pt(1), e.pt(2));
-    !dot_b(&sub_b(&p, &w), &sub_b(&q, &w)).is_negative()
+    dot_b(&sub_b(&p, &w), &sub_b(&q, &w)).is_negative()
 }
 
 /// `true` iff `w` lies on or outside the smallest circumsphere of the triangle `p q r`.

@@ -10,8 +10,8 @@
 
 use super::complex::DelaunayComplex;
 use super::exact::{
-    Point, Radius2, compare_radius2_exact, edge_gabriel, radius2, radius2_correctly_rounded,
-    tet_circumsphere, triangle_gabriel,
+    Point, Radius2, compare_radius2_exact, edge_obtuse, radius2, radius2_correctly_rounded, tet_circumsphere,
+    triangle_gabriel,
 };
 use std::cmp::Ordering;
 
@@ -33,7 +33,8 @@ const INDEX_MASK: u32 = (1 << DIM_SHIFT) - 1;
 
 impl Value {
     fn unset() -> Self {
-        Value { value: f64::NAN, rel_err: 0.0, source: u32::MAX }
+        // Above every value, with a zero error bound: `cmp_unset` needs no special case.
+        Value { value: f64::MAX, rel_err: 0.0, source: u32::MAX }
     }
     fn is_set(&self) -> bool {
         self.source != u32::MAX
@@ -109,20 +110,19 @@ impl<'a> Filtration<'a> {
         // obtuse); then the minimum over all triangle cofaces (that minimum is reached at a
         // non-Gabriel coface, so this equals GUDHI's top-down propagation whatever its
         // visiting order).
+        // (Both tests are branch-free unless their filters cannot decide: the outcomes are
+        // unpredictable, and this loop runs three times per triangle.)
         let mut attached = vec![false; complex.edges.len()];
         for (ti, t) in complex.triangles.iter().enumerate() {
             let v = t.map(|x| pts[x as usize]);
             let cand = f.triangles[ti];
             for i in 0..3 {
                 let e = complex.tri_edges[ti][i] as usize;
-                if !attached[e] {
-                    let (p, q) = ((i + 1) % 3, (i + 2) % 3);
-                    attached[e] = !edge_gabriel(&v[p], &v[q], &v[i]);
-                }
+                let (p, q) = ((i + 1) % 3, (i + 2) % 3);
+                attached[e] |= edge_obtuse(&v[p], &v[q], &v[i]);
                 let cur = f.edges[e];
-                if !cur.is_set() || f.cmp(cand, cur) == Ordering::Less {
-                    f.edges[e] = cand;
-                }
+                let lower = f.cmp_unset(cand, cur) == Ordering::Less;
+                f.edges[e] = if lower { cand } else { cur };
             }
         }
         for (i, e) in complex.edges.iter().enumerate() {
@@ -185,6 +185,21 @@ impl<'a> Filtration<'a> {
             }
         }
         o
+    }
+
+    /// [`Filtration::cmp`] where `b` may be unset (then `a` is less).
+    #[inline]
+    fn cmp_unset(&self, a: Value, b: Value) -> Ordering {
+        let margin = a.abs_err() + b.abs_err();
+        if b.value - a.value > margin {
+            Ordering::Less
+        } else if a.value - b.value > margin {
+            Ordering::Greater
+        } else if !b.is_set() {
+            Ordering::Less
+        } else {
+            self.cmp(a, b)
+        }
     }
 
     /// Exact comparison of two filtration values.
