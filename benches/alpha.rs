@@ -1,6 +1,8 @@
 //! Alpha-persistence benchmark: times Delaunay, filtration and persistence separately on
 //! 4096- and 30,000-point clouds, then (if `python3` with `gudhi` is available) runs
-//! `scripts/gudhi_bench.py` on the very same clouds and prints both side by side.
+//! `scripts/gudhi_bench.py` on the very same clouds and prints both side by side: GUDHI in
+//! its default precision (`safe`, the reference of the speed target) and in `exact` (the
+//! mode whose diagrams toporec reproduces).
 //!
 //! Run: `cargo bench --bench alpha` (add `-- --quick` for fewer repetitions).
 //! Clouds: synthetic (uniform cube, the LiDAR-like fixture, a simulated scan of `samples/`) always; real KITTI / NCLT scans
@@ -134,7 +136,8 @@ fn main() {
     }
     // GUDHI on the same clouds, if available.
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gudhi_bench.py");
-    let mut gudhi: std::collections::HashMap<String, (f64, String)> = Default::default();
+    // name -> (safe ms, safe counts, exact ms, exact counts)
+    let mut gudhi: std::collections::HashMap<String, (f64, String, f64, String)> = Default::default();
     let paths: Vec<String> = rows.iter().map(|r| r.3.display().to_string()).collect();
     match Command::new("python3")
         .arg(&script)
@@ -146,10 +149,10 @@ fn main() {
         Ok(o) if o.status.success() => {
             for line in String::from_utf8_lossy(&o.stdout).lines() {
                 let f: Vec<&str> = line.split(',').collect();
-                if f.len() == 3
-                    && let Ok(t) = f[1].parse::<f64>()
+                if f.len() == 5
+                    && let (Ok(safe), Ok(exact)) = (f[1].parse::<f64>(), f[3].parse::<f64>())
                 {
-                    gudhi.insert(f[0].to_string(), (t, f[2].to_string()));
+                    gudhi.insert(f[0].to_string(), (safe, f[2].to_string(), exact, f[4].to_string()));
                 }
             }
         }
@@ -160,18 +163,25 @@ fn main() {
         Err(e) => println!("note: GUDHI comparison skipped: python3: {e}"),
     }
     println!(
-        "| cloud | points | Delaunay ms | filtration ms | persistence ms | toporec total ms | GUDHI ms | speed-up | pairs H0/H1/H2 (toporec; GUDHI) |"
+        "| cloud | points | Delaunay ms | filtration ms | persistence ms | toporec total ms | GUDHI ms | speed-up | GUDHI exact ms | speed-up vs exact | pairs H0/H1/H2 (toporec; GUDHI; GUDHI exact) |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|");
     for (c, t, counts, _) in &rows {
         let total = ms(t.delaunay) + ms(t.filtration) + ms(t.persistence);
-        let (g, gc) = gudhi
-            .get(&c.name)
-            .cloned()
-            .map_or(("n/a".to_string(), "n/a".to_string()), |(g, gc)| (format!("{g:.1}"), gc));
-        let speedup = gudhi.get(&c.name).map_or("n/a".to_string(), |(g, _)| format!("{:.1}x", g / total));
+        let na = || "n/a".to_string();
+        let (g, speedup, gc, x, speedup_x, xc) = match gudhi.get(&c.name) {
+            Some((g, gc, x, xc)) => (
+                format!("{g:.1}"),
+                format!("{:.1}x", g / total),
+                gc.clone(),
+                format!("{x:.1}"),
+                format!("{:.1}x", x / total),
+                xc.clone(),
+            ),
+            None => (na(), na(), na(), na(), na(), na()),
+        };
         println!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {}/{}/{}; {} |",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {} | {} | {}/{}/{}; {}; {} |",
             c.name,
             c.points.len(),
             ms(t.delaunay),
@@ -180,10 +190,13 @@ fn main() {
             total,
             g,
             speedup,
+            x,
+            speedup_x,
             counts[0],
             counts[1],
             counts[2],
-            gc
+            gc,
+            xc
         );
     }
 }
