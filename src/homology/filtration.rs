@@ -33,7 +33,8 @@ const INDEX_MASK: u32 = (1 << DIM_SHIFT) - 1;
 
 impl Value {
     fn unset() -> Self {
-        // Above every value, with a zero error bound: `cmp_unset` needs no special case.
+        // Above every value with a zero error bound, so that `cmp`'s f64 test puts it last;
+        // only its exact path must know it (no simplex to evaluate).
         Value { value: f64::MAX, rel_err: 0.0, source: u32::MAX }
     }
     fn is_set(&self) -> bool {
@@ -94,7 +95,7 @@ impl<'a> Filtration<'a> {
                 });
                 if !is_gabriel {
                     let cur = f.triangles[tri];
-                    if !cur.is_set() || f.cmp(cand, cur) == Ordering::Less {
+                    if f.cmp(cand, cur) == Ordering::Less {
                         f.triangles[tri] = cand;
                     }
                 }
@@ -121,7 +122,7 @@ impl<'a> Filtration<'a> {
                 let (p, q) = ((i + 1) % 3, (i + 2) % 3);
                 attached[e] |= edge_obtuse(&v[p], &v[q], &v[i]);
                 let cur = f.edges[e];
-                let lower = f.cmp_unset(cand, cur) == Ordering::Less;
+                let lower = f.cmp(cand, cur) == Ordering::Less;
                 f.edges[e] = if lower { cand } else { cur };
             }
         }
@@ -187,22 +188,7 @@ impl<'a> Filtration<'a> {
         o
     }
 
-    /// [`Filtration::cmp`] where `b` may be unset (then `a` is less).
-    #[inline]
-    fn cmp_unset(&self, a: Value, b: Value) -> Ordering {
-        let margin = a.abs_err() + b.abs_err();
-        if b.value - a.value > margin {
-            Ordering::Less
-        } else if a.value - b.value > margin {
-            Ordering::Greater
-        } else if !b.is_set() {
-            Ordering::Less
-        } else {
-            self.cmp(a, b)
-        }
-    }
-
-    /// Exact comparison of two filtration values.
+    /// Exact comparison of two filtration values; an unset value is above every set one.
     #[inline]
     pub fn cmp(&self, a: Value, b: Value) -> Ordering {
         if a.source == b.source {
@@ -214,6 +200,10 @@ impl<'a> Filtration<'a> {
         }
         if a.value - b.value > margin {
             return Ordering::Greater;
+        }
+        if !(a.is_set() && b.is_set()) {
+            // Both unset would have equal sources.
+            return if a.is_set() { Ordering::Less } else { Ordering::Greater };
         }
         let mut pa = [[0.0; 3]; 4];
         let mut pb = [[0.0; 3]; 4];
