@@ -1,9 +1,20 @@
 //! Diagram CSV files: header `dim,birth,death`, one pair per row, `inf` for the essential
 //! class. `toporec diagram` writes them; `toporec fit` and `toporec vectorize` read them.
 
+use crate::error::{Error, Result, ResultExt};
 use crate::homology::{Diagram, Pair};
 use std::io::Write;
 use std::path::Path;
+
+/// A line of a diagram CSV that cannot be read.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("line {line}: {message}")]
+pub struct ParseError {
+    /// 1-based line number.
+    pub line: usize,
+    /// What is wrong.
+    pub message: String,
+}
 
 /// Writes `dim,birth,death` rows; floats in shortest round-trip form, `inf` for infinity.
 pub fn write(d: &Diagram, out: &mut impl Write) -> std::io::Result<()> {
@@ -16,27 +27,31 @@ pub fn write(d: &Diagram, out: &mut impl Write) -> std::io::Result<()> {
 }
 
 /// Reads a diagram CSV; errors name the file and the line.
-pub fn read(path: &Path) -> anyhow::Result<Diagram> {
-    let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    parse(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+pub fn read(path: &Path) -> Result<Diagram> {
+    let text = std::fs::read_to_string(path).at(path)?;
+    parse(&text).map_err(|e| Error::Diagram { path: path.to_owned(), message: e.to_string() })
 }
 
 /// Parses the text of a diagram CSV.
-pub fn parse(text: &str) -> Result<Diagram, String> {
+pub fn parse(text: &str) -> Result<Diagram, ParseError> {
     let mut lines = text.lines().enumerate();
     match lines.next() {
         Some((_, header)) if header.trim() == "dim,birth,death" => {}
         Some((_, header)) => {
-            return Err(format!("line 1: expected header `dim,birth,death`, found `{header}`"));
+            let message = format!("expected header `dim,birth,death`, found `{header}`");
+            return Err(ParseError { line: 1, message });
         }
-        None => return Err("empty file (expected header `dim,birth,death`)".into()),
+        None => {
+            let message = "empty file (expected header `dim,birth,death`)".into();
+            return Err(ParseError { line: 1, message });
+        }
     }
     let mut pairs = Vec::new();
     for (i, line) in lines {
         if line.trim().is_empty() {
             continue;
         }
-        let bad = |what: &str| format!("line {}: {what}: `{line}`", i + 1);
+        let bad = |what: &str| ParseError { line: i + 1, message: format!("{what}: `{line}`") };
         let mut fields = line.split(',').map(str::trim);
         let (Some(dim), Some(birth), Some(death), None) =
             (fields.next(), fields.next(), fields.next(), fields.next())

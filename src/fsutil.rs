@@ -1,21 +1,101 @@
-//! Output files are never left half-written: everything is written to a temporary file in
-//! the destination folder and renamed into place once complete.
+//! No output file is ever left half-written: [`AtomicFile`] writes under a temporary name in
+//! the destination folder, and only a complete file is renamed into place (after an fsync of
+//! the file, and of the folder after the rename). Every writer of toporec goes through it:
+//! index tables, the codebook, the manifest, query results, reports.
 
-use anyhow::Context;
+use crate::error::{Result, ResultExt};
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-/// The temporary name used while `path` is being written (same folder, so rename is atomic).
+/// The temporary name used while `path` is being written: hidden (a leading dot, so Hive
+/// readers such as Spark, pyarrow and DuckDB's `*.parquet` globs skip it), in the same folder
+/// (so the rename is atomic), and marked with the writer's pid.
 pub fn temp_path(path: &Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.partial-{}", std::process::id()))
 }
 
-/// Writes `bytes` to `path` atomically.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: creating folder", dir.display()))?;
+/// Whether a file name is a temporary name of [`temp_path`] (an interrupted writer's leftover).
+pub fn is_temp_name(name: &str) -> bool {
+    name.starts_with('.') && name.contains(".partial-")
+}
+
+/// A file being written atomically: [`AtomicFile::commit`] puts it in place; dropping it
+/// without a commit removes the temporary file.
+pub struct AtomicFile {
+    path: PathBuf,
+    temp: PathBuf,
+    out: Option<BufWriter<File>>,
+}
+
+impl AtomicFile {
+    /// Starts writing `path` (its folder is created if needed).
+    pub fn create(path: &Path) -> Result<Self> {
+        create_parent(path)?;
+        let temp = temp_path(path);
+        let file = File::create(&temp).at(&temp)?;
+        Ok(AtomicFile { path: path.to_owned(), temp, out: Some(BufWriter::new(file)) })
     }
-    let tmp = temp_path(path);
-    std::fs::write(&tmp, bytes).with_context(|| format!("{}: writing", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("{}: renaming into place", path.display()))
+
+    /// The final path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Flushes, syncs and renames the file into place, then syncs its folder.
+    pub fn commit(mut self) -> Result<PathBuf> {
+        let out = self.out.take().expect("not yet committed");
+        let file = out.into_inner().map_err(|e| e.into_error()).at(&self.temp)?;
+        file.sync_all().at(&self.temp)?;
+        drop(file);
+        std::fs::rename(&self.temp, &self.path).at(&self.path)?;
+        sync_parent(&self.path)?;
+        Ok(std::mem::take(&mut self.path))
+    }
+}
+
+impl Write for AtomicFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.out.as_mut().expect("not yet committed").write(buf)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.out.as_mut().expect("not yet committed").flush()
+    }
+}
+
+impl std::io::Seek for AtomicFile {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        self.out.as_mut().expect("not yet committed").seek(pos)
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if self.out.take().is_some() {
+            let _ = std::fs::remove_file(&self.temp);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut f = AtomicFile::create(path)?;
+    f.write_all(bytes).at(&f.temp)?;
+    f.commit().map(drop)
+}
+
+/// Creates the folder of `path` if needed.
+pub fn create_parent(path: &Path) -> Result<()> {
+    match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(dir) => std::fs::create_dir_all(dir).at(dir),
+        None => Ok(()),
+    }
+}
+
+/// Syncs the folder holding `path`, so a rename into it survives a power loss.
+pub fn sync_parent(path: &Path) -> Result<()> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    File::open(dir).and_then(|d| d.sync_all()).at(dir)
 }

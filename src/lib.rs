@@ -24,12 +24,14 @@
 //! the sources read, and [`inspect`] describes files. [`cli`] wires all of it into `toporec`.
 #![deny(missing_docs)]
 
-pub mod cli;
+pub mod describe;
 pub mod diagram_csv;
+pub mod error;
 pub mod eval;
 pub mod fsutil;
 pub mod homology;
 pub mod inspect;
+pub mod offline;
 pub mod pipeline;
 pub mod plot;
 pub mod preprocess;
@@ -39,4 +41,5 @@ pub mod search;
 pub mod simulate;
 pub mod sinks;
 pub mod sources;
+pub mod types;
 pub mod vectorize;

@@ -1,5 +1,7 @@
-use std::process::ExitCode;
+//! The `toporec` binary: the command line over the library (see [`cli`]).
 
-fn main() -> ExitCode {
-    toporec::cli::main()
+mod cli;
+
+fn main() -> std::process::ExitCode {
+    cli::main()
 }

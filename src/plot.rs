@@ -2,8 +2,8 @@
 //! library or font is needed): Recall@N curves, persistence diagrams, and bird's-eye
 //! trajectories coloured by retrieval success.
 
+use crate::error::{Error, Result, ResultExt};
 use crate::homology::Diagram;
-use anyhow::{Result, anyhow};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
@@ -29,8 +29,17 @@ const PALETTE: [RGBColor; 8] = [
     RGBColor(127, 127, 127),
 ];
 
-fn e(err: impl std::fmt::Display) -> anyhow::Error {
-    anyhow!("plot: {err}")
+/// A drawing error; [`render`] names the file it was drawing.
+fn e(err: impl std::fmt::Display) -> Error {
+    Error::Plot { path: PathBuf::new(), message: err.to_string() }
+}
+
+/// The error `err` of drawing `file`.
+fn drawing(file: &Path) -> impl Fn(Error) -> Error + '_ {
+    move |err| match err {
+        Error::Plot { message, .. } => Error::Plot { path: file.to_owned(), message },
+        other => other,
+    }
 }
 
 /// Something that draws itself on any plotters backend.
@@ -44,21 +53,21 @@ trait Figure {
 fn render(stem: &Path, size: (u32, u32), fig: &impl Figure) -> Result<Vec<PathBuf>> {
     register_font();
     if let Some(dir) = stem.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)?;
+        std::fs::create_dir_all(dir).at(dir)?;
     }
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");
     {
         let root = BitMapBackend::new(&png, size).into_drawing_area();
-        root.fill(&WHITE).map_err(e)?;
-        fig.draw(&root)?;
-        root.present().map_err(|x| anyhow!("{}: {x}", png.display()))?;
+        root.fill(&WHITE).map_err(e).map_err(drawing(&png))?;
+        fig.draw(&root).map_err(drawing(&png))?;
+        root.present().map_err(e).map_err(drawing(&png))?;
     }
     {
         let root = SVGBackend::new(&svg, size).into_drawing_area();
-        root.fill(&WHITE).map_err(e)?;
-        fig.draw(&root)?;
-        root.present().map_err(|x| anyhow!("{}: {x}", svg.display()))?;
+        root.fill(&WHITE).map_err(e).map_err(drawing(&svg))?;
+        fig.draw(&root).map_err(drawing(&svg))?;
+        root.present().map_err(e).map_err(drawing(&svg))?;
     }
     Ok(vec![png, svg])
 }

@@ -1,11 +1,135 @@
 //! The preprocess stage: range crop → ground removal → voxel grid → subsample → normalize,
-//! each optional (settings in [`crate::pipeline::config::Preprocess`]). Deterministic: the
+//! each optional and each with its own settings type and validation. Deterministic: the
 //! random parts (RANSAC, subsampling) are seeded by the scan id, so reruns agree.
 
-use crate::homology::Point;
-use crate::pipeline::config::{Ground, Preprocess};
 use crate::rng::SplitMix64;
+use crate::types::Point;
 use std::collections::HashMap;
+
+/// The preprocess stage's settings (`[preprocess]` of a pipeline file): each step optional,
+/// applied in field order.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Preprocess {
+    /// Keep points whose distance to the sensor is within [min, max] metres.
+    pub range: Option<RangeCrop>,
+    /// Remove the ground.
+    pub ground: Option<Ground>,
+    /// Voxel-grid downsampling cell size (m): one centroid per occupied cell.
+    pub voxel: Option<f64>,
+    /// Keep at most this many points (uniformly, seeded by the scan id).
+    pub subsample: Option<usize>,
+    /// Centre on the mean and scale so the largest |coordinate| is 1.
+    pub normalize: bool,
+    /// Scans with fewer points left are skipped (recorded with the reason).
+    pub min_points: usize,
+}
+
+/// A range crop.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RangeCrop {
+    /// Minimum distance (m).
+    #[serde(default)]
+    pub min: f64,
+    /// Maximum distance (m).
+    #[serde(default = "infinite")]
+    pub max: f64,
+}
+
+fn infinite() -> f64 {
+    f64::INFINITY
+}
+
+/// Ground removal.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "method", rename_all = "lowercase", deny_unknown_fields)]
+pub enum Ground {
+    /// Drop points with z below `below` (sensor frame, z up).
+    Height {
+        /// Height threshold (m).
+        below: f64,
+    },
+    /// Fit the ground plane by RANSAC (seeded by scan id; normals within 30° of z) and drop
+    /// points within `threshold` of it.
+    Plane {
+        /// Inlier distance (m).
+        #[serde(default = "default_plane_threshold")]
+        threshold: f64,
+        /// RANSAC iterations.
+        #[serde(default = "default_plane_iterations")]
+        iterations: usize,
+    },
+}
+
+fn default_plane_threshold() -> f64 {
+    0.2
+}
+
+fn default_plane_iterations() -> usize {
+    100
+}
+
+impl Default for Preprocess {
+    /// No step, at least 16 points.
+    fn default() -> Self {
+        Preprocess {
+            range: None,
+            ground: None,
+            voxel: None,
+            subsample: None,
+            normalize: false,
+            min_points: 16,
+        }
+    }
+}
+
+impl Preprocess {
+    /// The settings' problems, each starting with its key path (`preprocess.voxel: ...`).
+    pub fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if let Some(r) = &self.range {
+            out.extend(r.problems());
+        }
+        if let Some(g) = &self.ground {
+            out.extend(g.problems());
+        }
+        if self.voxel.is_some_and(|v| v.is_nan() || v <= 0.0) {
+            out.push("preprocess.voxel: the cell size must be > 0".into());
+        }
+        if self.subsample.is_some_and(|n| n < 4) {
+            out.push("preprocess.subsample: must be at least 4 points".into());
+        }
+        if self.min_points < 4 {
+            out.push("preprocess.min_points: must be at least 4 (a tetrahedron)".into());
+        }
+        out
+    }
+}
+
+impl RangeCrop {
+    /// Problems of `preprocess.range`.
+    pub fn problems(&self) -> Vec<String> {
+        if self.min >= 0.0 && self.min < self.max {
+            Vec::new()
+        } else {
+            vec![format!("preprocess.range: need 0 <= min < max (min {}, max {})", self.min, self.max)]
+        }
+    }
+}
+
+impl Ground {
+    /// Problems of `preprocess.ground`.
+    pub fn problems(&self) -> Vec<String> {
+        match *self {
+            Ground::Plane { threshold, iterations }
+                if threshold.is_nan() || threshold <= 0.0 || iterations == 0 =>
+            {
+                vec!["preprocess.ground: need threshold > 0 and iterations >= 1".into()]
+            }
+            _ => Vec::new(),
+        }
+    }
+}
 
 /// Why a scan was skipped.
 #[derive(Clone, Debug, PartialEq, Eq)]

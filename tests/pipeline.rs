@@ -6,7 +6,8 @@ use crate::util::*;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use toporec::pipeline::config::Pipeline;
-use toporec::sinks::index;
+use toporec::sinks::index::reader::{diagrams as read_diagrams, read_scans};
+use toporec::sinks::parquet::Status;
 
 /// The parquet files of one table, sorted.
 fn parts(index: &Path, table: &str) -> Vec<PathBuf> {
@@ -69,10 +70,11 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
     assert_eq!(eff.preprocess, Pipeline::load(&pipeline).unwrap().preprocess);
 
     // arrow-rs read-back: scans and diagrams agree with each other and with the engine.
-    let scans = index::ok_scans(&one.join("scans/session=2026-01-02/part-0.parquet")).unwrap();
+    let scans = read_scans(&one.join("scans/session=2026-01-02/part-0.parquet"), "2026-01-02").unwrap();
     assert_eq!(scans.len(), 32);
-    assert!(scans.iter().all(|s| s.2.is_some()), "every sample scan has its ground-truth pose");
-    let diagrams: Vec<_> = index::diagrams(&one.join("diagrams/session=2026-01-02/part-0.parquet"))
+    assert!(scans.iter().all(|s| s.status == Status::Ok), "every sample scan is indexed");
+    assert!(scans.iter().all(|s| s.pose.is_some()), "every sample scan has its ground-truth pose");
+    let diagrams: Vec<_> = read_diagrams(&one.join("diagrams/session=2026-01-02/part-0.parquet"))
         .unwrap()
         .map(Result::unwrap)
         .collect();
@@ -150,9 +152,7 @@ print("independent reader ok")
 "#,
         idx = index.display()
     );
-    let probe = Command::new("python3").args(["-c", "import duckdb, pyarrow"]).output();
-    if !probe.is_ok_and(|o| o.status.success()) {
-        println!("SKIP independent reader: python3 with duckdb and pyarrow not installed");
+    if !python_with("independent reader", &["duckdb", "pyarrow"]) {
         return;
     }
     let o = Command::new("python3").args(["-c", &script]).output().unwrap();
@@ -175,8 +175,8 @@ fn shipped_pipelines_run_on_shared_data() {
         assert_eq!(parts(&index, "descriptors").len(), sessions, "{name}");
     }
     // The NCLT session's poses made it into the descriptors.
-    let scans = index::ok_scans(&dir.join("nclt/scans/session=2011-10-03/part-0.parquet")).unwrap();
-    assert!(scans.iter().all(|s| s.2.is_some()));
+    let scans = read_scans(&dir.join("nclt/scans/session=2011-10-03/part-0.parquet"), "2011-10-03").unwrap();
+    assert!(scans.iter().all(|s| s.pose.is_some()));
 }
 
 #[test]
@@ -203,18 +203,31 @@ fn bad_scans_mid_run_are_recorded_and_the_run_is_partial() {
     assert!(err.contains("partial: 1 of 7 scans failed"), "{err}");
     assert!(err.contains("1 skipped"), "the empty scan is skipped: {err}");
     assert!(err.contains(&format!("{}: truncated", bad.display())), "{err}");
-    // The scans table holds the error row, in input order.
-    let probe = Command::new("python3").args(["-c", "import duckdb"]).output();
-    if probe.is_ok_and(|o| o.status.success()) {
-        let q = format!(
-            "import duckdb; print(duckdb.sql(\"select seq, status, error from read_parquet('{}/idx/scans/*/*.parquet') order by seq\").fetchall())",
-            dir.display()
-        );
-        let out = text(&Command::new("python3").args(["-c", &q]).output().unwrap().stdout);
-        // Sorted by utime: the empty scan (…0999999) comes before the truncated one.
-        assert!(out.contains("(2, 'skipped', '0 points after preprocessing"), "{out}");
-        assert!(out.contains("(3, 'error'") && out.contains("truncated"), "{out}");
-    }
+    // The scans table holds the skipped and the error row, in input order (sorted by utime:
+    // the empty scan, …0999999, comes before the truncated one).
+    let rows = read_scans(&dir.join("idx/scans/session=2026-01-01/part-0.parquet"), "2026-01-01").unwrap();
+    let status: Vec<(u64, Status)> = rows.iter().map(|r| (r.seq, r.status)).collect();
+    assert_eq!(
+        status,
+        [
+            (0, Status::Ok),
+            (1, Status::Ok),
+            (2, Status::Skipped),
+            (3, Status::Error),
+            (4, Status::Ok),
+            (5, Status::Ok),
+            (6, Status::Ok)
+        ]
+    );
+    let skipped = rows[2].error.as_deref().unwrap();
+    assert!(skipped.starts_with("0 points after preprocessing"), "{skipped}");
+    assert_eq!(rows[2].kept_points, 0);
+    let error = rows[3].error.as_deref().unwrap();
+    assert!(error.contains(&format!("{}: truncated", bad.display())), "{error}");
+    assert_eq!(
+        (rows[3].raw_points, rows[3].utime),
+        (0, rows[3].scan_id.rsplit('/').next().unwrap().parse().ok())
+    );
     assert_eq!(descriptors(&dir.join("idx")).len(), 5);
 }
 

@@ -8,14 +8,43 @@ pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// `../shared/data` beside the repository, if present (prints a skip line otherwise).
+/// Whether missing data or tools fail the test instead of skipping it (`TOPOREC_REQUIRE_DATA=1`,
+/// which CI sets).
+pub fn data_required() -> bool {
+    std::env::var("TOPOREC_REQUIRE_DATA").is_ok_and(|v| !v.is_empty() && v != "0")
+}
+
+/// Skips a test whose data or tool is missing, with a clear line; under
+/// `TOPOREC_REQUIRE_DATA=1` fails it instead.
+pub fn skip(test: &str, why: &str) {
+    assert!(
+        !data_required(),
+        "{test}: {why} (TOPOREC_REQUIRE_DATA is set, so this fails instead of skipping)"
+    );
+    println!("SKIP {test}: {why}");
+}
+
+/// `../shared/data` beside the repository, if present (skips otherwise; see [`skip`]).
 pub fn shared_data(test: &str) -> Option<PathBuf> {
     let p = root().join("../shared/data");
     if p.is_dir() {
         Some(p)
     } else {
-        println!("SKIP {test}: ../shared/data is absent");
+        skip(test, "../shared/data is absent");
         None
+    }
+}
+
+/// Whether `python3` can import `modules` (skips otherwise; see [`skip`]).
+pub fn python_with(test: &str, modules: &[&str]) -> bool {
+    let probe = std::process::Command::new("python3")
+        .args(["-c", &format!("import {}", modules.join(", "))])
+        .output();
+    if probe.is_ok_and(|o| o.status.success()) {
+        true
+    } else {
+        skip(test, &format!("python3 with {} is not installed", modules.join(", ")));
+        false
     }
 }
 

@@ -11,40 +11,57 @@
 
 pub mod metrics;
 
+/// Appends one formatted line to a report table (a `String`, which cannot fail to grow).
+macro_rules! line {
+    ($out:expr, $($arg:tt)*) => {{
+        $out.push_str(&format!($($arg)*));
+        $out.push('\n');
+    }};
+}
+
+use crate::error::{Error, Result, ResultExt};
 use crate::query::{Engine, StepTimes, load_descriptors, mean_p95_ms};
 use crate::rng::SplitMix64;
 use crate::sinks::index::IndexedScan;
-use anyhow::{Context, Result, bail};
 use metrics::{Denominator, Recall, first_hit, one_percent_k, recall};
 use rayon::prelude::*;
 use serde_json::json;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Settings of `eval places`.
-#[derive(Clone, Debug)]
+/// Settings of `eval places` (its command-line arguments).
+#[derive(clap::Args, Clone, Debug)]
 pub struct PlacesArgs {
-    /// Database index.
+    /// The database index.
+    #[arg(long)]
     pub db: PathBuf,
-    /// Database sessions (empty: all).
+    /// Database sessions (repeatable; default all).
+    #[arg(long = "db-session")]
     pub db_sessions: Vec<String>,
-    /// Query index (None: the database index).
+    /// The query index (default: the database index; must share its codebook).
+    #[arg(long)]
     pub queries: Option<PathBuf>,
-    /// Query sessions (empty: all).
+    /// Query sessions (repeatable; default all).
+    #[arg(long = "query-session")]
     pub query_sessions: Vec<String>,
-    /// Revisit thresholds (m).
+    /// Revisit thresholds R (m).
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50")]
     pub thresholds: Vec<f64>,
     /// Largest N of Recall@N.
+    #[arg(long, default_value_t = 25)]
     pub max_n: usize,
-    /// Keep a map scan only if farther than this from the last kept one (m).
+    /// Keep a map scan only if farther than this (m) from the last kept (RING).
+    #[arg(long)]
     pub map_every: Option<f64>,
-    /// Same for queries.
+    /// Same for query scans.
+    #[arg(long)]
     pub query_every: Option<f64>,
-    /// Ignore database scans of the query's own session closer in time than this (s); a
-    /// query never retrieves itself.
+    /// Ignore database scans of the query's session closer in time than this (s); a query
+    /// never retrieves itself.
+    #[arg(long, default_value_t = 0.0)]
     pub min_time_gap: f64,
-    /// Output folder.
+    /// Output folder for report.json, report.txt and the plots.
+    #[arg(long, short)]
     pub out: PathBuf,
 }
 
@@ -76,25 +93,27 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
     let (query_codebook, queries) = load_descriptors(&queries_index, &a.query_sessions)?;
     if query_codebook.id() != codebook.id() {
-        bail!(
-            "{} uses codebook {} but {} uses {}: index the queries with `vectorize.codebook = \"{}\"`",
-            queries_index.display(),
-            query_codebook.id(),
-            a.db.display(),
-            codebook.id(),
-            a.db.join("codebook.json").display()
-        );
+        return Err(Error::index(
+            &queries_index,
+            format!(
+                "uses codebook {} but {} uses {}: index the queries with `vectorize.codebook = \"{}\"`",
+                query_codebook.id(),
+                a.db.display(),
+                codebook.id(),
+                a.db.join("codebook.json").display()
+            ),
+        ));
     }
     let unposed = db_all.iter().filter(|s| s.pose.is_none()).count()
         + queries.iter().filter(|s| s.pose.is_none()).count();
     let db_scans = subsample(db_all.into_iter().filter(|s| s.pose.is_some()).collect(), a.map_every);
     let queries = subsample(queries.into_iter().filter(|s| s.pose.is_some()).collect(), a.query_every);
     if db_scans.is_empty() || queries.is_empty() {
-        bail!(
+        return Err(Error::invalid(format!(
             "places needs poses: {} database and {} query scans have one ({unposed} without)",
             db_scans.len(),
             queries.len()
-        );
+        )));
     }
     let vectors: Vec<f32> = db_scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
     let db = crate::search::Database::new(vectors, codebook.len());
@@ -128,19 +147,27 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
     let search_secs: Vec<f64> = retrieved.iter().map(|r| r.1).collect();
     let mut results = Vec::new();
     let mut table = String::new();
-    writeln!(
+    line!(
         table,
         "places: {} database scans ({}), {} queries ({}); Recall@1% uses the top {k1}",
         n_db,
         a.db.display(),
         queries.len(),
         queries_index.display()
-    )?;
-    writeln!(
+    );
+    line!(
         table,
         "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} | {:>9} {:>9} {:>10}",
-        "R (m)", "w/ match", "R@1", "R@5", "R@25", "R@1%", "all: R@1", "R@5", "R@1%"
-    )?;
+        "R (m)",
+        "w/ match",
+        "R@1",
+        "R@5",
+        "R@25",
+        "R@1%",
+        "all: R@1",
+        "R@5",
+        "R@1%"
+    );
     let mut curves = Vec::new();
     let mut success_first = Vec::new();
     let plan_distance = |q: &IndexedScan, row: usize| {
@@ -171,7 +198,7 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         let with = recall(&hits, &has, a.max_n, n_db, Denominator::WithMatch);
         let all = recall(&hits, &has, a.max_n, n_db, Denominator::All);
         let at = |rc: &Recall, n: usize| rc.at_n.get(n - 1).copied().unwrap_or(f64::NAN);
-        writeln!(
+        line!(
             table,
             "{r:>7} {:>10} {:>9.2} {:>9.2} {:>9.2} {:>10.2} | {:>9.2} {:>9.2} {:>10.2}",
             with.evaluated,
@@ -182,18 +209,18 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
             at(&all, 1),
             at(&all, 5),
             all.at_one_percent
-        )?;
+        );
         curves.push((format!("R = {r} m"), with.at_n.clone()));
         results.push(json!({"threshold_m": r, "queries_with_match": with.evaluated, "with_match": with, "all_queries": all}));
     }
     let (mean, p95) = mean_p95_ms(&search_secs);
-    writeln!(
+    line!(
         table,
         "search: mean {mean:.3} ms, p95 {p95:.3} ms per query ({} threads, {:.2} s wall)",
         rayon::current_num_threads(),
         wall
-    )?;
-    std::fs::create_dir_all(&a.out)?;
+    );
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
     let mut plots =
         crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (queries with a match)", &curves)?;
     let qpts: Vec<([f64; 2], bool)> =
@@ -222,7 +249,7 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
 fn write_report(out: &Path, report: &serde_json::Value, table: &str) -> Result<()> {
     crate::fsutil::write_atomic(
         &out.join("report.json"),
-        (serde_json::to_string_pretty(report)? + "\n").as_bytes(),
+        (serde_json::to_string_pretty(report).expect("JSON of plain values") + "\n").as_bytes(),
     )?;
     crate::fsutil::write_atomic(&out.join("report.txt"), table.as_bytes())
 }
@@ -297,18 +324,23 @@ impl Perturbation {
     }
 }
 
-/// Settings of `eval perturbation`.
-#[derive(Clone, Debug)]
+/// Settings of `eval perturbation` (its command-line arguments).
+#[derive(clap::Args, Clone, Debug)]
 pub struct PerturbationArgs {
     /// The index.
+    #[arg(long)]
     pub index: PathBuf,
-    /// Share of the index's scans used as queries.
+    /// Share of the scans used as queries.
+    #[arg(long, default_value_t = 0.2)]
     pub fraction: f64,
     /// Seed of the choice and of the jitter.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Largest N of Recall@N.
+    #[arg(long, default_value_t = 25)]
     pub max_n: usize,
     /// Output folder.
+    #[arg(long, short)]
     pub out: PathBuf,
 }
 
@@ -329,39 +361,51 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         chosen.iter().map(|&r| (engine.scans[r].scan_id.as_str(), r)).collect();
     // Re-read the chosen scans through the index's own sources and preprocessing.
     let mut clouds: Vec<(usize, Vec<[f64; 3]>)> = Vec::new();
-    for spec in &engine.pipeline.sources {
-        for item in spec.open().with_context(|| "re-reading the index's sources")? {
+    let pipeline = crate::sinks::index::IndexReader::open(&a.index)?.pipeline()?;
+    for spec in &pipeline.sources {
+        for item in spec.open()? {
             let Ok(scan) = item else { continue };
             if let Some(&row) = wanted.get(scan.id.as_str()) {
-                let points = engine.preprocess(scan).map_err(anyhow::Error::msg)?;
+                let id = scan.id.clone();
+                let points = engine
+                    .describer
+                    .preprocess(scan)
+                    .map_err(|skip| Error::invalid(format!("{id}: skipped on re-reading: {}", skip.0)))?;
                 clouds.push((row, points));
             }
         }
     }
     if clouds.len() != chosen.len() {
-        bail!("{} of {} chosen scans could be re-read from the index's sources", clouds.len(), chosen.len());
+        return Err(Error::index(
+            &a.index,
+            format!(
+                "{} of {} chosen scans could be re-read from the index's sources",
+                clouds.len(),
+                chosen.len()
+            ),
+        ));
     }
     let k1 = one_percent_k(n);
     let want = a.max_n.max(k1).min(n);
     let kinds = Perturbation::paper();
     let mut table = String::new();
-    writeln!(
+    line!(
         table,
         "perturbation: {} queries of {n} scans ({}); Recall@1% uses the top {k1}",
         clouds.len(),
         a.index.display()
-    )?;
-    writeln!(table, "{:<24} {:>9} {:>9} {:>10}", "perturbation", "R@1", "R@5", "R@1%")?;
+    );
+    line!(table, "{:<24} {:>9} {:>9} {:>10}", "perturbation", "R@1", "R@5", "R@1%");
     let mut results = Vec::new();
     let mut curves = Vec::new();
     let mut times: Vec<StepTimes> = Vec::new();
     for kind in &kinds {
-        let outcomes: Vec<Result<(Option<usize>, StepTimes), String>> = clouds
+        let outcomes: Vec<Result<(Option<usize>, StepTimes), crate::describe::DescribeError>> = clouds
             .par_iter()
             .map(|(row, pts)| {
                 let seed = a.seed ^ crate::preprocess::seed_of(&engine.scans[*row].scan_id);
                 let p = kind.apply(pts, seed);
-                let (v, mut t) = engine.describe(&p, &engine.scans[*row].scan_id)?;
+                let (v, mut t) = engine.describe_points(&p, &engine.scans[*row].scan_id)?;
                 let start = Instant::now();
                 let hits = engine.search(&v, want);
                 t.search = start.elapsed().as_secs_f64();
@@ -370,19 +414,19 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
             .collect();
         let mut hits = Vec::new();
         for o in outcomes {
-            let (h, t) = o.map_err(anyhow::Error::msg)?;
+            let (h, t) = o.map_err(|e| Error::invalid(e.to_string()))?;
             hits.push(h);
             times.push(t);
         }
         let rc = recall(&hits, &vec![true; hits.len()], a.max_n, n, Denominator::All);
-        writeln!(
+        line!(
             table,
             "{:<24} {:>9.2} {:>9.2} {:>10.2}",
             kind.name(),
             rc.at_n[0],
             rc.at_n.get(4).copied().unwrap_or(f64::NAN),
             rc.at_one_percent
-        )?;
+        );
         curves.push((kind.name(), rc.at_n.clone()));
         results.push(json!({"perturbation": kind.name(), "recall": rc}));
     }
@@ -390,11 +434,11 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
     let (pm, pp) = stat(|t| t.persistence);
     let (vm, vp) = stat(|t| t.vectorize);
     let (sm, sp) = stat(|t| t.search);
-    writeln!(
+    line!(
         table,
         "per query (mean / p95 ms): persistence {pm:.2} / {pp:.2}, vectorize {vm:.3} / {vp:.3}, search {sm:.3} / {sp:.3}"
-    )?;
-    std::fs::create_dir_all(&a.out)?;
+    );
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
     let plots =
         crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N under perturbations", &curves)?;
     let report = json!({
@@ -405,8 +449,8 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         "queries": clouds.len(),
         "fraction": a.fraction,
         "seed": a.seed,
-        "codebook_id": engine.codebook.id(),
-        "descriptor_length": engine.codebook.len(),
+        "codebook_id": engine.codebook().id(),
+        "descriptor_length": engine.codebook().len(),
         "one_percent_k": k1,
         "results": results,
         "timing_ms": {

@@ -16,7 +16,7 @@ use std::collections::HashMap;
 pub const OUTSIDE: u32 = u32::MAX;
 
 /// Error building a complex.
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum ComplexError {
     /// A coordinate is NaN or infinite.
     #[error("point {index} has a non-finite coordinate ({x}, {y}, {z})")]

@@ -13,8 +13,7 @@ use num_bigint::BigInt;
 use num_traits::{Signed, Zero};
 use std::cmp::Ordering;
 
-/// A point in R³.
-pub type Point = [f64; 3];
+pub use crate::types::Point;
 
 const EPS: f64 = f64::EPSILON * 0.5;
 

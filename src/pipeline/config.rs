@@ -24,6 +24,7 @@
 //! # codebook = "codebook.json"       # … or load a saved one
 //! ```
 
+use crate::preprocess::Preprocess;
 use crate::sources::SourceSpec;
 use crate::vectorize::atol::{Contrast, Weighting};
 use crate::vectorize::codebook::{Codebook, CodebookSpec, DimSelection};
@@ -47,68 +48,6 @@ pub struct Pipeline {
     pub persistence: Persistence,
     /// Vectorizing.
     pub vectorize: Vectorize,
-}
-
-/// The preprocess stage's settings (each step optional, applied in field order).
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct Preprocess {
-    /// Keep points whose distance to the sensor is within [min, max] metres.
-    pub range: Option<RangeCrop>,
-    /// Remove the ground.
-    pub ground: Option<Ground>,
-    /// Voxel-grid downsampling cell size (m): one centroid per occupied cell.
-    pub voxel: Option<f64>,
-    /// Keep at most this many points (uniformly, seeded by the scan id).
-    pub subsample: Option<usize>,
-    /// Centre on the mean and scale so the largest |coordinate| is 1.
-    pub normalize: bool,
-    /// Scans with fewer points left are skipped (recorded with the reason).
-    pub min_points: usize,
-}
-
-/// A range crop.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RangeCrop {
-    /// Minimum distance (m).
-    #[serde(default)]
-    pub min: f64,
-    /// Maximum distance (m).
-    #[serde(default = "infinite")]
-    pub max: f64,
-}
-
-fn infinite() -> f64 {
-    f64::INFINITY
-}
-
-/// Ground removal.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(tag = "method", rename_all = "lowercase", deny_unknown_fields)]
-pub enum Ground {
-    /// Drop points with z below `below` (sensor frame, z up).
-    Height {
-        /// Height threshold (m).
-        below: f64,
-    },
-    /// Fit the ground plane by RANSAC (seeded by scan id; normals within 30° of z) and drop
-    /// points within `threshold` of it.
-    Plane {
-        /// Inlier distance (m).
-        #[serde(default = "default_plane_threshold")]
-        threshold: f64,
-        /// RANSAC iterations.
-        #[serde(default = "default_plane_iterations")]
-        iterations: usize,
-    },
-}
-
-fn default_plane_threshold() -> f64 {
-    0.2
-}
-
-fn default_plane_iterations() -> usize {
-    100
 }
 
 /// Persistence settings.
@@ -209,184 +148,26 @@ impl Pipeline {
     }
 
     fn parse_with(text: &str, path: &Path, check_inputs: bool) -> Result<Self, ConfigErrors> {
-        let mut errors = Vec::new();
         let fail = |errors| ConfigErrors { path: path.to_owned(), errors };
         let doc: Table =
             text.parse().map_err(|e: toml::de::Error| fail(vec![e.to_string().trim().to_string()]))?;
         // Absolute, so the effective pipeline written into an index stays valid anywhere.
         let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         let base = std::path::absolute(base).unwrap_or_else(|_| base.to_owned());
-        let resolve = |p: PathBuf| clean(&if p.is_relative() { base.join(p) } else { p });
+        let mut p = Parser { base, check_inputs, errors: Vec::new() };
         let mut root = Section::new(&doc, "");
-
-        let index = match root.table("output", &mut errors) {
-            Some(mut s) => {
-                let index: Option<PathBuf> = s.get("index", &mut errors);
-                s.finish(&mut errors);
-                index
-            }
-            None => None,
-        };
-        if index.is_none() {
-            errors.push("output.index: missing (the index folder to write)".into());
-        }
-
-        root.seen.push("sources");
-        let mut sources = Vec::new();
-        match doc.get("sources") {
-            Some(Value::Array(items)) if !items.is_empty() => {
-                for (i, item) in items.iter().enumerate() {
-                    match item.clone().try_into::<SourceSpec>() {
-                        Ok(mut s) => {
-                            s.resolve_paths(&base);
-                            s.clean_paths(clean);
-                            if check_inputs {
-                                check_source_paths(&s, i, &mut errors);
-                            }
-                            sources.push(s);
-                        }
-                        Err(e) => errors.push(format!("sources[{i}]: {}", e.message().trim())),
-                    }
-                }
-            }
-            _ => errors.push("sources: missing (one or more [[sources]] tables)".into()),
-        }
-
-        let preprocess = {
-            let empty = Table::new();
-            let mut s =
-                root.table("preprocess", &mut errors).unwrap_or_else(|| Section::new(&empty, "preprocess"));
-            let p = Preprocess {
-                range: s.get("range", &mut errors),
-                ground: s.get("ground", &mut errors),
-                voxel: s.get("voxel", &mut errors),
-                subsample: s.get("subsample", &mut errors),
-                normalize: s.get("normalize", &mut errors).unwrap_or(false),
-                min_points: s.get("min_points", &mut errors).unwrap_or(16),
-            };
-            s.finish(&mut errors);
-            if let Some(r) = p.range
-                && !(r.min >= 0.0 && r.min < r.max)
-            {
-                errors.push(format!("preprocess.range: need 0 <= min < max (min {}, max {})", r.min, r.max));
-            }
-            if let Some(Ground::Plane { threshold, iterations }) = p.ground
-                && (threshold.is_nan() || threshold <= 0.0 || iterations == 0)
-            {
-                errors.push("preprocess.ground: need threshold > 0 and iterations >= 1".into());
-            }
-            if p.voxel.is_some_and(|v| v.is_nan() || v <= 0.0) {
-                errors.push("preprocess.voxel: the cell size must be > 0".into());
-            }
-            if p.subsample.is_some_and(|n| n < 4) {
-                errors.push("preprocess.subsample: must be at least 4 points".into());
-            }
-            if p.min_points < 4 {
-                errors.push("preprocess.min_points: must be at least 4 (a tetrahedron)".into());
-            }
-            p
-        };
-
-        let persistence = {
-            let empty = Table::new();
-            let mut s =
-                root.table("persistence", &mut errors).unwrap_or_else(|| Section::new(&empty, "persistence"));
-            let dims: Vec<u8> = s.get("dims", &mut errors).unwrap_or(vec![0, 1, 2]);
-            let squared = s.get("squared", &mut errors).unwrap_or(true);
-            s.finish(&mut errors);
-            if dims.is_empty() || dims.iter().any(|&d| d > 2) {
-                errors.push(format!("persistence.dims: expected a list of 0, 1, 2; found {dims:?}"));
-            }
-            Persistence { dims, squared }
-        };
-
-        let vectorize = {
-            let empty = Table::new();
-            let mut s =
-                root.table("vectorize", &mut errors).unwrap_or_else(|| Section::new(&empty, "vectorize"));
-            let codebook: Option<PathBuf> = s.get("codebook", &mut errors);
-            let dims = match s.get::<Value>("dims", &mut errors) {
-                None => Some(DimSelection::Paper),
-                Some(Value::String(t)) => {
-                    DimSelection::parse(&t).map_err(|e| errors.push(format!("vectorize.{e}"))).ok()
-                }
-                Some(v) => match v.try_into::<Vec<u8>>() {
-                    Ok(list) => {
-                        DimSelection::from_list(list).map_err(|e| errors.push(format!("vectorize.{e}"))).ok()
-                    }
-                    Err(_) => {
-                        errors.push("vectorize.dims: expected \"paper\" or a list like [0, 1, 2]".into());
-                        None
-                    }
-                },
-            };
-            let fit_keys = ["b", "dims", "contrast", "weighting", "kmeans", "seed", "sample_size"];
-            let given: Vec<&str> = fit_keys.iter().copied().filter(|k| s.table.contains_key(*k)).collect();
-            let d = CodebookSpec::default();
-            let kmeans: Option<Algorithm> = s.get("kmeans", &mut errors);
-            let spec = CodebookSpec {
-                dims: dims.unwrap_or(DimSelection::Paper),
-                b: s.get("b", &mut errors).unwrap_or(d.b),
-                contrast: s.get::<Contrast>("contrast", &mut errors).unwrap_or(d.contrast),
-                weighting: s.get::<Weighting>("weighting", &mut errors).unwrap_or(d.weighting),
-                kmeans: KMeansParams {
-                    algorithm: kmeans.unwrap_or(Algorithm::MiniBatch),
-                    ..KMeansParams::default()
-                },
-                seed: s.get("seed", &mut errors).unwrap_or(d.seed),
-                sample_size: s.get("sample_size", &mut errors).unwrap_or(d.sample_size),
-                squared_radii: persistence.squared,
-            };
-            s.finish(&mut errors);
-            if spec.b == 0 {
-                errors.push("vectorize.b: must be at least 1".into());
-            }
-            if spec.sample_size == 0 {
-                errors.push("vectorize.sample_size: must be at least 1".into());
-            }
-            match codebook {
-                Some(p) => {
-                    if !given.is_empty() {
-                        errors.push(format!(
-                            "vectorize: {} given with a saved codebook (it fixes them); remove one or the other",
-                            given.join(", ")
-                        ));
-                    }
-                    let p = resolve(p);
-                    match Codebook::load(&p) {
-                        Ok(cb) => {
-                            if cb.spec.squared_radii != persistence.squared {
-                                errors.push(format!(
-                                    "vectorize.codebook: made for {} but persistence.squared = {}",
-                                    if cb.spec.squared_radii { "squared radii" } else { "radii" },
-                                    persistence.squared
-                                ));
-                            }
-                            Vectorize::Load(p, Box::new(cb))
-                        }
-                        Err(e) => {
-                            errors.push(format!("vectorize.codebook: {e:#}"));
-                            Vectorize::Fit(spec)
-                        }
-                    }
-                }
-                None => Vectorize::Fit(spec),
-            }
-        };
-        let needed: Vec<u8> = match &vectorize {
-            Vectorize::Fit(s) => dims_needed(&s.dims),
-            Vectorize::Load(_, cb) => dims_needed(&cb.spec.dims),
-        };
-        if let Some(d) = needed.iter().find(|d| !persistence.dims.contains(d)) {
-            errors.push(format!("persistence.dims: the descriptor needs H{d}; add {d} to the stored dims"));
-        }
-        root.finish(&mut errors);
-        if !errors.is_empty() {
-            return Err(fail(errors));
+        let index = p.output(&mut root);
+        let sources = p.sources(&mut root, &doc);
+        let preprocess = p.preprocess(&mut root);
+        let persistence = p.persistence(&mut root);
+        let vectorize = p.vectorize(&mut root, &persistence);
+        root.finish(&mut p.errors);
+        if !p.errors.is_empty() {
+            return Err(fail(p.errors));
         }
         Ok(Pipeline {
             path: path.to_owned(),
-            index: resolve(index.unwrap()),
+            index: index.expect("an error was recorded otherwise"),
             sources,
             preprocess,
             persistence,
@@ -436,6 +217,195 @@ impl Pipeline {
             env!("CARGO_PKG_VERSION"),
             toml::to_string(&doc).expect("TOML of plain data")
         )
+    }
+}
+
+/// One pass over a pipeline file: a parser per section, every error collected.
+struct Parser {
+    /// The file's folder (absolute): relative paths are relative to it.
+    base: PathBuf,
+    /// Whether input paths must exist (not for an index's own effective pipeline).
+    check_inputs: bool,
+    errors: Vec<String>,
+}
+
+impl Parser {
+    fn resolve(&self, p: PathBuf) -> PathBuf {
+        clean(&if p.is_relative() { self.base.join(p) } else { p })
+    }
+
+    /// A section, or an empty one when the file leaves it out.
+    fn section<'a>(&mut self, root: &mut Section<'a>, key: &'static str) -> Section<'a> {
+        static EMPTY: std::sync::OnceLock<Table> = std::sync::OnceLock::new();
+        root.table(key, &mut self.errors).unwrap_or_else(|| Section::new(EMPTY.get_or_init(Table::new), key))
+    }
+
+    /// `[output]`: the index folder.
+    fn output(&mut self, root: &mut Section) -> Option<PathBuf> {
+        let index = root.table("output", &mut self.errors).and_then(|mut s| {
+            let index: Option<PathBuf> = s.get("index", &mut self.errors);
+            s.finish(&mut self.errors);
+            index
+        });
+        if index.is_none() {
+            self.errors.push("output.index: missing (the index folder to write)".into());
+        }
+        index.map(|p| self.resolve(p))
+    }
+
+    /// `[[sources]]`: one or more source tables, paths resolved (and checked).
+    fn sources(&mut self, root: &mut Section, doc: &Table) -> Vec<SourceSpec> {
+        root.seen.push("sources");
+        let mut sources = Vec::new();
+        match doc.get("sources") {
+            Some(Value::Array(items)) if !items.is_empty() => {
+                for (i, item) in items.iter().enumerate() {
+                    match item.clone().try_into::<SourceSpec>() {
+                        Ok(mut s) => {
+                            s.resolve_paths(&self.base);
+                            s.clean_paths(clean);
+                            if self.check_inputs {
+                                check_source_paths(&s, i, &mut self.errors);
+                            }
+                            sources.push(s);
+                        }
+                        Err(e) => self.errors.push(format!("sources[{i}]: {}", e.message().trim())),
+                    }
+                }
+            }
+            _ => self.errors.push("sources: missing (one or more [[sources]] tables)".into()),
+        }
+        sources
+    }
+
+    /// `[preprocess]`: every step optional.
+    fn preprocess(&mut self, root: &mut Section) -> Preprocess {
+        let mut s = self.section(root, "preprocess");
+        let errors = &mut self.errors;
+        let d = Preprocess::default();
+        let p = Preprocess {
+            range: s.get("range", errors),
+            ground: s.get("ground", errors),
+            voxel: s.get("voxel", errors),
+            subsample: s.get("subsample", errors),
+            normalize: s.get("normalize", errors).unwrap_or(d.normalize),
+            min_points: s.get("min_points", errors).unwrap_or(d.min_points),
+        };
+        s.finish(errors);
+        errors.extend(p.problems());
+        p
+    }
+
+    /// `[persistence]`: stored dimensions and units.
+    fn persistence(&mut self, root: &mut Section) -> Persistence {
+        let mut s = self.section(root, "persistence");
+        let errors = &mut self.errors;
+        let dims: Vec<u8> = s.get("dims", errors).unwrap_or(vec![0, 1, 2]);
+        let squared = s.get("squared", errors).unwrap_or(true);
+        s.finish(errors);
+        if dims.is_empty() || dims.iter().any(|&d| d > 2) {
+            errors.push(format!("persistence.dims: expected a list of 0, 1, 2; found {dims:?}"));
+        }
+        Persistence { dims, squared }
+    }
+
+    /// `[vectorize]`: fit keys, or a saved codebook; checked against the stored dimensions.
+    fn vectorize(&mut self, root: &mut Section, persistence: &Persistence) -> Vectorize {
+        let mut s = self.section(root, "vectorize");
+        let codebook: Option<PathBuf> = s.get("codebook", &mut self.errors);
+        let given: Vec<&str> =
+            CODEBOOK_FIT_KEYS.iter().copied().filter(|k| s.table.contains_key(*k)).collect();
+        let spec = self.codebook_spec(&mut s, persistence.squared);
+        s.finish(&mut self.errors);
+        let vectorize = match codebook {
+            None => Vectorize::Fit(spec),
+            Some(p) => {
+                if !given.is_empty() {
+                    self.errors.push(format!(
+                        "vectorize: {} given with a saved codebook (it fixes them); remove one or the other",
+                        given.join(", ")
+                    ));
+                }
+                let p = self.resolve(p);
+                match Codebook::load(&p) {
+                    Ok(cb) => {
+                        if cb.spec.squared_radii != persistence.squared {
+                            self.errors.push(format!(
+                                "vectorize.codebook: made for {} but persistence.squared = {}",
+                                if cb.spec.squared_radii { "squared radii" } else { "radii" },
+                                persistence.squared
+                            ));
+                        }
+                        Vectorize::Load(p, Box::new(cb))
+                    }
+                    Err(e) => {
+                        self.errors.push(format!("vectorize.codebook: {e}"));
+                        Vectorize::Fit(spec)
+                    }
+                }
+            }
+        };
+        let needed = dims_needed(&vectorize.codebook_dims());
+        if let Some(d) = needed.iter().find(|d| !persistence.dims.contains(d)) {
+            self.errors
+                .push(format!("persistence.dims: the descriptor needs H{d}; add {d} to the stored dims"));
+        }
+        vectorize
+    }
+
+    /// The fit keys of `[vectorize]`, defaults filled in.
+    fn codebook_spec(&mut self, s: &mut Section, squared_radii: bool) -> CodebookSpec {
+        let errors = &mut self.errors;
+        let dims = match s.get::<Value>("dims", errors) {
+            None => Some(DimSelection::Paper),
+            Some(Value::String(t)) => {
+                DimSelection::parse(&t).map_err(|e| errors.push(format!("vectorize.{e}"))).ok()
+            }
+            Some(v) => match v.try_into::<Vec<u8>>() {
+                Ok(list) => {
+                    DimSelection::from_list(list).map_err(|e| errors.push(format!("vectorize.{e}"))).ok()
+                }
+                Err(_) => {
+                    errors.push("vectorize.dims: expected \"paper\" or a list like [0, 1, 2]".into());
+                    None
+                }
+            },
+        };
+        let d = CodebookSpec::default();
+        let kmeans: Option<Algorithm> = s.get("kmeans", errors);
+        let spec = CodebookSpec {
+            dims: dims.unwrap_or(DimSelection::Paper),
+            b: s.get("b", errors).unwrap_or(d.b),
+            contrast: s.get::<Contrast>("contrast", errors).unwrap_or(d.contrast),
+            weighting: s.get::<Weighting>("weighting", errors).unwrap_or(d.weighting),
+            kmeans: KMeansParams {
+                algorithm: kmeans.unwrap_or(Algorithm::MiniBatch),
+                ..KMeansParams::default()
+            },
+            seed: s.get("seed", errors).unwrap_or(d.seed),
+            sample_size: s.get("sample_size", errors).unwrap_or(d.sample_size),
+            squared_radii,
+        };
+        if spec.b == 0 {
+            errors.push("vectorize.b: must be at least 1".into());
+        }
+        if spec.sample_size == 0 {
+            errors.push("vectorize.sample_size: must be at least 1".into());
+        }
+        spec
+    }
+}
+
+/// The `[vectorize]` keys that fit a codebook (not allowed beside `codebook`).
+const CODEBOOK_FIT_KEYS: [&str; 7] = ["b", "dims", "contrast", "weighting", "kmeans", "seed", "sample_size"];
+
+impl Vectorize {
+    /// The dimension selection of the codebook to fit or loaded.
+    pub fn codebook_dims(&self) -> DimSelection {
+        match self {
+            Vectorize::Fit(s) => s.dims.clone(),
+            Vectorize::Load(_, cb) => cb.spec.dims.clone(),
+        }
     }
 }
 

@@ -1,30 +1,36 @@
 //! `toporec run`: the staged streaming processor.
 //!
 //! ```text
-//!  source thread ──jobs──► worker threads ──outcomes──► writer (this thread)
-//!  (sources, in order)     preprocess → persistence       reorders by seq, writes scans +
-//!                          (→ vectorize, saved codebook)  diagrams, feeds the codebook fit
-//!                                                         └► pass 2: descriptors
+//!  source thread ──jobs──► worker threads ──outcomes──► ordered writer (this thread)
+//!  (sources, in order)     Describer: preprocess →      reorders by seq, writes scans +
+//!                          persistence (→ vectorize)    diagrams, feeds the codebook fit
+//!                                                       └► fit → pass 2: descriptors → commit
 //! ```
 //!
-//! Channels are bounded (crossbeam), and the source may run at most `window` scans ahead of
-//! the writer (a credit channel), so memory is bounded whatever the session length. Outcomes
-//! are written in input order, so the index does not depend on the thread count. When the
-//! codebook is fitted on this run, descriptors come in a second pass that streams the
-//! diagrams back from the staged Parquet files. One bad scan is one `error` row; a panic in
-//! a stage is caught and recorded the same way.
+//! [`run`] is its four steps: [`index_scans`] (pass 1), the codebook (loaded, or fitted on
+//! pass 1's diagrams), [`vectorize_pass`] (pass 2, when the codebook was fitted) and the
+//! commit. Channels are bounded (crossbeam), and the source may run at most a window of scans
+//! ahead of the writer (a credit channel), so memory is bounded whatever the session length.
+//! Outcomes are written in input order, so the index does not depend on the thread count.
+//! One bad scan is one `error` row; a panic in a stage is caught and recorded the same way.
 
 pub mod config;
+mod progress;
 
-use crate::homology::{Diagram, alpha_persistence};
-use crate::preprocess::{Skip, preprocess};
-use crate::sinks::index::{self, IndexWriter};
-use crate::sinks::parquet::{DescriptorRow, ScanRow, Status};
+use crate::describe::{DescribeError, Describer, StageTimes};
+use crate::error::{Error, Result};
+use crate::homology::Diagram;
+use crate::sinks::index::IndexWriter;
+use crate::sinks::index::reader::diagrams;
+use crate::sinks::index::writer::ScanCounts;
+use crate::sinks::parquet::{DescriptorRow, DescriptorsFile, ScanRow, Status};
 use crate::sources::{Scan, ScanFailure};
-use crate::vectorize::codebook::{Codebook, CodebookFitter, Descriptor};
-use anyhow::{Context, Result};
+use crate::types::Pose;
+use crate::vectorize::codebook::{Codebook, CodebookFitter};
 use config::{Pipeline, Vectorize};
-use crossbeam_channel::bounded;
+use cpu_time::ThreadTime;
+use crossbeam_channel::{Receiver, Sender, bounded};
+use progress::Progress;
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
@@ -58,18 +64,65 @@ pub struct RunSummary {
     pub first_errors: Vec<String>,
     /// Wall time.
     pub wall: Duration,
-    /// Seconds per stage (worker stages summed over threads).
+    /// CPU seconds per stage (worker stages summed over threads).
     pub stages: BTreeMap<&'static str, f64>,
     /// Codebook id used.
     pub codebook_id: String,
     /// Descriptor length.
     pub descriptor_len: usize,
+    /// Worker threads.
+    pub threads: usize,
 }
 
 impl RunSummary {
     /// Whether some scans failed.
     pub fn partial(&self) -> bool {
         self.errors > 0
+    }
+
+    fn counts(&self) -> ScanCounts {
+        ScanCounts {
+            read: self.read,
+            indexed: self.indexed,
+            skipped: self.skipped.values().sum(),
+            errors: self.errors,
+        }
+    }
+
+    /// The summary as JSON (`toporec run --summary-json`): counts, wall seconds and CPU
+    /// seconds per stage.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "index": self.index,
+            "scans": {
+                "read": self.read,
+                "indexed": self.indexed,
+                "skipped": self.skipped,
+                "errors": self.errors,
+            },
+            "first_errors": self.first_errors,
+            "codebook_id": self.codebook_id,
+            "descriptor_length": self.descriptor_len,
+            "threads": self.threads,
+            "wall_seconds": self.wall.as_secs_f64(),
+            "cpu_seconds": self.stages,
+        })
+    }
+
+    fn count(&mut self, row: &ScanRow) {
+        self.read += 1;
+        match row.status {
+            Status::Ok => self.indexed += 1,
+            Status::Skipped => {
+                *self.skipped.entry("too few points after preprocessing".into()).or_default() += 1
+            }
+            Status::Error => {
+                self.errors += 1;
+                if self.first_errors.len() < 10 {
+                    self.first_errors.push(row.error.clone().unwrap_or_default());
+                }
+            }
+        }
     }
 }
 
@@ -92,293 +145,358 @@ impl std::fmt::Display for RunSummary {
         writeln!(f, "descriptors: length {}, codebook {}", self.descriptor_len, self.codebook_id)?;
         writeln!(f, "wall time: {secs:.2} s, {:.1} scans/s", self.read as f64 / secs.max(1e-9))?;
         let stages: Vec<String> = self.stages.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
-        write!(f, "stage time: {}", stages.join(", "))
+        write!(f, "cpu time: {}", stages.join(", "))
     }
-}
-
-struct Job {
-    seq: u64,
-    item: Result<Scan, ScanFailure>,
-}
-
-struct Outcome {
-    seq: u64,
-    row: ScanRow,
-    diagram: Option<Diagram>,
-    descriptor: Option<Descriptor>,
-    /// preprocess, persistence, vectorize seconds.
-    times: [f64; 3],
 }
 
 /// Runs a pipeline; the summary says what happened (check [`RunSummary::partial`]).
 pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
     let start = Instant::now();
-    let index_dir = opts.index.clone().unwrap_or_else(|| p.index.clone());
+    let index = opts.index.clone().unwrap_or_else(|| p.index.clone());
     let threads = opts.threads.max(1);
-    let loaded: Option<&Codebook> = match &p.vectorize {
-        Vectorize::Load(_, cb) => Some(cb),
+    let loaded = match &p.vectorize {
+        Vectorize::Load(_, cb) => Some((**cb).clone()),
         Vectorize::Fit(_) => None,
     };
-    let previous_codebook = Codebook::load(&index_dir.join("codebook.json")).ok().map(|c| c.id());
-    let mut writer = IndexWriter::create(&index_dir)?;
-    let mut fitter = match &p.vectorize {
-        Vectorize::Fit(spec) => Some(CodebookFitter::new(spec.clone())),
-        Vectorize::Load(..) => None,
-    };
-    let mut summary = RunSummary { index: index_dir.clone(), ..Default::default() };
-    let progress = Progress::new(opts.progress, || p.sources.iter().map(|s| s.count_hint()).sum());
+    let describer =
+        Describer { preprocess: p.preprocess.clone(), squared: p.persistence.squared, codebook: loaded };
+    let mut writer = IndexWriter::create(&index)?;
+    let mut summary = RunSummary { index: index.clone(), threads, ..Default::default() };
 
-    // Pass 1: sources → workers → ordered writer.
+    let pass = match index_scans(p, &describer, threads, opts.progress, &mut writer, &mut summary) {
+        Ok(pass) => pass,
+        Err(e) => {
+            writer.abandon();
+            return Err(e);
+        }
+    };
+    let t = ThreadTime::now();
+    let codebook = match (describer.codebook, pass.fitter) {
+        (Some(cb), _) => cb,
+        (None, Some(fitter)) => match fitter.finish() {
+            Ok(cb) => cb,
+            Err(e) => {
+                writer.abandon();
+                return Err(Error::index(
+                    &index,
+                    format!(
+                        "no codebook could be fitted on this run's diagrams ({e}); no descriptors ({} scans read, {} indexed)",
+                        summary.read, summary.indexed
+                    ),
+                ));
+            }
+        },
+        (None, None) => unreachable!("a codebook is loaded or fitted"),
+    };
+    let fit_secs = t.elapsed().as_secs_f64();
+    let mut stages = pass.stages;
+    if pass.fitted {
+        let (vectorize, read_back) = vectorize_pass(&mut writer, &codebook, &pass.ok_scans, threads)?;
+        stages.vectorize += vectorize;
+        summary.stages.insert("read back", read_back);
+    }
+    let t = ThreadTime::now();
+    writer.commit(&codebook, &p.effective_toml(), summary.counts())?;
+    let commit_secs = t.elapsed().as_secs_f64();
+
+    summary.codebook_id = codebook.id();
+    summary.descriptor_len = codebook.len();
+    summary.wall = start.elapsed();
+    summary.stages.extend([
+        ("read", pass.read_secs),
+        ("preprocess", stages.preprocess),
+        ("persistence", stages.persistence),
+        ("fit", fit_secs),
+        ("vectorize", stages.vectorize),
+        ("write", pass.write_secs + commit_secs),
+    ]);
+    Ok(summary)
+}
+
+/// One scan handed from the source thread to the workers.
+struct Job {
+    seq: u64,
+    item: std::result::Result<Scan, ScanFailure>,
+}
+
+/// A worker's result for one scan.
+struct Outcome {
+    seq: u64,
+    row: ScanRow,
+    diagram: Option<Diagram>,
+    descriptor: Option<crate::vectorize::codebook::Descriptor>,
+    times: StageTimes,
+}
+
+/// An ok scan, as the descriptors table needs it.
+type OkScan = (String, Option<i64>, Option<Pose>);
+
+/// What pass 1 leaves for the rest of the run.
+struct IndexedPass {
+    /// The codebook fitter, fed every diagram (when the codebook is fitted).
+    fitter: Option<CodebookFitter>,
+    /// Whether descriptors still have to be made (pass 2).
+    fitted: bool,
+    /// The ok scans of each staged diagrams file, in the order written.
+    ok_scans: Vec<(String, Vec<OkScan>)>,
+    /// Worker CPU time per stage.
+    stages: StageTimes,
+    /// CPU seconds of the source thread and of the writer.
+    read_secs: f64,
+    write_secs: f64,
+}
+
+/// Pass 1: sources → workers → ordered writer. Writes `scans` and `diagrams` (and
+/// `descriptors`, with a loaded codebook).
+fn index_scans(
+    p: &Pipeline,
+    describer: &Describer,
+    threads: usize,
+    show_progress: bool,
+    writer: &mut IndexWriter,
+    summary: &mut RunSummary,
+) -> Result<IndexedPass> {
+    let progress = Progress::new(show_progress, || p.sources.iter().map(|s| s.count_hint()).sum());
     let window = 4 * threads + 8;
     let (job_tx, job_rx) = bounded::<Job>(2 * threads);
     let (out_tx, out_rx) = bounded::<Outcome>(2 * threads);
     let (credit_tx, credit_rx) = bounded::<()>(window);
     (0..window).for_each(|_| credit_tx.send(()).expect("capacity"));
-    let mut descriptor_files: HashMap<String, crate::sinks::parquet::DescriptorsFile> = HashMap::new();
-    let mut stage = [0.0f64; 3];
-    let mut write_secs = 0.0;
+    let fitter = match &p.vectorize {
+        Vectorize::Fit(spec) => Some(CodebookFitter::new(spec.clone())),
+        Vectorize::Load(..) => None,
+    };
+    let mut ordered =
+        OrderedWriter::new(writer, summary, fitter, describer.codebook.as_ref(), &p.persistence.dims);
     let read_secs = std::thread::scope(|scope| -> Result<f64> {
-        let sources = &p.sources;
-        let reader = scope.spawn(move || {
-            let mut seq = 0u64;
-            let mut secs = 0.0;
-            'all: for (i, spec) in sources.iter().enumerate() {
-                let t = Instant::now();
-                let opened = spec.open();
-                secs += t.elapsed().as_secs_f64();
-                let mut stream = match opened {
-                    Ok(s) => s,
-                    Err(e) => {
-                        let failure = ScanFailure {
-                            id: format!("source[{i}]"),
-                            session: format!("source-{i}"),
-                            path: PathBuf::new(),
-                            message_index: None,
-                            utime: None,
-                            error: e.to_string(),
-                        };
-                        if credit_rx.recv().is_err() || job_tx.send(Job { seq, item: Err(failure) }).is_err()
-                        {
-                            break 'all;
-                        }
-                        seq += 1;
-                        continue;
-                    }
-                };
-                loop {
-                    let t = Instant::now();
-                    let Some(item) = stream.next() else { break };
-                    secs += t.elapsed().as_secs_f64();
-                    if credit_rx.recv().is_err() || job_tx.send(Job { seq, item }).is_err() {
-                        break 'all;
-                    }
-                    seq += 1;
-                }
-            }
-            secs
-        });
+        let reader = scope.spawn(|| read_sources(p, job_tx, credit_rx));
         for _ in 0..threads {
             let (rx, tx) = (job_rx.clone(), out_tx.clone());
             scope.spawn(move || {
                 for job in rx {
-                    if tx.send(process(job, p, loaded)).is_err() {
+                    if tx.send(describe(job, describer)).is_err() {
                         break;
                     }
                 }
             });
         }
         drop((job_rx, out_tx));
-        let mut pending: BTreeMap<u64, Outcome> = BTreeMap::new();
-        let mut next = 0u64;
         for outcome in out_rx {
-            pending.insert(outcome.seq, outcome);
-            while let Some(o) = pending.remove(&next) {
-                next += 1;
-                let t = Instant::now();
-                stage.iter_mut().zip(o.times).for_each(|(s, x)| *s += x);
-                account(&mut summary, &o.row);
-                progress.tick(&summary);
-                if let (Some(f), Some(d)) = (fitter.as_mut(), &o.diagram) {
-                    f.add(d);
-                }
-                if let (Some(cb), Some(d)) = (loaded, o.descriptor) {
-                    let session = o.row.session.clone();
-                    if !descriptor_files.contains_key(&session) {
-                        let f = writer.descriptors_file(&session, cb.len(), &cb.id())?;
-                        descriptor_files.insert(session.clone(), f);
-                    }
-                    let row = DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, &d);
-                    descriptor_files.get_mut(&session).expect("inserted").push(row)?;
-                }
-                writer.write_scan(o.row, o.diagram.as_ref(), &p.persistence.dims)?;
-                write_secs += t.elapsed().as_secs_f64();
-                // Tell the source one more scan may start.
+            let written = ordered.accept(outcome)?;
+            progress.tick(ordered.summary);
+            // Tell the source that many more scans may start.
+            for _ in 0..written {
                 let _ = credit_tx.send(());
             }
         }
         Ok(reader.join().expect("source thread"))
     })?;
-    writer.close_session()?;
-    for (session, f) in descriptor_files {
-        writer.finished("descriptors", &session, f.finish()?);
-    }
     progress.finish();
+    ordered.finish(read_secs)
+}
 
-    // The codebook: loaded, or fitted now on the diagrams seen (in input order).
-    let t = Instant::now();
-    let codebook = match (loaded, fitter) {
-        (Some(cb), _) => cb.clone(),
-        (None, Some(f)) => match f.finish() {
-            Ok(cb) => cb,
+/// The source thread: every source's scans in order, each waiting for a credit.
+fn read_sources(p: &Pipeline, jobs: Sender<Job>, credits: Receiver<()>) -> f64 {
+    let t = ThreadTime::now();
+    let mut seq = 0u64;
+    let mut send = |item| {
+        let ok = credits.recv().is_ok() && jobs.send(Job { seq, item }).is_ok();
+        seq += 1;
+        ok
+    };
+    'all: for (i, spec) in p.sources.iter().enumerate() {
+        let stream = match spec.open() {
+            Ok(s) => s,
             Err(e) => {
-                let err = anyhow::anyhow!(
-                    "no codebook could be fitted on this run's diagrams ({e}); no descriptors"
-                );
-                writer.abandon();
-                return Err(err.context(format!("{} scans read, {} indexed", summary.read, summary.indexed)));
+                let failure = ScanFailure {
+                    id: format!("source[{i}]"),
+                    session: format!("source-{i}"),
+                    path: PathBuf::new(),
+                    message_index: None,
+                    utime: None,
+                    error: e.to_string(),
+                };
+                if !send(Err(failure)) {
+                    break 'all;
+                }
+                continue;
             }
-        },
-        (None, None) => unreachable!("fit or load"),
-    };
-    let fit_secs = t.elapsed().as_secs_f64();
-
-    // Pass 2 (fitted codebook): descriptors from the staged diagrams.
-    let mut vectorize_secs = stage[2];
-    if loaded.is_none() {
-        let t = Instant::now();
-        vectorize_pass(&mut writer, &codebook, threads)?;
-        vectorize_secs += t.elapsed().as_secs_f64();
-    }
-    let t = Instant::now();
-    let manifest = manifest(&summary, &codebook, &writer);
-    let extra = [
-        ("codebook.json", (serde_json::to_string_pretty(&codebook.to_json())? + "\n").into_bytes()),
-        ("pipeline.toml", p.effective_toml().into_bytes()),
-        ("manifest.json", (serde_json::to_string_pretty(&manifest)? + "\n").into_bytes()),
-    ];
-    let replace_all = previous_codebook.as_deref() != Some(codebook.id().as_str());
-    writer.commit(&extra, replace_all)?;
-    write_secs += t.elapsed().as_secs_f64();
-
-    summary.codebook_id = codebook.id();
-    summary.descriptor_len = codebook.len();
-    summary.wall = start.elapsed();
-    summary.stages = BTreeMap::from([
-        ("read", read_secs),
-        ("preprocess", stage[0]),
-        ("persistence", stage[1]),
-        ("fit", fit_secs),
-        ("vectorize", vectorize_secs),
-        ("write", write_secs),
-    ]);
-    Ok(summary)
-}
-
-fn account(s: &mut RunSummary, row: &ScanRow) {
-    s.read += 1;
-    match row.status {
-        Status::Ok => s.indexed += 1,
-        Status::Skipped => *s.skipped.entry("too few points after preprocessing".into()).or_default() += 1,
-        Status::Error => {
-            s.errors += 1;
-            if s.first_errors.len() < 10 {
-                s.first_errors.push(row.error.clone().unwrap_or_default());
+        };
+        for item in stream {
+            if !send(item) {
+                break 'all;
             }
         }
     }
+    t.elapsed().as_secs_f64()
 }
 
-/// One scan through preprocess → persistence (→ vectorize); never panics.
-fn process(job: Job, p: &Pipeline, codebook: Option<&Codebook>) -> Outcome {
+/// A worker's step: one scan through the [`Describer`], as a `scans` row and its results.
+fn describe(job: Job, describer: &Describer) -> Outcome {
     let seq = job.seq;
-    let mut row = match &job.item {
-        Ok(s) => ScanRow {
-            scan_id: s.id.clone(),
-            session: s.session.clone(),
-            seq,
-            source_path: s.path.display().to_string(),
-            message_index: s.message_index,
-            utime: Some(s.utime),
-            pose: s.pose,
-            raw_points: s.raw_points as u64,
-            kept_points: 0,
-            status: Status::Ok,
-            error: None,
-        },
-        Err(f) => ScanRow {
-            scan_id: f.id.clone(),
-            session: f.session.clone(),
-            seq,
-            source_path: f.path.display().to_string(),
-            message_index: f.message_index,
-            utime: f.utime,
-            pose: None,
-            raw_points: 0,
-            kept_points: 0,
-            status: Status::Error,
-            error: Some(f.error.clone()),
-        },
+    let scan = match job.item {
+        Ok(scan) => scan,
+        Err(f) => {
+            let row = ScanRow {
+                scan_id: f.id,
+                session: f.session,
+                seq,
+                source_path: f.path.display().to_string(),
+                message_index: f.message_index,
+                utime: f.utime,
+                pose: None,
+                raw_points: 0,
+                kept_points: 0,
+                status: Status::Error,
+                error: Some(f.error),
+            };
+            return Outcome { seq, row, diagram: None, descriptor: None, times: StageTimes::default() };
+        }
     };
-    let mut outcome = Outcome { seq, row: row.clone(), diagram: None, descriptor: None, times: [0.0; 3] };
-    let Ok(scan) = job.item else { return outcome };
-    let label = format!("{}: scan {}", scan.path.display(), scan.id);
-    let work = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        let mut times = [0.0; 3];
-        let t = Instant::now();
-        let points = preprocess(scan.points, &scan.id, &p.preprocess);
-        times[0] = t.elapsed().as_secs_f64();
-        let points = match points {
-            Ok(points) => points,
-            Err(Skip(reason)) => return (Err((Status::Skipped, reason)), 0, None, None, times),
-        };
-        let kept = points.len() as u64;
-        let t = Instant::now();
-        let diagram =
-            alpha_persistence(&points).map(|d| if p.persistence.squared { d } else { d.to_radii() });
-        times[1] = t.elapsed().as_secs_f64();
-        let diagram = match diagram {
-            Ok(d) => d,
-            Err(e) => return (Err((Status::Error, format!("{label}: {e}"))), kept, None, None, times),
-        };
-        let t = Instant::now();
-        let descriptor = codebook.map(|cb| cb.vectorize(&diagram));
-        times[2] = t.elapsed().as_secs_f64();
-        (Ok(()), kept, Some(diagram), descriptor, times)
-    }));
-    match work {
-        Ok((status, kept, diagram, descriptor, times)) => {
-            row.kept_points = kept;
-            if let Err((s, reason)) = status {
-                row.status = s;
-                row.error = Some(reason);
-            }
-            outcome = Outcome { seq, row, diagram, descriptor, times };
+    let mut row = ScanRow {
+        scan_id: scan.id.clone(),
+        session: scan.session.clone(),
+        seq,
+        source_path: scan.path.display().to_string(),
+        message_index: scan.message_index,
+        utime: Some(scan.utime),
+        pose: scan.pose,
+        raw_points: scan.raw_points as u64,
+        kept_points: 0,
+        status: Status::Ok,
+        error: None,
+    };
+    let d = describer.describe(scan);
+    row.kept_points = d.kept_points as u64;
+    let (diagram, descriptor) = match d.outcome {
+        Ok(x) => (Some(x.diagram), x.descriptor),
+        Err(e) => {
+            row.status = if matches!(e, DescribeError::Skipped(_)) { Status::Skipped } else { Status::Error };
+            row.error = Some(e.to_string());
+            (None, None)
         }
-        Err(panic) => {
-            let msg = panic
-                .downcast_ref::<String>()
-                .cloned()
-                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()));
-            row.status = Status::Error;
-            row.error = Some(format!("{label}: internal error: {}", msg.unwrap_or_default()));
-            outcome.row = row;
-        }
-    }
-    outcome
+    };
+    Outcome { seq, row, diagram, descriptor, times: d.times }
 }
 
-/// Pass 2: streams each session's staged scans + diagrams, vectorizes in parallel batches,
-/// writes descriptors in order.
-fn vectorize_pass(writer: &mut IndexWriter, codebook: &Codebook, threads: usize) -> Result<()> {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
-    let id = codebook.id();
-    let scans = writer.files("scans");
-    let diagrams = writer.files("diagrams");
-    for (s, d) in scans.iter().zip(&diagrams) {
-        anyhow::ensure!(s.session == d.session, "staged files out of step");
-        let mut file = writer.descriptors_file(&s.session, codebook.len(), &id)?;
-        let mut groups = index::diagrams(&d.path)?.peekable();
-        let ok = index::ok_scans(&s.path)?;
+/// The writer's side of pass 1: puts outcomes back in input order and writes them.
+struct OrderedWriter<'a> {
+    writer: &'a mut IndexWriter,
+    summary: &'a mut RunSummary,
+    fitter: Option<CodebookFitter>,
+    codebook: Option<&'a Codebook>,
+    dims: &'a [u8],
+    pending: BTreeMap<u64, Outcome>,
+    next: u64,
+    descriptor_files: HashMap<String, DescriptorsFile>,
+    ok_scans: Vec<(String, Vec<OkScan>)>,
+    stages: StageTimes,
+    write_secs: f64,
+}
+
+impl<'a> OrderedWriter<'a> {
+    fn new(
+        writer: &'a mut IndexWriter,
+        summary: &'a mut RunSummary,
+        fitter: Option<CodebookFitter>,
+        codebook: Option<&'a Codebook>,
+        dims: &'a [u8],
+    ) -> Self {
+        OrderedWriter {
+            writer,
+            summary,
+            fitter,
+            codebook,
+            dims,
+            pending: BTreeMap::new(),
+            next: 0,
+            descriptor_files: HashMap::new(),
+            ok_scans: Vec::new(),
+            stages: StageTimes::default(),
+            write_secs: 0.0,
+        }
+    }
+
+    /// Takes one outcome; writes every outcome now in order. Returns how many were written.
+    fn accept(&mut self, outcome: Outcome) -> Result<usize> {
+        self.pending.insert(outcome.seq, outcome);
+        let mut written = 0;
+        while let Some(o) = self.pending.remove(&self.next) {
+            self.next += 1;
+            written += 1;
+            let t = ThreadTime::now();
+            self.write(o)?;
+            self.write_secs += t.elapsed().as_secs_f64();
+        }
+        Ok(written)
+    }
+
+    fn write(&mut self, o: Outcome) -> Result<()> {
+        self.stages += o.times;
+        self.summary.count(&o.row);
+        // A new staged part starts where the session changes (as in IndexWriter::write_scan).
+        if self.ok_scans.last().is_none_or(|(s, _)| *s != o.row.session) {
+            self.ok_scans.push((o.row.session.clone(), Vec::new()));
+        }
+        if let (Some(f), Some(d)) = (self.fitter.as_mut(), &o.diagram) {
+            f.add(d);
+        }
+        if o.row.status == Status::Ok {
+            let group = &mut self.ok_scans.last_mut().expect("pushed above").1;
+            group.push((o.row.scan_id.clone(), o.row.utime, o.row.pose));
+        }
+        if let (Some(cb), Some(d)) = (self.codebook, &o.descriptor) {
+            let session = &o.row.session;
+            if !self.descriptor_files.contains_key(session) {
+                let f = self.writer.descriptors_file(session, cb)?;
+                self.descriptor_files.insert(session.clone(), f);
+            }
+            let row = DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, d);
+            self.descriptor_files.get_mut(session).expect("inserted").push(row)?;
+        }
+        self.writer.write_scan(o.row, o.diagram.as_ref(), self.dims)
+    }
+
+    /// Closes the files of pass 1.
+    fn finish(self, read_secs: f64) -> Result<IndexedPass> {
+        let t = ThreadTime::now();
+        self.writer.close_session()?;
+        let mut files: Vec<DescriptorsFile> = self.descriptor_files.into_values().collect();
+        files.sort_by(|a, b| a.session().cmp(b.session()));
+        for f in files {
+            self.writer.finish_descriptors(f)?;
+        }
+        Ok(IndexedPass {
+            fitted: self.fitter.is_some(),
+            fitter: self.fitter,
+            ok_scans: self.ok_scans,
+            stages: self.stages,
+            read_secs,
+            write_secs: self.write_secs + t.elapsed().as_secs_f64(),
+        })
+    }
+}
+
+/// Pass 2 (a codebook fitted on this run): streams each staged diagrams file back,
+/// vectorizes in parallel batches and writes the descriptors in order. Returns the CPU seconds
+/// spent vectorizing and reading back (decoding and writing included).
+fn vectorize_pass(
+    writer: &mut IndexWriter,
+    codebook: &Codebook,
+    ok_scans: &[(String, Vec<OkScan>)],
+    threads: usize,
+) -> Result<(f64, f64)> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::invalid(format!("starting {threads} threads: {e}")))?;
+    let staged = writer.staged_diagrams();
+    let t = ThreadTime::now();
+    let mut vectorize_secs = 0.0;
+    for ((session, path), (ok_session, ok)) in staged.iter().zip(ok_scans) {
+        assert_eq!(session, ok_session, "staged files in step with the scans written");
+        let mut file = writer.descriptors_file(session, codebook)?;
+        let mut groups = diagrams(path)?.peekable();
         // Small batches: each holds its diagrams in memory.
         for chunk in ok.chunks(64) {
             let mut batch = Vec::with_capacity(chunk.len());
@@ -391,96 +509,23 @@ fn vectorize_pass(writer: &mut IndexWriter, codebook: &Codebook, threads: usize)
                 };
                 batch.push((scan_id, *utime, *pose, diagram));
             }
-            let rows: Vec<DescriptorRow> = pool.install(|| {
+            let rows: Vec<(DescriptorRow, f64)> = pool.install(|| {
                 batch
                     .par_iter()
                     .map(|(scan_id, utime, pose, diagram)| {
-                        DescriptorRow::new(scan_id.to_string(), *utime, *pose, &codebook.vectorize(diagram))
+                        let t = ThreadTime::now();
+                        let d = codebook.vectorize(diagram);
+                        let secs = t.elapsed().as_secs_f64();
+                        (DescriptorRow::new(scan_id.to_string(), *utime, *pose, &d), secs)
                     })
                     .collect()
             });
-            for r in rows {
+            for (r, secs) in rows {
+                vectorize_secs += secs;
                 file.push(r)?;
             }
         }
-        let finished = file.finish().with_context(|| format!("descriptors of session {}", s.session))?;
-        writer.finished("descriptors", &s.session, finished);
+        writer.finish_descriptors(file)?;
     }
-    Ok(())
-}
-
-fn manifest(s: &RunSummary, codebook: &Codebook, writer: &IndexWriter) -> serde_json::Value {
-    let files: Vec<serde_json::Value> = writer
-        .written
-        .iter()
-        .map(|w| {
-            let name = w.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            serde_json::json!({
-                "table": w.table,
-                "session": w.session,
-                "path": format!("{}/{}/{name}", w.table, index::partition(&w.session)),
-                "rows": w.rows,
-            })
-        })
-        .collect();
-    serde_json::json!({
-        "toporec_version": env!("CARGO_PKG_VERSION"),
-        "schema_version": crate::sinks::schema::SCHEMA_VERSION,
-        "codebook_id": codebook.id(),
-        "descriptor_length": codebook.len(),
-        "scans": {"read": s.read, "indexed": s.indexed, "skipped": s.skipped.values().sum::<u64>(), "errors": s.errors},
-        "files": files,
-    })
-}
-
-/// Progress: an indicatif spinner on a terminal, a log line every 10 s otherwise.
-struct Progress {
-    bar: Option<indicatif::ProgressBar>,
-    start: Instant,
-    last: std::cell::Cell<Instant>,
-    enabled: bool,
-}
-
-impl Progress {
-    /// `total`: the number of scans when the sources can tell cheaply (a bar with ETA),
-    /// else a spinner.
-    fn new(enabled: bool, total: impl FnOnce() -> Option<u64>) -> Self {
-        use std::io::IsTerminal;
-        let bar = (enabled && std::io::stderr().is_terminal()).then(|| {
-            let (b, template) = match total() {
-                Some(n) => (
-                    indicatif::ProgressBar::new(n),
-                    "{elapsed_precise} [{bar:30}] {pos}/{len} scans ({per_sec}, ETA {eta}) {msg}",
-                ),
-                None => (
-                    indicatif::ProgressBar::new_spinner(),
-                    "{spinner} {elapsed_precise} {pos} scans ({per_sec}) {msg}",
-                ),
-            };
-            b.set_style(indicatif::ProgressStyle::with_template(template).expect("template"));
-            b.enable_steady_tick(Duration::from_millis(200));
-            b
-        });
-        Progress { bar, start: Instant::now(), last: std::cell::Cell::new(Instant::now()), enabled }
-    }
-
-    fn tick(&self, s: &RunSummary) {
-        if let Some(b) = &self.bar {
-            b.set_position(s.read);
-            b.set_message(format!("{} indexed, {} errors", s.indexed, s.errors));
-        } else if self.enabled && self.last.get().elapsed() >= Duration::from_secs(10) {
-            self.last.set(Instant::now());
-            let rate = s.read as f64 / self.start.elapsed().as_secs_f64();
-            eprintln!(
-                "toporec: {} scans read, {} indexed, {} errors, {rate:.1} scans/s",
-                s.read, s.indexed, s.errors
-            );
-        }
-    }
-
-    fn finish(&self) {
-        if let Some(b) = &self.bar {
-            b.finish_and_clear();
-        }
-    }
+    Ok((vectorize_secs, t.elapsed().as_secs_f64()))
 }

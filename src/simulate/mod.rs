@@ -9,9 +9,9 @@
 
 pub mod scene;
 
+use crate::error::{Error, Result, ResultExt};
 use crate::rng::SplitMix64;
 use crate::sources::pointcloud2::{self, Encoding, PointCloud2, PointField, datatype};
-use anyhow::{Context, Result};
 use rayon::prelude::*;
 use scene::{Scene, TownParams};
 use std::path::{Path, PathBuf};
@@ -143,6 +143,102 @@ impl Default for SimParams {
             lane_offset: 1.5,
             heading_noise: 1.5,
         }
+    }
+}
+
+/// Arguments of `toporec simulate`.
+#[derive(clap::Args, Debug)]
+pub struct SimulateArgs {
+    /// Output folder.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Formats to write.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "nclt")]
+    pub format: Vec<Format>,
+    /// Sessions (days) driving the same loop.
+    #[arg(long, default_value_t = 2)]
+    pub sessions: usize,
+    /// Seed of the town, routes and noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Scans per session (default: one loop).
+    #[arg(long)]
+    pub scans: Option<usize>,
+    /// Sensor model.
+    #[arg(long, value_enum, default_value = "hdl32")]
+    pub sensor: SensorModel,
+    /// Azimuth resolution (degrees).
+    #[arg(long, default_value_t = 0.2)]
+    pub azimuth_res: f64,
+    /// Driving speed (m/s).
+    #[arg(long, default_value_t = 10.0)]
+    pub speed: f64,
+    /// Scan rate (Hz).
+    #[arg(long, default_value_t = 10.0)]
+    pub rate: f64,
+    /// Blocks per side of the town.
+    #[arg(long, default_value_t = 3)]
+    pub blocks: usize,
+    /// Street spacing (m).
+    #[arg(long, default_value_t = 60.0)]
+    pub block_size: f64,
+    /// Ground slope along x and y (dz/dx,dz/dy).
+    #[arg(long, value_delimiter = ',', default_value = "0,0")]
+    pub slope: Vec<f64>,
+    /// Odd sessions drive the loop in the opposite direction.
+    #[arg(long)]
+    pub reverse: bool,
+    /// Probability that a return is lost.
+    #[arg(long, default_value_t = 0.08)]
+    pub dropout: f64,
+    /// Maximum range (m).
+    #[arg(long, default_value_t = 100.0)]
+    pub max_range: f64,
+    /// Range noise σ (m).
+    #[arg(long, default_value_t = 0.02)]
+    pub range_noise: f64,
+    /// Sensor height above the ground (m).
+    #[arg(long, default_value_t = 1.9)]
+    pub height: f64,
+    /// Worker threads (default: all cores).
+    #[arg(long, short)]
+    pub threads: Option<usize>,
+}
+
+impl SimulateArgs {
+    /// The simulation these arguments ask for, checked.
+    pub fn params(&self) -> Result<SimParams> {
+        let a = self;
+        if a.slope.len() != 2 {
+            return Err(Error::invalid("--slope: expected two numbers dz/dx,dz/dy"));
+        }
+        if a.blocks == 0 || a.block_size <= 20.0 || a.rate <= 0.0 || a.speed <= 0.0 || a.azimuth_res <= 0.0 {
+            return Err(Error::invalid(
+                "simulate: need blocks >= 1, block size > 20 m, and positive rate, speed and azimuth resolution",
+            ));
+        }
+        let mut sensor = Sensor::new(a.sensor);
+        sensor.azimuth_res = a.azimuth_res;
+        sensor.dropout = a.dropout;
+        sensor.max_range = a.max_range;
+        sensor.range_noise = a.range_noise;
+        sensor.height = a.height;
+        Ok(SimParams {
+            town: TownParams {
+                blocks: a.blocks,
+                block_size: a.block_size,
+                slope: [a.slope[0], a.slope[1]],
+                ..TownParams::default()
+            },
+            sensor,
+            sessions: a.sessions,
+            seed: a.seed,
+            scans: a.scans,
+            speed: a.speed,
+            rate: a.rate,
+            reverse: a.reverse,
+            ..SimParams::default()
+        })
     }
 }
 
@@ -341,7 +437,7 @@ impl NcltWriter {
     fn new(out: &Path, session: usize) -> Result<Self> {
         let name = session_name(session);
         let dir = out.join("velodyne_data").join(&name).join("velodyne_sync");
-        std::fs::create_dir_all(&dir).with_context(|| format!("{}: creating", dir.display()))?;
+        std::fs::create_dir_all(&dir).at(&dir)?;
         let gt_path = out.join("ground_truth").join(format!("groundtruth_{name}.csv"));
         Ok(NcltWriter { dir, gt_path, gt: String::new() })
     }
@@ -371,8 +467,7 @@ impl SessionWriter for NcltWriter {
 /// `mcap/groundtruth_<date>.csv`.
 struct McapWriter {
     path: PathBuf,
-    tmp: PathBuf,
-    writer: ::mcap::Writer<std::io::BufWriter<std::fs::File>>,
+    writer: ::mcap::Writer<crate::fsutil::AtomicFile>,
     channel: u16,
     gt_path: PathBuf,
     gt: String,
@@ -384,20 +479,20 @@ impl McapWriter {
     fn new(out: &Path, session: usize) -> Result<Self> {
         let name = session_name(session);
         let dir = out.join("mcap");
-        std::fs::create_dir_all(&dir)?;
         let path = dir.join(format!("{name}.mcap"));
-        let tmp = crate::fsutil::temp_path(&path);
-        let file = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let file = crate::fsutil::AtomicFile::create(&path)?;
         let mut writer = ::mcap::WriteOptions::new()
             .compression(Some(::mcap::Compression::Zstd))
             .profile("ros2")
             .library("toporec-simulate")
-            .create(file)?;
-        let schema =
-            writer.add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSG.as_bytes())?;
-        let channel = writer.add_channel(schema, "/velodyne_points", "cdr", &Default::default())?;
+            .create(file)
+            .at(&path)?;
+        let schema = writer
+            .add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSG.as_bytes())
+            .at(&path)?;
+        let channel = writer.add_channel(schema, "/velodyne_points", "cdr", &Default::default()).at(&path)?;
         let gt_path = dir.join(format!("groundtruth_{name}.csv"));
-        Ok(McapWriter { path, tmp, writer, channel, gt_path, gt: String::new() })
+        Ok(McapWriter { path, writer, channel, gt_path, gt: String::new() })
     }
 }
 
@@ -436,15 +531,14 @@ impl SessionWriter for McapWriter {
             log_time: t,
             publish_time: t,
         };
-        self.writer.write_to_known_channel(&header, &bytes)?;
+        self.writer.write_to_known_channel(&header, &bytes).at(&self.path)?;
         self.gt += &ground_truth_row(s);
         Ok(())
     }
 
     fn finish(mut self: Box<Self>) -> Result<()> {
-        self.writer.finish()?;
-        drop(self.writer);
-        std::fs::rename(&self.tmp, &self.path)?;
+        self.writer.finish().at(&self.path)?;
+        self.writer.into_inner().commit()?;
         crate::fsutil::write_atomic(&self.gt_path, self.gt.as_bytes())
     }
 }
@@ -461,7 +555,7 @@ struct KittiWriter {
 impl KittiWriter {
     fn new(out: &Path, session: usize, rate: f64) -> Result<Self> {
         let dir = out.join("kitti").join("sequences").join(format!("{session:02}"));
-        std::fs::create_dir_all(dir.join("velodyne"))?;
+        std::fs::create_dir_all(dir.join("velodyne")).at(&dir.join("velodyne"))?;
         Ok(KittiWriter { dir, rate, times: String::new(), poses: String::new() })
     }
 }

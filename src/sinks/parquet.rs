@@ -3,10 +3,11 @@
 //! as Arrow record batches.
 
 use super::schema::{self, Table};
+use crate::error::{Error, Result, ResultExt};
+use crate::fsutil::AtomicFile;
 use crate::homology::Diagram;
-use crate::sources::Pose;
+use crate::types::Pose;
 use crate::vectorize::codebook::Descriptor;
-use anyhow::{Context, Result};
 use arrow::array::{
     ArrayRef, FixedSizeListBuilder, Float32Builder, Float64Builder, Int64Builder, RecordBatch, StringBuilder,
     UInt8Builder, UInt64Builder,
@@ -33,6 +34,11 @@ pub enum Status {
 }
 
 impl Status {
+    /// The status a `status` column value names.
+    pub fn parse(s: &str) -> Option<Status> {
+        [Status::Ok, Status::Skipped, Status::Error].into_iter().find(|x| x.as_str() == s)
+    }
+
     /// The value in the `status` column.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -105,10 +111,11 @@ fn properties(schema: &Schema) -> WriterProperties {
         .build()
 }
 
-/// One Parquet file being written.
+/// One Parquet file being written (atomically: it appears under its name only once
+/// complete, footer included).
 pub struct TableFile {
     path: PathBuf,
-    writer: ArrowWriter<std::fs::File>,
+    writer: ArrowWriter<AtomicFile>,
     schema: Arc<Schema>,
     rows: u64,
 }
@@ -116,25 +123,22 @@ pub struct TableFile {
 impl TableFile {
     /// Creates `path` (its folder too) for `table`.
     pub fn create(path: &Path, table: &Table, extra_meta: &[(&str, String)]) -> Result<Self> {
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).with_context(|| format!("{}: creating folder", dir.display()))?;
-        }
         let schema = table.arrow_schema(extra_meta);
-        let file = std::fs::File::create(path).with_context(|| format!("{}: creating", path.display()))?;
-        let writer = ArrowWriter::try_new(file, schema.clone(), Some(properties(&schema)))?;
+        let file = AtomicFile::create(path)?;
+        let writer = ArrowWriter::try_new(file, schema.clone(), Some(properties(&schema))).at(path)?;
         Ok(TableFile { path: path.to_owned(), writer, schema, rows: 0 })
     }
 
     fn write(&mut self, columns: Vec<ArrayRef>) -> Result<()> {
-        let batch = RecordBatch::try_new(self.schema.clone(), columns)?;
+        let batch = RecordBatch::try_new(self.schema.clone(), columns).at(&self.path)?;
         self.rows += batch.num_rows() as u64;
-        self.writer.write(&batch).with_context(|| format!("{}: writing", self.path.display()))
+        self.writer.write(&batch).at(&self.path)
     }
 
-    /// Closes the file (footer written); returns its path and row count.
+    /// Closes the file (footer written) and puts it in place; returns its path and row count.
     pub fn finish(self) -> Result<(PathBuf, u64)> {
-        self.writer.close().with_context(|| format!("{}: closing", self.path.display()))?;
-        Ok((self.path, self.rows))
+        let file = self.writer.into_inner().at(&self.path)?;
+        Ok((file.commit()?, self.rows))
     }
 }
 
@@ -265,31 +269,39 @@ impl DiagramsFile {
 /// Writer of one `descriptors` file.
 pub struct DescriptorsFile {
     file: TableFile,
+    session: String,
     b: usize,
     codebook_id: String,
     rows: Vec<DescriptorRow>,
 }
 
 impl DescriptorsFile {
-    /// Creates the file for descriptors of length `b` made with codebook `codebook_id`.
-    pub fn create(path: &Path, b: usize, codebook_id: &str) -> Result<Self> {
+    /// Creates the file for descriptors of `session`, of length `b`, made with codebook
+    /// `codebook_id`.
+    pub fn create(path: &Path, session: &str, b: usize, codebook_id: &str) -> Result<Self> {
         let meta = [(schema::meta::CODEBOOK_ID, codebook_id.to_string())];
         Ok(DescriptorsFile {
             file: TableFile::create(path, &schema::descriptors(b), &meta)?,
+            session: session.to_string(),
             b,
             codebook_id: codebook_id.to_string(),
             rows: Vec::new(),
         })
     }
 
+    /// The session of its rows.
+    pub fn session(&self) -> &str {
+        &self.session
+    }
+
     /// Adds a row.
     pub fn push(&mut self, row: DescriptorRow) -> Result<()> {
-        anyhow::ensure!(
-            row.values.len() == self.b,
-            "descriptor of length {} in a table of length {}",
-            row.values.len(),
-            self.b
-        );
+        if row.values.len() != self.b {
+            return Err(Error::table(
+                &self.file.path,
+                format!("descriptor of length {} in a table of length {}", row.values.len(), self.b),
+            ));
+        }
         self.rows.push(row);
         if self.rows.len() >= BATCH_ROWS / 4 { self.flush() } else { Ok(()) }
     }

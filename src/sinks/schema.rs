@@ -21,6 +21,60 @@ pub mod meta {
     pub const CODEBOOK_ID: &str = "toporec.codebook_id";
 }
 
+/// Column names, the one place they are spelled (writers and readers use these).
+pub mod columns {
+    /// The scan's id (every table).
+    pub const SCAN_ID: &str = "scan_id";
+    /// Position in the run's input order (`scans`).
+    pub const SEQ: &str = "seq";
+    /// The scan's file (`scans`).
+    pub const SOURCE_PATH: &str = "source_path";
+    /// MCAP message index (`scans`).
+    pub const MESSAGE_INDEX: &str = "message_index";
+    /// Timestamp, µs (`scans`, `descriptors`).
+    pub const UTIME: &str = "utime";
+    /// Pose x (`scans`, `descriptors`).
+    pub const POSE_X: &str = "pose_x";
+    /// Pose y.
+    pub const POSE_Y: &str = "pose_y";
+    /// Pose z.
+    pub const POSE_Z: &str = "pose_z";
+    /// Pose heading (`scans`).
+    pub const POSE_YAW: &str = "pose_yaw";
+    /// Points in the record (`scans`).
+    pub const RAW_POINTS: &str = "raw_points";
+    /// Points after preprocessing (`scans`).
+    pub const KEPT_POINTS: &str = "kept_points";
+    /// ok | skipped | error (`scans`).
+    pub const STATUS: &str = "status";
+    /// Why skipped or failed (`scans`).
+    pub const ERROR: &str = "error";
+    /// Homology dimension (`diagrams`).
+    pub const DIM: &str = "dim";
+    /// Birth (`diagrams`).
+    pub const BIRTH: &str = "birth";
+    /// Death (`diagrams`).
+    pub const DEATH: &str = "death";
+    /// Paper rule's dimension (`descriptors`).
+    pub const DIM_USED: &str = "dim_used";
+    /// The vector (`descriptors`).
+    pub const DESCRIPTOR: &str = "descriptor";
+    /// Codebook id (`descriptors`).
+    pub const CODEBOOK_ID: &str = "codebook_id";
+}
+
+/// Table names (folders under the index).
+pub mod tables {
+    /// One row per scan read.
+    pub const SCANS: &str = "scans";
+    /// One row per persistence pair.
+    pub const DIAGRAMS: &str = "diagrams";
+    /// One row per ok scan.
+    pub const DESCRIPTORS: &str = "descriptors";
+    /// All three, in the order a run writes them.
+    pub const ALL: [&str; 3] = [SCANS, DIAGRAMS, DESCRIPTORS];
+}
+
 /// One column.
 pub struct Column {
     /// Name.
@@ -50,33 +104,34 @@ fn col(name: &'static str, data_type: DataType, nullable: bool, doc: &'static st
 /// `scans`: one row per scan read (ok, skipped or error).
 pub fn scans() -> Table {
     use DataType::*;
+    use columns as C;
     Table {
-        name: "scans",
+        name: tables::SCANS,
         doc: "One row per scan read, whatever happened to it.",
         columns: vec![
             col(
-                "scan_id",
+                C::SCAN_ID,
                 Utf8,
                 false,
                 "stable id: <session>/<utime> (NCLT), <session>/<frame> (KITTI), <session>/<index> (MCAP)",
             ),
-            col("seq", UInt64, false, "position in the run's input order"),
-            col("source_path", Utf8, false, "file the scan came from"),
-            col("message_index", UInt64, true, "MCAP: index of the message among the topic's point clouds"),
+            col(C::SEQ, UInt64, false, "position in the run's input order"),
+            col(C::SOURCE_PATH, Utf8, false, "file the scan came from"),
+            col(C::MESSAGE_INDEX, UInt64, true, "MCAP: index of the message among the topic's point clouds"),
             col(
-                "utime",
+                C::UTIME,
                 Int64,
                 true,
                 "timestamp, microseconds since the Unix epoch (KITTI: since the sequence start)",
             ),
-            col("pose_x", Float64, true, "ground-truth position x (m, z-up world frame of the source)"),
-            col("pose_y", Float64, true, "ground-truth position y (m)"),
-            col("pose_z", Float64, true, "ground-truth position z (m)"),
-            col("pose_yaw", Float64, true, "ground-truth heading about z (rad)"),
-            col("raw_points", UInt64, false, "points in the record, before dropping NaN/zero points"),
-            col("kept_points", UInt64, false, "points after preprocessing (the alpha complex's input)"),
-            col("status", Utf8, false, "ok | skipped | error"),
-            col("error", Utf8, true, "why the scan was skipped or failed (names the file and message/line)"),
+            col(C::POSE_X, Float64, true, "ground-truth position x (m, z-up world frame of the source)"),
+            col(C::POSE_Y, Float64, true, "ground-truth position y (m)"),
+            col(C::POSE_Z, Float64, true, "ground-truth position z (m)"),
+            col(C::POSE_YAW, Float64, true, "ground-truth heading about z (rad)"),
+            col(C::RAW_POINTS, UInt64, false, "points in the record, before dropping NaN/zero points"),
+            col(C::KEPT_POINTS, UInt64, false, "points after preprocessing (the alpha complex's input)"),
+            col(C::STATUS, Utf8, false, "ok | skipped | error"),
+            col(C::ERROR, Utf8, true, "why the scan was skipped or failed (names the file and message/line)"),
         ],
     }
 }
@@ -84,14 +139,15 @@ pub fn scans() -> Table {
 /// `diagrams`: one row per persistence pair.
 pub fn diagrams() -> Table {
     use DataType::*;
+    use columns as C;
     Table {
-        name: "diagrams",
+        name: tables::DIAGRAMS,
         doc: "One row per persistence pair of an ok scan (zero-length pairs dropped, as GUDHI).",
         columns: vec![
-            col("scan_id", Utf8, false, "the scan"),
-            col("dim", UInt8, false, "homology dimension 0, 1 or 2"),
-            col("birth", Float64, false, "birth (squared radius unless persistence.squared = false)"),
-            col("death", Float64, false, "death; +inf for the essential H0 class"),
+            col(C::SCAN_ID, Utf8, false, "the scan"),
+            col(C::DIM, UInt8, false, "homology dimension 0, 1 or 2"),
+            col(C::BIRTH, Float64, false, "birth (squared radius unless persistence.squared = false)"),
+            col(C::DEATH, Float64, false, "death; +inf for the essential H0 class"),
         ],
     }
 }
@@ -99,24 +155,25 @@ pub fn diagrams() -> Table {
 /// `descriptors`: one row per ok scan; `b` is the descriptor length.
 pub fn descriptors(b: usize) -> Table {
     use DataType::*;
+    use columns as C;
     let item = Arc::new(Field::new("item", Float32, false));
     Table {
-        name: "descriptors",
+        name: tables::DESCRIPTORS,
         doc: "One ATOL descriptor per ok scan.",
         columns: vec![
-            col("scan_id", Utf8, false, "the scan"),
-            col("utime", Int64, true, "timestamp (µs)"),
-            col("pose_x", Float64, true, "ground-truth x (m)"),
-            col("pose_y", Float64, true, "ground-truth y (m)"),
-            col("pose_z", Float64, true, "ground-truth z (m)"),
+            col(C::SCAN_ID, Utf8, false, "the scan"),
+            col(C::UTIME, Int64, true, "timestamp (µs)"),
+            col(C::POSE_X, Float64, true, "ground-truth x (m)"),
+            col(C::POSE_Y, Float64, true, "ground-truth y (m)"),
+            col(C::POSE_Z, Float64, true, "ground-truth z (m)"),
             col(
-                "dim_used",
+                C::DIM_USED,
                 UInt8,
                 true,
                 "paper rule: the diagram dimension vectorized (null with concatenated dims)",
             ),
-            col("descriptor", FixedSizeList(item, b as i32), false, "the ATOL vector (length b, float32)"),
-            col("codebook_id", Utf8, false, "id of codebook.json it was made with"),
+            col(C::DESCRIPTOR, FixedSizeList(item, b as i32), false, "the ATOL vector (length b, float32)"),
+            col(C::CODEBOOK_ID, Utf8, false, "id of codebook.json it was made with"),
         ],
     }
 }

@@ -2,7 +2,7 @@
 //! then one point per line.
 
 use super::SourceError;
-use crate::homology::Point;
+use crate::types::Point;
 use std::path::Path;
 
 /// Parses a CSV cloud.

@@ -4,7 +4,7 @@
 //! frame 0). Poses are exposed z up: `(t_z, −t_x, −t_y)` (forward, left, up).
 
 use super::{Pose, Scan, ScanFailure, ScanStream, SourceError};
-use crate::homology::Point;
+use crate::types::Point;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 

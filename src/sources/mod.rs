@@ -9,6 +9,7 @@
 //! hence diagrams — are unchanged).
 
 pub mod csv;
+pub mod detect;
 pub mod groundtruth;
 pub mod kitti;
 pub mod mcap;
@@ -16,21 +17,12 @@ pub mod mcap_reader;
 pub mod nclt;
 pub mod pointcloud2;
 
-use crate::homology::Point;
+pub use detect::{CloudFormat, InputKind};
+
+use crate::types::Point;
 use std::path::{Path, PathBuf};
 
-/// A pose in the source's world frame (metres, z up; see each source for its frame).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pose {
-    /// x (metres).
-    pub x: f64,
-    /// y (metres).
-    pub y: f64,
-    /// z (metres).
-    pub z: f64,
-    /// Heading about z (radians), when known (0 otherwise).
-    pub yaw: f64,
-}
+pub use crate::types::Pose;
 
 /// One LiDAR scan as a source yields it.
 #[derive(Clone, Debug, PartialEq)]
@@ -258,37 +250,17 @@ pub(crate) fn drop_invalid(
     }
 }
 
-/// A single-cloud file format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum CloudFormat {
-    /// CSV with a header naming columns `x`, `y`, `z`.
-    Csv,
-    /// KITTI `.bin`: float32 x, y, z, reflectance.
-    Kitti,
-    /// NCLT `velodyne_sync` `.bin`: 8-byte records.
-    Nclt,
-}
-
-impl CloudFormat {
-    /// Guesses the format from the path: `.csv`; `.bin` under a `velodyne_sync` folder is
-    /// NCLT, any other `.bin` KITTI.
-    pub fn detect(path: &Path) -> Option<Self> {
-        match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
-            "csv" => Some(CloudFormat::Csv),
-            "bin" => {
-                let parent = path.parent().and_then(|p| p.file_name()).and_then(|n| n.to_str());
-                Some(if parent == Some("velodyne_sync") { CloudFormat::Nclt } else { CloudFormat::Kitti })
-            }
-            _ => None,
-        }
-    }
-}
-
 /// Reads one cloud from `path` in `format` (detected from the path if `None`).
 pub fn read_cloud(path: &Path, format: Option<CloudFormat>) -> Result<Vec<Point>, SourceError> {
-    let format = format
-        .or_else(|| CloudFormat::detect(path))
-        .ok_or_else(|| SourceError::UnknownFormat { path: path.to_owned() })?;
+    let format = match format {
+        Some(f) => f,
+        None => match InputKind::detect(path)? {
+            InputKind::Cloud(f) => f,
+            kind => {
+                return Err(SourceError::invalid(path, format!("a {}, not a single cloud file", kind.name())));
+            }
+        },
+    };
     let bytes = std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
     let points = match format {
         CloudFormat::Csv => csv::parse_xyz(&bytes, path)?,

@@ -5,7 +5,7 @@
 
 use super::groundtruth::GroundTruth;
 use super::{Scan, ScanFailure, ScanStream, SourceError};
-use crate::homology::Point;
+use crate::types::Point;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

@@ -8,11 +8,10 @@
 use super::kmeans::{self, KMeansError, KMeansParams};
 use super::reservoir::Reservoir;
 
-/// A diagram point (birth, death).
-pub type Point2 = [f64; 2];
+pub use crate::types::Point2;
 
 /// The contrast function.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Contrast {
     /// `exp(−d² / σ²)`.
@@ -24,7 +23,7 @@ pub enum Contrast {
 }
 
 /// Per-point weights of a measure.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Weighting {
     /// Every point weighs 1 (a sum).

@@ -17,6 +17,23 @@ use crate::homology::{Diagram, Pair};
 use serde_json::{Value, json};
 use std::path::Path;
 
+/// A codebook setting or file content that cannot be used, with what is wrong.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct CodebookError(pub String);
+
+impl From<String> for CodebookError {
+    fn from(s: String) -> Self {
+        CodebookError(s)
+    }
+}
+
+impl From<&str> for CodebookError {
+    fn from(s: &str) -> Self {
+        CodebookError(s.to_string())
+    }
+}
+
 /// Which diagram dimensions make the descriptor.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum DimSelection {
@@ -28,7 +45,7 @@ pub enum DimSelection {
 
 impl DimSelection {
     /// Parses `paper` or a comma-separated list like `0,1,2`.
-    pub fn parse(s: &str) -> Result<Self, String> {
+    pub fn parse(s: &str) -> Result<Self, CodebookError> {
         if s == "paper" {
             return Ok(DimSelection::Paper);
         }
@@ -36,20 +53,22 @@ impl DimSelection {
             .split(',')
             .map(|d| d.trim().parse::<u8>().ok().filter(|d| *d <= 2))
             .collect::<Option<Vec<u8>>>()
-            .ok_or_else(|| format!("dims: expected `paper` or a list of 0, 1, 2; found `{s}`"))?;
+            .ok_or_else(|| {
+                CodebookError(format!("dims: expected `paper` or a list of 0, 1, 2; found `{s}`"))
+            })?;
         Self::from_list(dims)
     }
 
     /// A list of distinct dimensions 0..=2.
-    pub fn from_list(dims: Vec<u8>) -> Result<Self, String> {
+    pub fn from_list(dims: Vec<u8>) -> Result<Self, CodebookError> {
         if dims.is_empty() || dims.iter().any(|&d| d > 2) {
-            return Err(format!("dims: expected a non-empty list of 0, 1, 2; found {dims:?}"));
+            return Err(CodebookError(format!("dims: expected a non-empty list of 0, 1, 2; found {dims:?}")));
         }
         let mut sorted = dims.clone();
         sorted.sort();
         sorted.dedup();
         if sorted.len() != dims.len() {
-            return Err(format!("dims: {dims:?} repeats a dimension"));
+            return Err(CodebookError(format!("dims: {dims:?} repeats a dimension")));
         }
         Ok(DimSelection::Dims(dims))
     }
@@ -291,29 +310,31 @@ impl Codebook {
     }
 
     /// Writes the codebook (pretty JSON) atomically: a temporary file renamed into place.
-    pub fn save(&self, path: &Path) -> anyhow::Result<()> {
-        let text = serde_json::to_string_pretty(&self.to_json())? + "\n";
+    pub fn save(&self, path: &Path) -> crate::error::Result<()> {
+        let text = serde_json::to_string_pretty(&self.to_json()).expect("JSON of plain values") + "\n";
         crate::fsutil::write_atomic(path, text.as_bytes())
     }
 
     /// Reads a codebook file.
-    pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        let value: Value =
-            serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: not JSON: {e}", path.display()))?;
-        Self::from_json(&value).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    pub fn load(path: &Path) -> crate::error::Result<Self> {
+        use crate::error::{Error, ResultExt};
+        let text = std::fs::read_to_string(path).at(path)?;
+        let bad = |message: String| Error::Codebook { path: path.to_owned(), message };
+        let value: Value = serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
+        Self::from_json(&value).map_err(|e| bad(e.0))
     }
 
     /// Parses the JSON form.
-    pub fn from_json(v: &Value) -> Result<Self, String> {
+    pub fn from_json(v: &Value) -> Result<Self, CodebookError> {
         if v["format"] != FORMAT {
-            return Err(format!("not a toporec codebook (format = {})", v["format"]));
+            return Err(format!("not a toporec codebook (format = {})", v["format"]).into());
         }
         let version = v["format_version"].as_u64().ok_or("format_version missing")?;
         if version > FORMAT_VERSION {
             return Err(format!(
                 "codebook format {version} is newer than this toporec reads ({FORMAT_VERSION})"
-            ));
+            )
+            .into());
         }
         let dims = match v.get("dims") {
             Some(Value::String(s)) if s == "paper" => DimSelection::Paper,
@@ -357,7 +378,7 @@ impl Codebook {
                 .collect::<Option<Vec<f64>>>()
                 .ok_or_else(|| bad("inertias: expected numbers"))?;
             if centers.len() != inertias.len() || centers.is_empty() {
-                return Err(bad("centers and inertias must be non-empty and of equal length"));
+                return Err(bad("centers and inertias must be non-empty and of equal length").into());
             }
             let points_seen = p["points_seen"].as_u64().unwrap_or(0);
             let atol = Atol { centers, inertias, contrast: spec.contrast, weighting: spec.weighting };
@@ -368,7 +389,7 @@ impl Codebook {
             DimSelection::Dims(d) => d.iter().map(|&d| Some(d)).collect(),
         };
         if parts.iter().map(|p| p.dim).collect::<Vec<_>>() != expected {
-            return Err(format!("parts do not match dims = {}", spec.dims));
+            return Err(format!("parts do not match dims = {}", spec.dims).into());
         }
         let toporec_version = v["toporec_version"].as_str().unwrap_or("unknown").to_string();
         Ok(Codebook { spec, toporec_version, parts })
@@ -376,9 +397,9 @@ impl Codebook {
 }
 
 /// Field `key` of `v`, deserialized.
-fn get<T: serde::de::DeserializeOwned>(v: &Value, key: &str) -> Result<T, String> {
-    let field = v.get(key).ok_or_else(|| format!("`{key}` missing"))?;
-    serde_json::from_value(field.clone()).map_err(|e| format!("{key}: {e}"))
+fn get<T: serde::de::DeserializeOwned>(v: &Value, key: &str) -> Result<T, CodebookError> {
+    let field = v.get(key).ok_or_else(|| CodebookError(format!("`{key}` missing")))?;
+    serde_json::from_value(field.clone()).map_err(|e| CodebookError(format!("{key}: {e}")))
 }
 
 /// A JSON number, or a string for non-finite values.

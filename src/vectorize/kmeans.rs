@@ -12,8 +12,8 @@
 //! sequential, and Lloyd's parallel assignment reduces fixed-size chunks in a fixed order, so
 //! results are bit-identical for any thread count.
 
-use super::atol::Point2;
 use crate::rng::SplitMix64;
+use crate::types::Point2;
 use rayon::prelude::*;
 
 /// Which k-means to run.

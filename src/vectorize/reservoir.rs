@@ -2,8 +2,8 @@
 //! diagrams stream by, so codebooks can be fitted on tens of millions of points in bounded
 //! memory. Seeded: the same seed and input order give the same sample.
 
-use super::atol::Point2;
 use crate::rng::SplitMix64;
+use crate::types::Point2;
 
 /// At most `capacity` (point, weight) items, each seen item equally likely to be kept.
 #[derive(Clone, Debug)]

@@ -1,0 +1,429 @@
+//! Reading an index back: the descriptors (`query`, `eval`), the diagrams (`fit`, `vectorize`,
+//! `plot`), the scans (`verify`, incremental runs).
+//!
+//! Every table file is checked before it is read: its `toporec.table` and
+//! `toporec.schema_version` metadata (when present: a table rewritten by another tool may have
+//! lost it), and each needed column's presence and type. Types are accepted by family and cast
+//! to toporec's own (a string column written as `LargeUtf8` by Polars reads as `Utf8`, a
+//! `List<float64>` descriptor as `FixedSizeList<float32>`); anything else is an error naming the
+//! file and the column, never a panic.
+
+use super::{CODEBOOK_FILE, PIPELINE_FILE, table_files};
+use crate::error::{Error, FileError, Result, ResultExt};
+use crate::homology::{Diagram, Pair};
+use crate::pipeline::config::Pipeline;
+use crate::sinks::parquet::{ScanRow, Status};
+use crate::sinks::schema::{self, SCHEMA_VERSION, columns as C, meta, tables};
+use crate::types::Pose;
+use crate::vectorize::codebook::Codebook;
+use arrow::array::{Array, ArrayRef, AsArray, RecordBatch};
+use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, Int64Type, UInt8Type, UInt64Type};
+use parquet::arrow::ProjectionMask;
+use parquet::arrow::arrow_reader::{ParquetRecordBatchReader, ParquetRecordBatchReaderBuilder};
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// One row of `descriptors`, with its session.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IndexedScan {
+    /// Scan id.
+    pub scan_id: String,
+    /// Session.
+    pub session: String,
+    /// Timestamp (µs).
+    pub utime: Option<i64>,
+    /// Position, when known.
+    pub pose: Option<[f64; 3]>,
+    /// The descriptor.
+    pub descriptor: Vec<f32>,
+    /// Codebook id.
+    pub codebook_id: String,
+}
+
+/// One row of `scans`, as stored.
+pub type ScanRecord = ScanRow;
+
+/// An index folder, opened for reading.
+#[derive(Clone, Debug)]
+pub struct IndexReader {
+    root: PathBuf,
+}
+
+impl IndexReader {
+    /// Opens `root`; fails when it is not a folder.
+    pub fn open(root: &Path) -> Result<Self> {
+        if !root.is_dir() {
+            return Err(Error::index(root, "no such index folder"));
+        }
+        Ok(IndexReader { root: root.to_owned() })
+    }
+
+    /// The folder.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// The index's codebook.
+    pub fn codebook(&self) -> Result<Codebook> {
+        Codebook::load(&self.root.join(CODEBOOK_FILE))
+    }
+
+    /// The index's effective pipeline (its settings; inputs need not exist any more).
+    pub fn pipeline(&self) -> Result<Pipeline> {
+        Ok(Pipeline::load_settings(&self.root.join(PIPELINE_FILE))?)
+    }
+
+    /// The part files of a table, with their sessions, sorted by (session, part).
+    pub fn files(&self, table: &str) -> Result<Vec<(String, PathBuf)>> {
+        table_files(&self.root, table)
+    }
+
+    /// Every descriptor (only `sessions`, when not empty), in (session, part, row) order.
+    /// `length`: the descriptor length expected (needed to read variable-length lists).
+    pub fn descriptors(&self, sessions: &[String], length: Option<usize>) -> Result<Vec<IndexedScan>> {
+        let mut out = Vec::new();
+        for (session, path) in self.files(tables::DESCRIPTORS)? {
+            if sessions.is_empty() || sessions.contains(&session) {
+                out.extend(read_descriptors(&path, &session, length)?);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Every diagram of the index, streamed scan by scan, in (session, part, row) order.
+    pub fn diagrams(&self) -> Result<impl Iterator<Item = Result<(String, Diagram)>> + use<>> {
+        let files = self.files(tables::DIAGRAMS)?;
+        Ok(files.into_iter().flat_map(|(_, f)| -> Box<dyn Iterator<Item = Result<(String, Diagram)>>> {
+            match diagrams(&f) {
+                Ok(it) => Box::new(it),
+                Err(e) => Box::new(std::iter::once(Err(e))),
+            }
+        }))
+    }
+
+    /// The diagram of one scan (searching every diagrams file).
+    pub fn diagram_of(&self, scan_id: &str) -> Result<Option<Diagram>> {
+        for d in self.diagrams()? {
+            let (id, diagram) = d?;
+            if id == scan_id {
+                return Ok(Some(diagram));
+            }
+        }
+        Ok(None)
+    }
+
+    /// Every row of `scans`, in (session, part, row) order.
+    pub fn scans(&self) -> Result<Vec<ScanRecord>> {
+        let mut out = Vec::new();
+        for (session, path) in self.files(tables::SCANS)? {
+            out.extend(read_scans(&path, &session)?);
+        }
+        Ok(out)
+    }
+}
+
+/// The family a column type belongs to: types of one family are cast to toporec's.
+#[derive(PartialEq)]
+enum Family {
+    Text,
+    Integer,
+    Float,
+    FloatList,
+    Other,
+}
+
+fn family(t: &DataType) -> Family {
+    use DataType::*;
+    match t {
+        Utf8 | LargeUtf8 | Utf8View => Family::Text,
+        Int8 | Int16 | Int32 | Int64 | UInt8 | UInt16 | UInt32 | UInt64 => Family::Integer,
+        Float16 | Float32 | Float64 => Family::Float,
+        FixedSizeList(f, _) | List(f) | LargeList(f) | ListView(f) | LargeListView(f)
+            if family(f.data_type()) == Family::Float =>
+        {
+            Family::FloatList
+        }
+        _ => Family::Other,
+    }
+}
+
+/// A column wanted from a table: its name, toporec's type, whether nulls are allowed.
+struct Wanted {
+    name: &'static str,
+    data_type: DataType,
+    nullable: bool,
+}
+
+/// A table file opened with its needed columns checked; yields batches whose columns are in
+/// the wanted order and of toporec's types.
+struct CheckedTable {
+    path: PathBuf,
+    wanted: Vec<Wanted>,
+    batches: ParquetRecordBatchReader,
+}
+
+impl CheckedTable {
+    /// Opens `path` as table `table`, reading only `names`.
+    fn open(
+        path: &Path,
+        table: &schema::Table,
+        names: &[&'static str],
+        length: Option<usize>,
+    ) -> Result<Self> {
+        let file = std::fs::File::open(path).at(path)?;
+        let builder = ParquetRecordBatchReaderBuilder::try_new(file).at(path)?;
+        let kv = builder.metadata().file_metadata().key_value_metadata();
+        let get =
+            |key: &str| kv.and_then(|kv| kv.iter().find(|e| e.key == key)).and_then(|e| e.value.clone());
+        if let Some(v) = get(meta::SCHEMA_VERSION).filter(|v| v != SCHEMA_VERSION) {
+            return Err(Error::table(
+                path,
+                format!("table layout version {v}; this toporec reads version {SCHEMA_VERSION}"),
+            ));
+        }
+        if let Some(t) = get(meta::TABLE).filter(|t| t != table.name) {
+            return Err(Error::table(path, format!("a `{t}` table where `{}` was expected", table.name)));
+        }
+        let arrow_schema = builder.schema().clone();
+        let mut wanted = Vec::new();
+        let mut roots = Vec::new();
+        for &name in names {
+            let column = table.columns.iter().find(|c| c.name == name).expect("a column of the table");
+            let Some((i, field)) = arrow_schema.column_with_name(name) else {
+                let have: Vec<&str> = arrow_schema.fields().iter().map(|f| f.name().as_str()).collect();
+                return Err(Error::table(
+                    path,
+                    format!(
+                        "no column `{name}` in this `{}` table (columns: {})",
+                        table.name,
+                        have.join(", ")
+                    ),
+                ));
+            };
+            let mut data_type = column.data_type.clone();
+            if name == C::DESCRIPTOR {
+                data_type = descriptor_type(path, field, length)?;
+            } else if family(field.data_type()) != family(&data_type) || family(&data_type) == Family::Other {
+                return Err(Error::table(
+                    path,
+                    format!("column `{name}` is {}, expected {data_type}", field.data_type()),
+                ));
+            }
+            wanted.push(Wanted { name, data_type, nullable: column.nullable });
+            roots.push(i);
+        }
+        let mask = ProjectionMask::roots(builder.parquet_schema(), roots);
+        let batches = builder.with_projection(mask).with_batch_size(8192).build().at(path)?;
+        Ok(CheckedTable { path: path.to_owned(), wanted, batches })
+    }
+
+    /// The next batch's columns, in the wanted order, cast to toporec's types.
+    fn next_batch(&mut self) -> Option<Result<Vec<ArrayRef>>> {
+        let batch = match self.batches.next()? {
+            Ok(b) => b,
+            Err(e) => return Some(Err(e.at(&self.path))),
+        };
+        Some(self.columns(&batch))
+    }
+
+    fn columns(&self, batch: &RecordBatch) -> Result<Vec<ArrayRef>> {
+        let options = arrow::compute::CastOptions { safe: false, ..Default::default() };
+        let mut out = Vec::with_capacity(self.wanted.len());
+        for w in &self.wanted {
+            let column = batch.column_by_name(w.name).expect("projected");
+            let column = if column.data_type() == &w.data_type {
+                column.clone()
+            } else {
+                arrow::compute::cast_with_options(column, &w.data_type, &options)
+                    .map_err(|e| Error::table(&self.path, format!("column `{}`: {e}", w.name)))?
+            };
+            if !w.nullable && column.null_count() > 0 {
+                return Err(Error::table(&self.path, format!("column `{}` has null values", w.name)));
+            }
+            out.push(column);
+        }
+        Ok(out)
+    }
+}
+
+/// The type a descriptor column is read as: `FixedSizeList<float32>` of the stored length
+/// (or of `length` for a variable-length list).
+fn descriptor_type(path: &Path, field: &Field, length: Option<usize>) -> Result<DataType> {
+    let size = match field.data_type() {
+        DataType::FixedSizeList(_, n) if family(field.data_type()) == Family::FloatList => *n,
+        t if family(t) == Family::FloatList => match length {
+            Some(n) => n as i32,
+            None => return Err(Error::table(path, "column `descriptor` has no fixed length")),
+        },
+        t => {
+            return Err(Error::table(path, format!("column `descriptor` is {t}, expected a list of floats")));
+        }
+    };
+    Ok(DataType::FixedSizeList(Arc::new(Field::new("item", DataType::Float32, true)), size))
+}
+
+/// Reads one `descriptors` file of `session`.
+pub fn read_descriptors(path: &Path, session: &str, length: Option<usize>) -> Result<Vec<IndexedScan>> {
+    let names = [C::SCAN_ID, C::UTIME, C::POSE_X, C::POSE_Y, C::POSE_Z, C::DESCRIPTOR, C::CODEBOOK_ID];
+    let mut table = CheckedTable::open(path, &schema::descriptors(1), &names, length)?;
+    let mut out = Vec::new();
+    while let Some(columns) = table.next_batch() {
+        let c = columns?;
+        let ids = c[0].as_string::<i32>();
+        let utime = c[1].as_primitive::<Int64Type>();
+        let [x, y, z] = [2, 3, 4].map(|i| c[i].as_primitive::<Float64Type>());
+        let vectors = c[5].as_fixed_size_list();
+        let b = vectors.value_length() as usize;
+        let values = vectors.values().as_primitive::<Float32Type>();
+        if vectors.null_count() > 0 || values.null_count() > 0 {
+            return Err(Error::table(path, "column `descriptor` has null values"));
+        }
+        let codebook = c[6].as_string::<i32>();
+        for i in 0..ids.len() {
+            let start = i * b;
+            out.push(IndexedScan {
+                scan_id: ids.value(i).to_string(),
+                session: session.to_string(),
+                utime: utime.is_valid(i).then(|| utime.value(i)),
+                pose: x.is_valid(i).then(|| [x.value(i), y.value(i), z.value(i)]),
+                descriptor: values.values()[start..start + b].to_vec(),
+                codebook_id: codebook.value(i).to_string(),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// Reads one `scans` file of `session`.
+pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
+    let names = [
+        C::SCAN_ID,
+        C::SEQ,
+        C::SOURCE_PATH,
+        C::MESSAGE_INDEX,
+        C::UTIME,
+        C::POSE_X,
+        C::POSE_Y,
+        C::POSE_Z,
+        C::POSE_YAW,
+        C::RAW_POINTS,
+        C::KEPT_POINTS,
+        C::STATUS,
+        C::ERROR,
+    ];
+    let mut table = CheckedTable::open(path, &schema::scans(), &names, None)?;
+    let mut out = Vec::new();
+    while let Some(columns) = table.next_batch() {
+        let c = columns?;
+        let text = |i: usize| c[i].as_string::<i32>();
+        let uint = |i: usize| c[i].as_primitive::<UInt64Type>();
+        let float = |i: usize| c[i].as_primitive::<Float64Type>();
+        let (ids, seq, source, message) = (text(0), uint(1), text(2), uint(3));
+        let utime = c[4].as_primitive::<Int64Type>();
+        let [x, y, z, yaw] = [5, 6, 7, 8].map(float);
+        let (raw, kept, status, error) = (uint(9), uint(10), text(11), text(12));
+        for i in 0..ids.len() {
+            let status = Status::parse(status.value(i)).ok_or_else(|| {
+                Error::table(
+                    path,
+                    format!("row {i}: status `{}` is not ok, skipped or error", status.value(i)),
+                )
+            })?;
+            let pose = [x, y, z, yaw].iter().all(|c| c.is_valid(i)).then(|| Pose {
+                x: x.value(i),
+                y: y.value(i),
+                z: z.value(i),
+                yaw: yaw.value(i),
+            });
+            out.push(ScanRow {
+                scan_id: ids.value(i).to_string(),
+                session: session.to_string(),
+                seq: seq.value(i),
+                source_path: source.value(i).to_string(),
+                message_index: message.is_valid(i).then(|| message.value(i)),
+                utime: utime.is_valid(i).then(|| utime.value(i)),
+                pose,
+                raw_points: raw.value(i),
+                kept_points: kept.value(i),
+                status,
+                error: error.is_valid(i).then(|| error.value(i).to_string()),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// Streams the diagrams of one `diagrams` file, one scan at a time, in file order (a
+/// scan's pairs are contiguous).
+pub fn diagrams(path: &Path) -> Result<DiagramStream> {
+    let table =
+        CheckedTable::open(path, &schema::diagrams(), &[C::SCAN_ID, C::DIM, C::BIRTH, C::DEATH], None)?;
+    Ok(DiagramStream { table, current: None, ready: VecDeque::new(), done: false })
+}
+
+/// The diagrams of a file, scan by scan ([`diagrams`]).
+pub struct DiagramStream {
+    table: CheckedTable,
+    current: Option<(String, Vec<Pair>)>,
+    ready: VecDeque<(String, Diagram)>,
+    done: bool,
+}
+
+impl DiagramStream {
+    fn add(&mut self, c: &[ArrayRef]) -> Result<()> {
+        let ids = c[0].as_string::<i32>();
+        let dims = c[1].as_primitive::<UInt8Type>();
+        let births = c[2].as_primitive::<Float64Type>();
+        let deaths = c[3].as_primitive::<Float64Type>();
+        for i in 0..ids.len() {
+            let id = ids.value(i);
+            if self.current.as_ref().is_none_or(|c| c.0 != id) {
+                if let Some((id, pairs)) = self.current.take() {
+                    self.ready.push_back((id, Diagram::new(pairs)));
+                }
+                self.current = Some((id.to_string(), Vec::new()));
+            }
+            let dim = dims.value(i);
+            if dim > 2 {
+                return Err(Error::table(&self.table.path, format!("row {i}: dim {dim} is not 0, 1 or 2")));
+            }
+            let pair = Pair { dim, birth: births.value(i), death: deaths.value(i) };
+            self.current.as_mut().expect("set above").1.push(pair);
+        }
+        Ok(())
+    }
+}
+
+impl Iterator for DiagramStream {
+    type Item = Result<(String, Diagram)>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(d) = self.ready.pop_front() {
+                return Some(Ok(d));
+            }
+            if self.done {
+                return None;
+            }
+            match self.table.next_batch() {
+                None => {
+                    self.done = true;
+                    if let Some((id, pairs)) = self.current.take() {
+                        return Some(Ok((id, Diagram::new(pairs))));
+                    }
+                }
+                Some(Err(e)) => {
+                    self.done = true;
+                    return Some(Err(e));
+                }
+                Some(Ok(columns)) => {
+                    if let Err(e) = self.add(&columns) {
+                        self.done = true;
+                        return Some(Err(e));
+                    }
+                }
+            }
+        }
+    }
+}
