@@ -1,7 +1,7 @@
 //! Alpha-persistence benchmark: times Delaunay, filtration and persistence separately on
 //! 4096- and 30,000-point clouds, then (if `python3` with `gudhi` is available) runs
 //! `scripts/gudhi_bench.py` on the very same clouds and prints both side by side: GUDHI in
-//! its default precision (`safe`, the reference of the speed target) and in `exact` (the
+//! its default precision (`safe`, the reference of the speed goal) and in `exact` (the
 //! mode whose diagrams toporec reproduces).
 //!
 //! Run: `cargo bench --bench alpha` (add `-- --quick` for fewer repetitions).

@@ -1,5 +1,5 @@
-//! ATOL benchmark: transform of a 10,000-point diagram with b = 1000 (target < 50 ms on one
-//! core) and a b = 50 mini-batch fit on 1,000,000 diagram points (target < 2 s), then the same
+//! ATOL benchmark: transform of a 10,000-point diagram with b = 1000 (design goal < 50 ms on one
+//! core) and a b = 50 mini-batch fit on 1,000,000 diagram points (design goal < 2 s), then the same
 //! two jobs in GUDHI / scikit-learn on the same data (`scripts/atol_bench.py`) when available.
 //!
 //! Run: `cargo bench --bench atol`.
@@ -46,7 +46,7 @@ fn main() {
             })
             .collect();
         println!(
-            "transform  10,000 points, b = 1000, laplacian: median {:.1} ms (target < 50 ms)",
+            "transform  10,000 points, b = 1000, laplacian: median {:.1} ms (design goal < 50 ms)",
             median(times)
         );
         let tmp = root.join("target/tmp/bench-atol");
@@ -71,7 +71,7 @@ fn main() {
             })
             .collect();
         println!(
-            "fit        1,000,000 points, b = 50, mini-batch: median {:.0} ms (target < 2000 ms)",
+            "fit        1,000,000 points, b = 50, mini-batch: median {:.0} ms (design goal < 2000 ms)",
             median(times)
         );
     });

@@ -1,4 +1,4 @@
-//! Decoding throughput (target ≥ 200 MB/s on one core): NCLT `velodyne_sync` records and
+//! Decoding throughput (design goal ≥ 200 MB/s on one core): NCLT `velodyne_sync` records and
 //! PointCloud2 messages (ROS 2 CDR from the KITTI MCAP, ROS 1 from the Ouster MCAP), from
 //! `../shared/data` when present, else from synthetic buffers of the same layouts.
 //!

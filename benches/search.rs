@@ -1,4 +1,4 @@
-//! Search benchmark: 100,000 database descriptors of length b = 1000 (target: search under
+//! Search benchmark: 100,000 database descriptors of length b = 1000 (design goal: search under
 //! 10 ms per query on one core), plus b = 16 (k-d tree route); every result checked against the
 //! brute-force scan.
 //!

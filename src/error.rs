@@ -1,10 +1,11 @@
-//! The library's error type. Every variant that concerns a file names it, so a message
-//! printed on its own says which input was wrong and why. Sources keep their own
-//! [`SourceError`] (per-scan problems travel as stream items, not as this type); it converts.
+//! The library's error types, below every other module. Every variant that concerns a file
+//! names it, so a message printed on its own says which input was wrong and why.
+//!
+//! * [`Error`]: what a library call returns.
+//! * [`SourceError`]: a source that cannot be read (per-scan problems travel as stream items,
+//!   `sources::ScanFailure`, with this error's message); converts into [`Error`].
+//! * [`ConfigErrors`]: every problem of a pipeline file at once; converts into [`Error`].
 
-use crate::pipeline::config::ConfigErrors;
-use crate::sources::SourceError;
-use crate::vectorize::atol::AtolError;
 use std::path::{Path, PathBuf};
 
 /// A toporec error.
@@ -88,14 +89,82 @@ pub enum Error {
     /// A pipeline file is invalid.
     #[error(transparent)]
     Config(#[from] ConfigErrors),
-    /// An ATOL model could not be fitted.
-    #[error(transparent)]
-    Atol(#[from] AtolError),
     /// An argument or a combination of arguments cannot be used.
     #[error("{0}")]
     Invalid(String),
 }
 
+/// All errors of a file, one per line.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {} error(s):\n{}", errors.len(), errors.iter().map(|e| format!("  {e}")).collect::<Vec<_>>().join("\n"))]
+pub struct ConfigErrors {
+    /// The file.
+    pub path: PathBuf,
+    /// Each error, starting with its key path.
+    pub errors: Vec<String>,
+}
+
+/// An error reading a source, naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file size is not a whole number of records.
+    #[error("{path}: truncated: {len} bytes is not a multiple of the {record}-byte record size")]
+    Truncated {
+        /// The file.
+        path: PathBuf,
+        /// Its length in bytes.
+        len: usize,
+        /// The record size.
+        record: usize,
+    },
+    /// A text line could not be parsed.
+    #[error("{path}:{line}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// A point has a NaN or infinite coordinate.
+    #[error("{path}: point {index} has a non-finite coordinate")]
+    NonFinite {
+        /// The file.
+        path: PathBuf,
+        /// 0-based point index.
+        index: usize,
+    },
+    /// The format could not be determined.
+    #[error("{path}: unknown cloud format (expected .csv or .bin; use --format)")]
+    UnknownFormat {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The file or folder is not what the source expects.
+    #[error("{path}: {message}")]
+    Invalid {
+        /// The file or folder.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl SourceError {
+    /// An [`SourceError::Invalid`].
+    pub fn invalid(path: &Path, message: impl Into<String>) -> Self {
+        SourceError::Invalid { path: path.to_owned(), message: message.into() }
+    }
+}
 /// `Result` with [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 

@@ -7,21 +7,30 @@
 //! Data flows one way:
 //!
 //! ```text
-//! sources ──► preprocess ──► homology (alpha persistence) ──► vectorize (ATOL) ──► sinks
-//! (NCLT, MCAP, KITTI, CSV)                                                     (Parquet)
+//!  sources ──► preprocess ──► homology ──► vectorize ──► sinks ──► search / query / eval
+//!  NCLT, MCAP,  crop, ground,  alpha        ATOL with a   Parquet    k-NN, Recall@N,
+//!  KITTI, CSV   voxel, sample  persistence  codebook      index      plots
 //! ```
 //!
-//! * [`sources`] decode scans from files (streams; a bad scan is an item, not an abort);
-//!   they know nothing of topology.
+//! * [`sources`] decode scans from the files users have (a bad scan is a stream item, not an
+//!   abort); they know nothing of topology. [`sources::InputKind`] decides what a path is.
 //! * [`preprocess`] crops, removes the ground, downsamples, normalizes.
-//! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs.
+//! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs,
+//!   equal to GUDHI's `AlphaComplex` in its `exact` precision.
 //! * [`vectorize`] turns diagrams into ATOL descriptors with a saved codebook.
-//! * [`sinks`] write the index: Hive-partitioned Parquet tables, committed atomically.
-//! * [`pipeline`] connects the stages with bounded channels (`toporec run`).
+//! * [`describe`] is the one path from a scan to its descriptor through those three stages;
+//!   `run`, `query` and `eval` all use it.
+//! * [`sinks`] write and read the index: Hive-partitioned Parquet tables whose schemas are
+//!   declared once ([`sinks::schema`]), committed atomically.
+//! * [`pipeline`] connects the stages with bounded channels (`toporec run`), as a pipeline
+//!   file ([`pipeline::config`]) describes.
 //!
 //! Downstream of the index: [`search`] (exact k-NN), [`query`], [`eval`] (Recall@N,
-//! Recall@1 %), [`plot`]. Beside it: [`simulate`] makes multi-session drives in the formats
-//! the sources read, and [`inspect`] describes files. [`cli`] wires all of it into `toporec`.
+//! Recall@1 %), [`plot`]. Beside it: [`offline`] fits codebooks and vectorizes stored
+//! diagrams, [`simulate`] makes multi-session drives in the formats the sources read, and
+//! [`inspect`] describes files. At the bottom, shared by all: [`types`], [`error`],
+//! [`fsutil`] (atomic files), [`rng`]. The `toporec` binary is a thin command line over this
+//! library.
 #![deny(missing_docs)]
 
 pub mod describe;
@@ -43,3 +52,5 @@ pub mod sinks;
 pub mod sources;
 pub mod types;
 pub mod vectorize;
+
+pub use error::{Error, Result};

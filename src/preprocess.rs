@@ -218,16 +218,16 @@ fn ransac_ground(points: &[Point], threshold: f64, iterations: usize, rng: &mut 
 
 /// One centroid per occupied cell, in cell order (deterministic).
 pub fn voxel_grid(points: &[Point], size: f64) -> Vec<Point> {
-    let mut cells: HashMap<[i64; 3], ([f64; 3], u32)> = HashMap::with_capacity(points.len() / 2);
+    /// A cell's coordinate sum and point count.
+    type Cell = ([f64; 3], u32);
+    let mut cells: HashMap<[i64; 3], Cell> = HashMap::with_capacity(points.len() / 2);
     for q in points {
         let key = q.map(|c| (c / size).floor() as i64);
         let e = cells.entry(key).or_insert(([0.0; 3], 0));
-        for k in 0..3 {
-            e.0[k] += q[k];
-        }
+        e.0.iter_mut().zip(q).for_each(|(s, c)| *s += c);
         e.1 += 1;
     }
-    let mut cells: Vec<([i64; 3], ([f64; 3], u32))> = cells.into_iter().collect();
+    let mut cells: Vec<([i64; 3], Cell)> = cells.into_iter().collect();
     cells.sort_unstable_by_key(|c| c.0);
     cells.into_iter().map(|(_, (s, n))| s.map(|c| c / n as f64)).collect()
 }

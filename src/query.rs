@@ -60,7 +60,7 @@ pub struct StepTimes {
 impl Engine {
     /// Opens `index` (only `sessions` as the database, when not empty).
     pub fn open(index: &Path, sessions: &[String]) -> Result<Self> {
-        let pipeline = IndexReader::open(index)?.pipeline()?;
+        let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
         let (codebook, scans) = load_descriptors(index, sessions)?;
         let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
         let db = Database::new(vectors, codebook.len());
@@ -185,6 +185,9 @@ impl std::fmt::Display for QueryReport {
 /// The CSV header of query results.
 pub const CSV_HEADER: &str = "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z";
 
+/// A described query: its id, descriptor and step times.
+type Answerable = (String, Vec<f32>, StepTimes);
+
 /// Queries per parallel chunk: descriptors in parallel, then one batched search.
 const CHUNK: usize = 64;
 
@@ -202,7 +205,7 @@ pub fn run(
         let mut stream = open_path(input, args.topic.as_deref())?.peekable();
         while stream.peek().is_some() {
             let scans: Vec<_> = stream.by_ref().take(CHUNK).collect();
-            let described: Vec<Result<(String, Vec<f32>, StepTimes), String>> = scans
+            let described: Vec<Result<Answerable, String>> = scans
                 .into_par_iter()
                 .map(|item| {
                     let scan = item.map_err(|f| f.error)?;
@@ -220,8 +223,7 @@ pub fn run(
                     }
                 })
                 .collect();
-            let ok: Vec<&(String, Vec<f32>, StepTimes)> =
-                described.iter().filter_map(|r| r.as_ref().ok()).collect();
+            let ok: Vec<&Answerable> = described.iter().filter_map(|r| r.as_ref().ok()).collect();
             let start = Instant::now();
             let flat: Vec<f32> = ok.iter().flat_map(|r| r.1.iter().copied()).collect();
             let hits = engine.db.search_many(&flat, args.k);

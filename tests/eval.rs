@@ -110,6 +110,10 @@ fn query_and_eval_places_on_the_sample_and_on_nclt() {
     }
     // The largest threshold covers the 160 m loop: everything is a match.
     assert_eq!(results[3]["with_match"]["at_n"][0].as_f64(), Some(100.0));
+    // Regression values (toporec's own output on the committed sample, no outside reference):
+    // R@1 at 5, 10, 20 m is 5, 11 and 15 of 32 queries.
+    let r1: Vec<f64> = results.iter().map(|r| r["with_match"]["at_n"][0].as_f64().unwrap()).collect();
+    assert_eq!(r1, [500.0 / 32.0, 1100.0 / 32.0, 1500.0 / 32.0, 100.0], "R@1 at 5, 10, 20, 50 m");
     for f in ["recall_at_n.png", "recall_at_n.svg", "trajectory.png", "trajectory.svg", "report.txt"] {
         assert!(eval.join(f).metadata().unwrap().len() > 500, "{f}");
     }
@@ -151,6 +155,16 @@ fn query_and_eval_places_on_the_sample_and_on_nclt() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(neval.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["queries"]["scans"], 14);
+    // Regression values (toporec's own output; the 14 scans are not revisits, so this is a
+    // check of the protocol on real geometry, not a claim): R@1 is 12 of 14 at 5 m and 14 of 14
+    // from 10 m.
+    let r1: Vec<f64> = report["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["with_match"]["at_n"][0].as_f64().unwrap())
+        .collect();
+    assert_eq!(r1, [1200.0 / 14.0, 100.0, 100.0, 100.0], "R@1 at 5, 10, 20, 50 m");
 }
 
 #[test]
@@ -176,15 +190,27 @@ fn perturbation_protocol_on_kitti() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["queries"], 48);
-    for r in report["results"].as_array().unwrap() {
-        let name = r["perturbation"].as_str().unwrap();
-        let r1 = r["recall"]["at_n"][0].as_f64().unwrap();
-        if name == "original" || name.starts_with("translate") || name.starts_with("rotate") {
-            assert_eq!(r1, 100.0, "{name}: the descriptor is invariant");
-        } else {
-            assert!(r1 >= 80.0, "{name}: {r1}");
-        }
-    }
+    // Original, translation and rotations about z: the descriptor is invariant, so 48 of 48.
+    // Jitter and scaling: regression values (toporec's own output: 45 and 47 of 48; the
+    // paper reports 100 %, ~96 % and ~91 % on its own KITTI subset, not comparable scan for
+    // scan).
+    let expected = [
+        ("original", 100.0),
+        ("jitter", 4500.0 / 48.0),
+        ("scale x1.05", 4700.0 / 48.0),
+        ("scale x0.95", 4700.0 / 48.0),
+        ("translate (0.2, 0.2, 0.1)", 100.0),
+        ("rotate 45 deg", 100.0),
+        ("rotate 90 deg", 100.0),
+        ("rotate 135 deg", 100.0),
+    ];
+    let got: Vec<(String, f64)> = report["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| (r["perturbation"].as_str().unwrap().to_string(), r["recall"]["at_n"][0].as_f64().unwrap()))
+        .collect();
+    assert_eq!(got, expected.map(|(n, r)| (n.to_string(), r)), "R@1 per perturbation");
     for k in ["persistence", "vectorize", "search"] {
         assert!(report["timing_ms"][k]["p95"].as_f64().unwrap() > 0.0, "{k}");
     }

@@ -66,7 +66,8 @@ fn real_ros1_mcap() {
         assert!(s.ring.as_ref().unwrap().iter().all(|&r| r < 64));
         assert!(s.points.iter().all(|p| p.iter().all(|v| v.is_finite()) && *p != [0.0; 3]));
     }
-    // Kept after dropping the (0, 0, 0) no-returns (reported in the README).
+    // Kept after dropping the (0, 0, 0) no-returns: counted independently with the Python `mcap`
+    // reader and numpy (points with finite x, y, z other than (0, 0, 0)).
     assert_eq!([scans[0].points.len(), scans[1].points.len()], [45_716, 45_809]);
 }
 
@@ -80,6 +81,7 @@ fn real_ros2_mcap_equals_kitti_files() {
     let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&data.join("mcap/kitti_ros2_cdr.mcap"))));
     assert!(bad.is_empty(), "{bad:?}");
     let counts: Vec<usize> = scans.iter().map(|s| s.points.len()).collect();
+    // The KITTI files' record counts (numpy: file size / 16; none is (0, 0, 0)).
     assert_eq!(counts, [121_618, 121_671, 123_034, 122_914]);
     for (s, frame) in scans.iter().zip(["000094", "000095", "000198", "000199"]) {
         let k = kitti_points(&data.join(format!("kitti/sequences/00/velodyne/{frame}.bin")));

@@ -1,4 +1,4 @@
-//! Place-recognition metrics (REFERENCE §3.3, §6.4): Recall@N and Recall@1 %.
+//! Place-recognition metrics (PointNetVLAD's `evaluate.py`; the cross-day NCLT protocol of RING): Recall@N and Recall@1 %.
 //!
 //! A query's retrieval is its database rows sorted by (distance, row) — ties go to the lower
 //! row, deterministically. Its *first hit* is the 0-based rank of the first true match.

@@ -361,7 +361,7 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         chosen.iter().map(|&r| (engine.scans[r].scan_id.as_str(), r)).collect();
     // Re-read the chosen scans through the index's own sources and preprocessing.
     let mut clouds: Vec<(usize, Vec<[f64; 3]>)> = Vec::new();
-    let pipeline = crate::sinks::index::IndexReader::open(&a.index)?.pipeline()?;
+    let pipeline = crate::pipeline::config::Pipeline::of_index(&a.index)?;
     for spec in &pipeline.sources {
         for item in spec.open()? {
             let Ok(scan) = item else { continue };

@@ -1,5 +1,5 @@
 //! Alpha filtration values on a [`DelaunayComplex`], exactly as GUDHI assigns them
-//! (REFERENCE §1.3): top-dimensional simplices get their squared circumradius; going down,
+//! (GUDHI 3.13, `Alpha_complex.h::create_complex`): top-dimensional simplices get their squared circumradius; going down,
 //! a face that is not Gabriel with respect to some coface (the opposite vertex lies strictly
 //! inside its smallest circumsphere) is *attached* and takes the minimum value of its
 //! cofaces; any other face gets its own smallest-circumsphere radius². Vertices are 0.

@@ -1,8 +1,8 @@
 //! Persistent homology of the 3D alpha complex — the engine of toporec.
 //!
 //! `points → DelaunayComplex → Filtration → persistence → Diagram`, matching GUDHI 3.13's
-//! `AlphaComplex(points).create_simplex_tree().persistence()` (REFERENCE §1): squared-radius
-//! filtration, duplicates merged, zero-length pairs dropped, one `(0, inf)` class in H0, and
+//! `AlphaComplex(points).create_simplex_tree().persistence()` (`Alpha_complex.h`,
+//! `simplex_tree.py`): squared-radius filtration, duplicates merged, zero-length pairs dropped, one `(0, inf)` class in H0, and
 //! H0..H(d-1) for a complex of dimension d (a single point gives an empty diagram).
 //!
 //! Combinatorics are exact (robust predicates, exact Gabriel tests); filtration values are
@@ -92,7 +92,7 @@ impl Diagram {
 /// The persistence diagram (squared radii) of the alpha complex of `points`.
 ///
 /// ```
-/// // The regular octahedron: 7 loops born at 1/2, one void from 2/3 to 1 (REFERENCE §1.3).
+/// // The regular octahedron: 7 loops born at 1/2, one void from 2/3 to 1.
 /// let pts = [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]];
 /// let d = toporec::homology::alpha_persistence(&pts).unwrap();
 /// assert_eq!(d.counts(), [6, 7, 1]);

@@ -154,20 +154,28 @@ mod tests {
     }
 
     #[test]
-    fn hilbert_keys_are_a_bijection_on_a_small_grid() {
-        // On the 2^21 grid restricted to coordinates < 4 the keys of neighbours differ; a
-        // weaker but cheap check: all 64 keys are distinct.
-        let mut keys: Vec<u64> = Vec::new();
-        for x in 0..4 {
-            for y in 0..4 {
-                for z in 0..4 {
-                    keys.push(hilbert_key([x, y, z]));
+    fn hilbert_keys_are_a_continuous_bijection_on_grids_at_the_origin() {
+        // A Hilbert curve starting at the origin visits the 2^k cube there first: its 8^k
+        // cells get exactly the keys 0..8^k, and consecutive keys are face-adjacent cells.
+        for k in 1..=4u32 {
+            let side = 1u32 << k;
+            let mut by_key = vec![None; 1 << (3 * k)];
+            for x in 0..side {
+                for y in 0..side {
+                    for z in 0..side {
+                        let key = hilbert_key([x, y, z]) as usize;
+                        assert!(key < by_key.len(), "k {k}: key {key} of {:?} outside 0..8^k", [x, y, z]);
+                        assert!(by_key[key].is_none(), "k {k}: key {key} given twice");
+                        by_key[key] = Some([x, y, z]);
+                    }
                 }
             }
+            for (i, w) in by_key.windows(2).enumerate() {
+                let (a, b) = (w[0].expect("every key taken"), w[1].expect("every key taken"));
+                let steps: u32 = (0..3).map(|j| a[j].abs_diff(b[j])).sum();
+                assert_eq!(steps, 1, "k {k}: keys {i} and {} are cells {a:?} and {b:?}", i + 1);
+            }
         }
-        keys.sort();
-        keys.dedup();
-        assert_eq!(keys.len(), 64);
     }
 
     #[test]

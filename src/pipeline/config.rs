@@ -24,6 +24,7 @@
 //! # codebook = "codebook.json"       # … or load a saved one
 //! ```
 
+pub use crate::error::ConfigErrors;
 use crate::preprocess::Preprocess;
 use crate::sources::SourceSpec;
 use crate::vectorize::atol::{Contrast, Weighting};
@@ -66,16 +67,6 @@ pub enum Vectorize {
     Fit(CodebookSpec),
     /// Use this saved codebook.
     Load(PathBuf, Box<Codebook>),
-}
-
-/// All errors of a file, one per line.
-#[derive(Debug, thiserror::Error)]
-#[error("{path}: {} error(s):\n{}", errors.len(), errors.iter().map(|e| format!("  {e}")).collect::<Vec<_>>().join("\n"))]
-pub struct ConfigErrors {
-    /// The file.
-    pub path: PathBuf,
-    /// Each error, starting with its key path.
-    pub errors: Vec<String>,
 }
 
 /// A table being read: remembers which keys were asked for, to report the others.
@@ -140,6 +131,11 @@ impl Pipeline {
         let fail = |errors| ConfigErrors { path: path.to_owned(), errors };
         let text = std::fs::read_to_string(path).map_err(|e| fail(vec![e.to_string()]))?;
         Self::parse_with(&text, path, false)
+    }
+
+    /// The effective pipeline of an index (its settings; inputs need not exist any more).
+    pub fn of_index(index: &Path) -> Result<Self, ConfigErrors> {
+        Self::load_settings(&index.join(crate::sinks::index::PIPELINE_FILE))
     }
 
     /// Parses pipeline text; `path` names the file and anchors relative paths.

@@ -7,9 +7,9 @@
 //!                                                       └► fit → pass 2: descriptors → commit
 //! ```
 //!
-//! [`run`] is its four steps: [`index_scans`] (pass 1), the codebook (loaded, or fitted on
-//! pass 1's diagrams), [`vectorize_pass`] (pass 2, when the codebook was fitted) and the
-//! commit. Channels are bounded (crossbeam), and the source may run at most a window of scans
+//! [`run`] is its four steps: pass 1 (sources → workers → ordered writer), the codebook
+//! (loaded, or fitted on pass 1's diagrams), pass 2 (descriptors from the staged diagrams,
+//! when the codebook was fitted) and the commit. Channels are bounded (crossbeam), and the source may run at most a window of scans
 //! ahead of the writer (a credit channel), so memory is bounded whatever the session length.
 //! Outcomes are written in input order, so the index does not depend on the thread count.
 //! One bad scan is one `error` row; a panic in a stage is caught and recorded the same way.

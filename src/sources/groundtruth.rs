@@ -1,4 +1,4 @@
-//! Pose CSVs in NCLT's `groundtruth_<date>.csv` layout (REFERENCE §6.3): no header, columns
+//! Pose CSVs in NCLT's `groundtruth_<date>.csv` layout (NCLT's `read_ground_truth.py`): no header, columns
 //! `utime (µs), x, y, z, roll, pitch, heading`, x north, y east, z down. Rows with NaN are
 //! skipped (NCLT has some); unparsable lines are reported with their line number and skipped.
 //! Poses are exposed z up like the clouds: `(x, −y, −z)` and yaw = −heading.

@@ -97,6 +97,7 @@ impl Sequence {
 
 impl KittiSpec {
     /// Opens the stream over all sequences, in order.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     pub fn open(&self) -> Result<ScanStream, SourceError> {
         let mut streams: Vec<ScanStream> = Vec::new();
         for dir in &self.sequences {
@@ -113,6 +114,7 @@ impl KittiSpec {
     }
 }
 
+#[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
 fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFailure> {
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let frame: Option<usize> = name.parse().ok();

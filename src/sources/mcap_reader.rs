@@ -1,4 +1,4 @@
-//! MCAP files, streamed record by record (REFERENCE §7.5): memory is bounded by the largest
+//! MCAP files, streamed record by record (the MCAP specification, foxglove/mcap): memory is bounded by the largest
 //! chunk, not the file. The `mcap` crate's sans-io [`LinearReader`] walks the file and hands
 //! over whole chunk records; toporec decompresses each chunk itself (zstd, lz4 frames, or
 //! none) and checks its CRC, so a corrupt chunk costs only its own messages: it is reported

@@ -17,6 +17,7 @@ pub mod mcap_reader;
 pub mod nclt;
 pub mod pointcloud2;
 
+pub use crate::error::SourceError;
 pub use detect::{CloudFormat, InputKind};
 
 use crate::types::Point;
@@ -148,68 +149,6 @@ impl SourceSpec {
     }
 }
 
-/// An error reading a source, naming the file.
-#[derive(Debug, thiserror::Error)]
-pub enum SourceError {
-    /// The file could not be read.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The cause.
-        source: std::io::Error,
-    },
-    /// The file size is not a whole number of records.
-    #[error("{path}: truncated: {len} bytes is not a multiple of the {record}-byte record size")]
-    Truncated {
-        /// The file.
-        path: PathBuf,
-        /// Its length in bytes.
-        len: usize,
-        /// The record size.
-        record: usize,
-    },
-    /// A text line could not be parsed.
-    #[error("{path}:{line}: {message}")]
-    Parse {
-        /// The file.
-        path: PathBuf,
-        /// 1-based line number.
-        line: usize,
-        /// What is wrong.
-        message: String,
-    },
-    /// A point has a NaN or infinite coordinate.
-    #[error("{path}: point {index} has a non-finite coordinate")]
-    NonFinite {
-        /// The file.
-        path: PathBuf,
-        /// 0-based point index.
-        index: usize,
-    },
-    /// The format could not be determined.
-    #[error("{path}: unknown cloud format (expected .csv or .bin; use --format)")]
-    UnknownFormat {
-        /// The file.
-        path: PathBuf,
-    },
-    /// The file or folder is not what the source expects.
-    #[error("{path}: {message}")]
-    Invalid {
-        /// The file or folder.
-        path: PathBuf,
-        /// What is wrong.
-        message: String,
-    },
-}
-
-impl SourceError {
-    /// An [`SourceError::Invalid`].
-    pub fn invalid(path: &Path, message: impl Into<String>) -> Self {
-        SourceError::Invalid { path: path.to_owned(), message: message.into() }
-    }
-}
-
 /// Lists `dir`'s files with extension `ext`, sorted by name.
 pub(crate) fn list_files(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, SourceError> {
     let entries =
@@ -257,7 +196,10 @@ pub fn read_cloud(path: &Path, format: Option<CloudFormat>) -> Result<Vec<Point>
         None => match InputKind::detect(path)? {
             InputKind::Cloud(f) => f,
             kind => {
-                return Err(SourceError::invalid(path, format!("a {}, not a single cloud file", kind.name())));
+                return Err(SourceError::invalid(
+                    path,
+                    format!("a {}, not a single cloud file", kind.name()),
+                ));
             }
         },
     };

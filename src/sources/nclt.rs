@@ -1,4 +1,4 @@
-//! NCLT Velodyne HDL-32E `velodyne_sync/<utime>.bin` scans (REFERENCE §6.1): little-endian
+//! NCLT Velodyne HDL-32E `velodyne_sync/<utime>.bin` scans (NCLT's `read_vel_sync.py`): little-endian
 //! 8-byte records `x: u16, y: u16, z: u16, intensity: u8, laser_id: u8`, metric value
 //! `raw · 0.005 − 100` m. Stored with z down; exposed as `(x, −y, −z)` (z up, see
 //! [`super`]).
@@ -131,6 +131,7 @@ impl NcltSpec {
     }
 
     /// Opens the stream over all sessions, in order.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     pub fn open(&self) -> Result<ScanStream, SourceError> {
         let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
         let mut streams: Vec<ScanStream> = Vec::new();
@@ -181,6 +182,7 @@ impl NcltSpec {
     }
 }
 
+#[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
 fn sync_scan(
     path: &Path,
     session: &str,

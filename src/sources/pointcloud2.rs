@@ -1,4 +1,5 @@
-//! `sensor_msgs/PointCloud2` messages in ROS 2 CDR and ROS 1 encodings (REFERENCE §7.1–7.3),
+//! `sensor_msgs/PointCloud2` messages (`sensor_msgs/msg/PointCloud2.msg`) in the ROS 2 CDR and
+//! ROS 1 serializations, and Foxglove's `PointCloud` (protobuf),
 //! decoded by the message's own `fields`: x, y, z and optional intensity and ring of any
 //! numeric type, any `point_step` and `row_step`, either byte order, organized or not.
 //! Points with a non-finite coordinate and exact `(0, 0, 0)` points (the no-return value of
@@ -353,7 +354,7 @@ pub fn serialize(cloud: &PointCloud2<'_>, encoding: Encoding) -> Vec<u8> {
     out
 }
 
-/// Parses a `foxglove.PointCloud` protobuf message (REFERENCE §7.4) into the PointCloud2 form
+/// Parses a `foxglove.PointCloud` protobuf message (Foxglove's `PointCloud.proto` schema) into the PointCloud2 form
 /// (one row, little-endian), mapping Foxglove's numeric types onto PointField codes. The
 /// message's `pose` is ignored: points stay in the cloud's own frame.
 pub fn parse_foxglove(buf: &[u8]) -> Result<PointCloud2<'_>, String> {

@@ -1,4 +1,4 @@
-//! ATOL (Royer et al. 2021) exactly as `gudhi.representations.Atol` 3.13 (REFERENCE §2):
+//! ATOL (Royer et al. 2021) exactly as `gudhi.representations.Atol` 3.13 (`gudhi/representations/vector_methods.py`):
 //! centres sorted lexicographically by (death, birth), inertias = half the distance to the
 //! nearest distinct centre, and `v_j = Σ_i w_i · C(‖x_i − c_j‖ / σ_j)` for the contrasts
 //! gaussian, laplacian, indicator and the weightings cloud (w = 1) and iidproba (w = 1/n).

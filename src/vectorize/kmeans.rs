@@ -1,4 +1,5 @@
-//! The k-means quantiser behind ATOL's codebook (REFERENCE §2.7).
+//! The k-means quantiser behind ATOL's codebook (scikit-learn 1.9.1,
+//! `sklearn/cluster/_kmeans.py` and `_k_means_minibatch.pyx`).
 //!
 //! [`Algorithm::MiniBatch`] follows scikit-learn 1.9.1's `MiniBatchKMeans` step by step:
 //! k-means++ (greedy, `2 + ⌊ln k⌋` local trials) on `init_size` points drawn with replacement,

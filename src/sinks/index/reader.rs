@@ -8,10 +8,9 @@
 //! `List<float64>` descriptor as `FixedSizeList<float32>`); anything else is an error naming the
 //! file and the column, never a panic.
 
-use super::{CODEBOOK_FILE, PIPELINE_FILE, table_files};
+use super::{CODEBOOK_FILE, table_files};
 use crate::error::{Error, FileError, Result, ResultExt};
 use crate::homology::{Diagram, Pair};
-use crate::pipeline::config::Pipeline;
 use crate::sinks::parquet::{ScanRow, Status};
 use crate::sinks::schema::{self, SCHEMA_VERSION, columns as C, meta, tables};
 use crate::types::Pose;
@@ -67,11 +66,6 @@ impl IndexReader {
     /// The index's codebook.
     pub fn codebook(&self) -> Result<Codebook> {
         Codebook::load(&self.root.join(CODEBOOK_FILE))
-    }
-
-    /// The index's effective pipeline (its settings; inputs need not exist any more).
-    pub fn pipeline(&self) -> Result<Pipeline> {
-        Ok(Pipeline::load_settings(&self.root.join(PIPELINE_FILE))?)
     }
 
     /// The part files of a table, with their sessions, sorted by (session, part).
