@@ -11,6 +11,7 @@ use std::process::ExitCode;
 use toporec::eval::{PerturbationArgs, PlacesArgs};
 use toporec::fsutil::AtomicFile;
 use toporec::homology::alpha_persistence;
+use toporec::maintenance::RevectorizeArgs;
 use toporec::offline::{FitArgs, VectorizeArgs};
 use toporec::pipeline::RunOptions;
 use toporec::pipeline::config::{Pipeline, Vectorize};
@@ -60,6 +61,22 @@ enum Command {
     Fit(FitArgs),
     /// Turn diagram CSV files or index folders into descriptors with a saved codebook.
     Vectorize(VectorizeArgs),
+    /// Rebuild an index's descriptors from its stored diagrams with a new codebook (no source
+    /// is read, no persistence computed), switching to it atomically.
+    Revectorize(RevectorizeArgs),
+    /// Merge an index's small part files (left by chunked commits) into one per partition.
+    Compact(IndexArgs),
+    /// Check an index against its manifest (files, sizes, checksums, rows, codebook, every ok
+    /// scan's rows); exit 1 with the list of problems.
+    Verify(IndexArgs),
+}
+
+/// An index folder.
+#[derive(clap::Args, Debug)]
+struct IndexArgs {
+    /// The index.
+    #[arg(long)]
+    index: PathBuf,
 }
 
 /// Arguments of `toporec run`.
@@ -80,6 +97,19 @@ struct RunArgs {
     /// Also write the run's summary as JSON (counts, wall and CPU seconds per stage) here.
     #[arg(long)]
     summary_json: Option<PathBuf>,
+    /// Rebuild the index from scratch (needed when preprocess or persistence settings change).
+    #[arg(long)]
+    full: bool,
+    /// Remove indexed scans this run's sources no longer yield (without it they are kept and
+    /// reported).
+    #[arg(long)]
+    prune: bool,
+    /// Commit after this many scans.
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
+    commit_every: u64,
+    /// Commit after this many seconds.
+    #[arg(long, default_value_t = 60.0)]
+    commit_seconds: f64,
 }
 
 /// `toporec eval` protocols.
@@ -191,6 +221,9 @@ pub fn main() -> ExitCode {
             .map(|()| Done::All),
         Command::Fit(args) => fit(args).map(|()| Done::All),
         Command::Vectorize(args) => vectorize(args).map(|()| Done::All),
+        Command::Revectorize(args) => revectorize(args).map(|()| Done::All),
+        Command::Compact(args) => compact(args).map(|()| Done::All),
+        Command::Verify(args) => verify(args),
     };
     match result {
         Ok(Done::All) => ExitCode::SUCCESS,
@@ -240,7 +273,18 @@ fn threads(requested: Option<usize>) -> usize {
 
 fn run(args: RunArgs) -> Result<Done> {
     let pipeline = Pipeline::load(&args.pipeline)?;
-    let opts = RunOptions { threads: threads(args.threads), index: args.index, progress: !args.no_progress };
+    if args.commit_seconds.is_nan() || args.commit_seconds <= 0.0 {
+        bail!("--commit-seconds: {} is not a positive number of seconds", args.commit_seconds);
+    }
+    let opts = RunOptions {
+        index: args.index,
+        progress: !args.no_progress,
+        full: args.full,
+        prune: args.prune,
+        commit_every: args.commit_every,
+        commit_seconds: args.commit_seconds,
+        ..RunOptions::new(threads(args.threads))
+    };
     let summary = toporec::pipeline::run(&pipeline, &opts)?;
     eprintln!("{summary}");
     if let Some(path) = &args.summary_json {
@@ -387,4 +431,31 @@ fn vectorize(args: VectorizeArgs) -> Result<()> {
         eprintln!("{rows} descriptors (length {}) written to {}", codebook.len(), out.display());
     }
     Ok(())
+}
+
+fn revectorize(args: RevectorizeArgs) -> Result<()> {
+    let r = toporec::maintenance::revectorize(&args, threads(args.threads))?;
+    eprintln!(
+        "{}: codebook {} -> {} (length {}), {} descriptors from stored diagrams in {:.2} s ({:.0} scans/s)",
+        args.index.display(),
+        r.old_codebook.as_deref().unwrap_or("none"),
+        r.codebook.id(),
+        r.codebook.len(),
+        r.descriptors,
+        r.seconds,
+        r.descriptors as f64 / r.seconds.max(1e-9)
+    );
+    Ok(())
+}
+
+fn compact(args: IndexArgs) -> Result<()> {
+    let (merged, into) = toporec::maintenance::compact(&args.index)?;
+    eprintln!("{}: {merged} part files merged into {into}", args.index.display());
+    Ok(())
+}
+
+fn verify(args: IndexArgs) -> Result<Done> {
+    let v = toporec::maintenance::verify(&args.index)?;
+    print(&format!("{}: {v}\n", args.index.display()))?;
+    Ok(if v.problems.is_empty() { Done::All } else { Done::Partial })
 }

@@ -95,7 +95,7 @@ fn cpu_seconds(since: ThreadTime) -> f64 {
 impl Describer {
     /// The preprocessed points of a scan.
     pub fn preprocess(&self, scan: Scan) -> Result<Vec<Point>, Skip> {
-        preprocess(scan.points, &scan.id, &self.preprocess)
+        preprocess(scan.points, scan.fingerprint, &self.preprocess)
     }
 
     /// The diagram of preprocessed points, in the configured units.

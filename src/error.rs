@@ -51,6 +51,14 @@ pub enum Error {
         /// What is wrong.
         message: String,
     },
+    /// Another writer holds the index.
+    #[error("index {} is locked by {holder}", path.display())]
+    Locked {
+        /// The index folder.
+        path: PathBuf,
+        /// Who holds it: `pid N (host H) since T`.
+        holder: String,
+    },
     /// A codebook file could not be read, or a codebook could not be fitted.
     #[error("{}: {message}", path.display())]
     Codebook {

@@ -43,31 +43,81 @@ impl AtomicFile {
         &self.path
     }
 
-    /// Flushes, syncs and renames the file into place, then syncs its folder.
-    pub fn commit(mut self) -> Result<PathBuf> {
-        let out = self.out.take().expect("not yet committed");
+    /// Flushes and syncs the file, complete but still under its temporary name; its
+    /// [`StagedFile::publish`] puts it in place.
+    pub fn finish(mut self) -> Result<StagedFile> {
+        let out = self.out.take().expect("not yet finished");
         let file = out.into_inner().map_err(|e| e.into_error()).at(&self.temp)?;
         file.sync_all().at(&self.temp)?;
-        drop(file);
+        Ok(StagedFile {
+            path: std::mem::take(&mut self.path),
+            temp: std::mem::take(&mut self.temp),
+            published: false,
+        })
+    }
+
+    /// Flushes, syncs and renames the file into place, then syncs its folder.
+    pub fn commit(self) -> Result<PathBuf> {
+        self.finish()?.publish()
+    }
+}
+
+/// A complete file under its temporary name, waiting to be put in place (several files can be
+/// staged, then published together at a commit). Dropped unpublished, it is removed.
+#[derive(Debug)]
+pub struct StagedFile {
+    path: PathBuf,
+    temp: PathBuf,
+    published: bool,
+}
+
+impl StagedFile {
+    /// The final path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Where the bytes are until published.
+    pub fn temp(&self) -> &Path {
+        &self.temp
+    }
+
+    /// Renames the file into place (without syncing the folder: see [`sync_parent`]).
+    pub fn publish_unsynced(mut self) -> Result<PathBuf> {
         std::fs::rename(&self.temp, &self.path).at(&self.path)?;
-        sync_parent(&self.path)?;
+        self.published = true;
         Ok(std::mem::take(&mut self.path))
+    }
+
+    /// Renames the file into place and syncs its folder.
+    pub fn publish(self) -> Result<PathBuf> {
+        let path = self.publish_unsynced()?;
+        sync_parent(&path)?;
+        Ok(path)
+    }
+}
+
+impl Drop for StagedFile {
+    fn drop(&mut self) {
+        if !self.published {
+            let _ = std::fs::remove_file(&self.temp);
+        }
     }
 }
 
 impl Write for AtomicFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.out.as_mut().expect("not yet committed").write(buf)
+        self.out.as_mut().expect("not yet finished").write(buf)
     }
 
     fn flush(&mut self) -> std::io::Result<()> {
-        self.out.as_mut().expect("not yet committed").flush()
+        self.out.as_mut().expect("not yet finished").flush()
     }
 }
 
 impl std::io::Seek for AtomicFile {
     fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
-        self.out.as_mut().expect("not yet committed").seek(pos)
+        self.out.as_mut().expect("not yet finished").seek(pos)
     }
 }
 
@@ -76,6 +126,12 @@ impl Drop for AtomicFile {
         if self.out.take().is_some() {
             let _ = std::fs::remove_file(&self.temp);
         }
+    }
+}
+
+impl std::fmt::Debug for AtomicFile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AtomicFile").field("path", &self.path).finish()
     }
 }
 

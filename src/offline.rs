@@ -26,6 +26,17 @@ pub struct FitArgs {
     /// Where to write the codebook (JSON).
     #[arg(long, short)]
     pub out: PathBuf,
+    /// The codebook's settings.
+    #[command(flatten)]
+    pub codebook: CodebookArgs,
+    /// Record that the diagrams are in radii, not squared radii.
+    #[arg(long)]
+    pub radius: bool,
+}
+
+/// How to fit a codebook (`toporec fit`, `toporec revectorize`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct CodebookArgs {
     /// Centres per codebook (the descriptor length per part).
     #[arg(long, short, default_value_t = 50)]
     pub b: usize,
@@ -47,14 +58,11 @@ pub struct FitArgs {
     /// Seed of sampling and k-means.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Record that the diagrams are in radii, not squared radii.
-    #[arg(long)]
-    pub radius: bool,
 }
 
-impl FitArgs {
-    /// The codebook spec these arguments ask for.
-    pub fn spec(&self) -> CodebookSpec {
+impl CodebookArgs {
+    /// The codebook spec these arguments ask for, for diagrams in squared radii or radii.
+    pub fn spec(&self, squared_radii: bool) -> CodebookSpec {
         CodebookSpec {
             dims: self.dims.clone(),
             b: self.b,
@@ -63,7 +71,7 @@ impl FitArgs {
             kmeans: KMeansParams { algorithm: self.kmeans, ..KMeansParams::default() },
             sample_size: self.sample_size,
             seed: self.seed,
-            squared_radii: !self.radius,
+            squared_radii,
         }
     }
 }
@@ -99,9 +107,10 @@ pub fn diagram_inputs(paths: &[PathBuf]) -> impl Iterator<Item = Result<(String,
 
 /// Fits the codebook `args` asks for on its diagrams and saves it; returns it.
 pub fn fit(args: &FitArgs) -> Result<Codebook> {
-    let mut fitter = CodebookFitter::new(args.spec());
+    let mut fitter = CodebookFitter::new(args.codebook.spec(!args.radius));
     for item in diagram_inputs(&args.diagrams) {
-        fitter.add(&item?.1);
+        let (id, diagram) = item?;
+        fitter.add(&diagram, &id);
     }
     let start = std::time::Instant::now();
     let codebook = fitter.finish().map_err(|e| Error::Codebook {
@@ -139,7 +148,7 @@ fn to_parquet(args: &VectorizeArgs, codebook: &Codebook, out: &Path) -> Result<u
         file.push(DescriptorRow::new(id, None, None, &codebook.vectorize(&diagram)))?;
         rows += 1;
     }
-    file.finish()?;
+    file.finish()?.0.publish()?;
     Ok(rows)
 }
 

@@ -1,6 +1,7 @@
 //! The preprocess stage: range crop → ground removal → voxel grid → subsample → normalize,
 //! each optional and each with its own settings type and validation. Deterministic: the
-//! random parts (RANSAC, subsampling) are seeded by the scan id, so reruns agree.
+//! random parts (RANSAC, subsampling) are seeded by the scan's content fingerprint, so a scan
+//! is prepared the same way however it is reached.
 
 use crate::rng::SplitMix64;
 use crate::types::Point;
@@ -16,7 +17,7 @@ pub struct Preprocess {
     pub ground: Option<Ground>,
     /// Voxel-grid downsampling cell size (m): one centroid per occupied cell.
     pub voxel: Option<f64>,
-    /// Keep at most this many points (uniformly, seeded by the scan id).
+    /// Keep at most this many points (uniformly, seeded by the scan's fingerprint).
     pub subsample: Option<usize>,
     /// Centre on the mean and scale so the largest |coordinate| is 1.
     pub normalize: bool,
@@ -49,7 +50,7 @@ pub enum Ground {
         /// Height threshold (m).
         below: f64,
     },
-    /// Fit the ground plane by RANSAC (seeded by scan id; normals within 30° of z) and drop
+    /// Fit the ground plane by RANSAC (seeded by the scan's fingerprint; normals within 30° of z) and drop
     /// points within `threshold` of it.
     Plane {
         /// Inlier distance (m).
@@ -140,9 +141,10 @@ pub fn seed_of(id: &str) -> u64 {
     crate::rng::fnv1a64(id.as_bytes())
 }
 
-/// Runs the stage; `Err` when fewer than `min_points` points remain.
-pub fn preprocess(mut points: Vec<Point>, id: &str, p: &Preprocess) -> Result<Vec<Point>, Skip> {
-    let mut rng = SplitMix64(seed_of(id));
+/// Runs the stage with random choices seeded by `seed` (the scan's content fingerprint);
+/// `Err` when fewer than `min_points` points remain.
+pub fn preprocess(mut points: Vec<Point>, seed: u64, p: &Preprocess) -> Result<Vec<Point>, Skip> {
+    let mut rng = SplitMix64(seed);
     if let Some(r) = p.range {
         points.retain(|q| {
             let d = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();

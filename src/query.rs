@@ -6,7 +6,7 @@ use crate::describe::{DescribeError, Describer};
 use crate::error::{Error, Result, ResultExt};
 use crate::search::{Database, Hit};
 use crate::sinks::index::{IndexReader, IndexedScan};
-use crate::sources::{InputKind, Scan, ScanFailure, ScanStream, read_cloud};
+use crate::sources::{InputKind, Scan, ScanFailure, ScanStream, read_cloud_file};
 use crate::vectorize::codebook::Codebook;
 use rayon::prelude::*;
 use std::io::Write;
@@ -136,11 +136,12 @@ pub fn open_path(path: &Path, topic: Option<&str>) -> Result<ScanStream> {
     if let Some(spec) = kind.source(path, topic)? {
         return Ok(spec.open()?);
     }
-    let points = read_cloud(path, None);
+    let points = read_cloud_file(path, None);
     let id = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let item = match points {
-        Ok(points) => Ok(Scan {
+        Ok((points, fingerprint)) => Ok(Scan {
             id: id.clone(),
+            fingerprint,
             session: "query".into(),
             path: path.to_owned(),
             message_index: None,

@@ -76,7 +76,7 @@ fn fixture_diagrams() -> Vec<Diagram> {
 
 fn fit_codebook(spec: &CodebookSpec, diagrams: &[Diagram]) -> Codebook {
     let mut f = CodebookFitter::new(spec.clone());
-    diagrams.iter().for_each(|d| f.add(d));
+    diagrams.iter().enumerate().for_each(|(i, d)| f.add(d, &format!("scan-{i}")));
     f.finish().unwrap()
 }
 
@@ -230,14 +230,37 @@ fn degenerate_fits_behave_as_gudhi() {
 fn reservoir_bounds_the_sample_and_is_uniform() {
     use toporec::vectorize::reservoir::Reservoir;
     let mut r = Reservoir::new(1000, 3);
-    for i in 0..100_000 {
-        r.push([i as f64, 0.0], 1.0);
+    // 1,000 diagrams of 100 points each.
+    for i in 0..100_000u64 {
+        r.push(i / 100, i % 100, [i as f64, 0.0], 1.0);
     }
-    let (p, _) = r.sample();
-    assert_eq!(p.len(), 1000);
     assert_eq!(r.seen(), 100_000);
+    let (p, _) = r.into_sample();
+    assert_eq!(p.len(), 1000);
     // Uniform: each tenth of the stream holds ~100 of the kept items (binomial sd ≈ 9.5).
     let mut bins = [0; 10];
     p.iter().for_each(|x| bins[(x[0] / 10_000.0) as usize] += 1);
     assert!(bins.iter().all(|&b| (60..=140).contains(&b)), "{bins:?}");
+}
+
+#[test]
+fn the_fitted_codebook_depends_on_the_diagrams_not_their_order() {
+    // A run resumed after a crash offers its diagrams in another order; the codebook must not
+    // change. Small reservoirs make the sample matter.
+    let diagrams = fixture_diagrams();
+    let s = CodebookSpec { sample_size: 500, ..spec(DimSelection::Paper, Algorithm::MiniBatch) };
+    let ids: Vec<String> = (0..diagrams.len()).map(|i| format!("scan-{i}")).collect();
+    let fit = |order: &[usize]| {
+        let mut f = CodebookFitter::new(s.clone());
+        order.iter().for_each(|&i| f.add(&diagrams[i], &ids[i]));
+        f.finish().unwrap().to_json().to_string()
+    };
+    let forward: Vec<usize> = (0..diagrams.len()).collect();
+    let mut backward = forward.clone();
+    backward.reverse();
+    assert_eq!(fit(&forward), fit(&backward));
+    // Other ids sample other points.
+    let mut f = CodebookFitter::new(s.clone());
+    diagrams.iter().enumerate().for_each(|(i, d)| f.add(d, &format!("other-{i}")));
+    assert_ne!(f.finish().unwrap().to_json().to_string(), fit(&forward));
 }

@@ -58,7 +58,7 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
         assert!(one.join(name).is_file(), "{name}");
     }
     assert_eq!(parts(&one, "scans").len(), 2, "one partition per session");
-    assert!(one.join("scans/session=2026-01-01/part-0.parquet").is_file());
+    assert!(part_file(&one, "scans", "2026-01-01").is_file());
     assert!(
         std::fs::read_dir(&one)
             .unwrap()
@@ -70,14 +70,12 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
     assert_eq!(eff.preprocess, Pipeline::load(&pipeline).unwrap().preprocess);
 
     // arrow-rs read-back: scans and diagrams agree with each other and with the engine.
-    let scans = read_scans(&one.join("scans/session=2026-01-02/part-0.parquet"), "2026-01-02").unwrap();
+    let scans = read_scans(&part_file(&one, "scans", "2026-01-02"), "2026-01-02").unwrap();
     assert_eq!(scans.len(), 32);
     assert!(scans.iter().all(|s| s.status == Status::Ok), "every sample scan is indexed");
     assert!(scans.iter().all(|s| s.pose.is_some()), "every sample scan has its ground-truth pose");
-    let diagrams: Vec<_> = read_diagrams(&one.join("diagrams/session=2026-01-02/part-0.parquet"))
-        .unwrap()
-        .map(Result::unwrap)
-        .collect();
+    let diagrams: Vec<_> =
+        read_diagrams(&part_file(&one, "diagrams", "2026-01-02")).unwrap().map(Result::unwrap).collect();
     assert_eq!(diagrams.len(), 32);
     let h0 = diagrams[0].1.dimension(0);
     assert_eq!(h0.iter().filter(|p| p.death.is_infinite()).count(), 1, "one essential class");
@@ -100,9 +98,10 @@ fn sample_pipeline_end_to_end_and_thread_count_invariant() {
             );
         }
     }
-    // A second run into the same index replaces it cleanly.
+    // A second run finds every scan up to date.
     let o = run_pipeline(&pipeline, &two, 2);
     assert!(o.status.success());
+    assert!(text(&o.stderr).contains("changes: 64 up to date, 0 added"), "{}", text(&o.stderr));
     assert_eq!(descriptors(&two), d);
 
     // An independent reader, when installed (.ci/run installs duckdb and pyarrow).
@@ -147,7 +146,7 @@ assert set(t.column_names) >= {{"scan_id", "utime", "pose_x", "pose_y", "pose_z"
 md = ds.dataset(f"{{idx}}/scans", format="parquet").files
 import pyarrow.parquet as pq
 meta = pq.read_metadata(md[0]).metadata
-assert meta[b"toporec.schema_version"] == b"1" and meta[b"toporec.table"] == b"scans", meta
+assert meta[b"toporec.schema_version"] == b"2" and meta[b"toporec.table"] == b"scans", meta
 print("independent reader ok")
 "#,
         idx = index.display()
@@ -175,7 +174,7 @@ fn shipped_pipelines_run_on_shared_data() {
         assert_eq!(parts(&index, "descriptors").len(), sessions, "{name}");
     }
     // The NCLT session's poses made it into the descriptors.
-    let scans = read_scans(&dir.join("nclt/scans/session=2011-10-03/part-0.parquet"), "2011-10-03").unwrap();
+    let scans = read_scans(&part_file(&dir.join("nclt"), "scans", "2011-10-03"), "2011-10-03").unwrap();
     assert!(scans.iter().all(|s| s.pose.is_some()));
 }
 
@@ -205,7 +204,7 @@ fn bad_scans_mid_run_are_recorded_and_the_run_is_partial() {
     assert!(err.contains(&format!("{}: truncated", bad.display())), "{err}");
     // The scans table holds the skipped and the error row, in input order (sorted by utime:
     // the empty scan, …0999999, comes before the truncated one).
-    let rows = read_scans(&dir.join("idx/scans/session=2026-01-01/part-0.parquet"), "2026-01-01").unwrap();
+    let rows = read_scans(&part_file(&dir.join("idx"), "scans", "2026-01-01"), "2026-01-01").unwrap();
     let status: Vec<(u64, Status)> = rows.iter().map(|r| (r.seq, r.status)).collect();
     assert_eq!(
         status,

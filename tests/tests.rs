@@ -5,6 +5,7 @@ mod cli;
 mod codebook;
 mod eval;
 mod homology;
+mod index;
 mod pipeline;
 mod simulate;
 mod sources;

@@ -142,3 +142,11 @@ pub fn run_pipeline(pipeline: &Path, index: &Path, threads: usize) -> std::proce
         "--no-progress",
     ])
 }
+
+/// The one committed part file of `table` for `session` in an index.
+pub fn part_file(index: &Path, table: &str, session: &str) -> PathBuf {
+    let files = toporec::sinks::index::IndexReader::open(index).unwrap().files(table).unwrap();
+    let mine: Vec<PathBuf> = files.into_iter().filter(|(s, _)| s == session).map(|(_, p)| p).collect();
+    assert_eq!(mine.len(), 1, "{table}/{session}: {mine:?}");
+    mine.into_iter().next().unwrap()
+}

@@ -171,12 +171,28 @@ impl Pipeline {
         })
     }
 
+    /// The fingerprint of everything that makes a scan's diagram: the preprocess and
+    /// persistence settings (16 hex digits). An index records it; rows made with other settings
+    /// are outdated.
+    pub fn settings_hash(&self) -> String {
+        #[derive(serde::Serialize)]
+        struct Settings<'a> {
+            preprocess: &'a Preprocess,
+            persistence: &'a Persistence,
+        }
+        let text =
+            toml::to_string(&Settings { preprocess: &self.preprocess, persistence: &self.persistence })
+                .expect("TOML of plain data");
+        crate::fingerprint::hex(crate::fingerprint::of_bytes(text.as_bytes()))
+    }
+
     /// The effective pipeline as TOML (absolute paths, defaults filled in, the codebook as
-    /// loaded): written into the index beside the tables.
-    pub fn effective_toml(&self) -> String {
+    /// loaded, `index` as the folder written): written into the index beside the tables.
+    pub fn effective_toml(&self, index: &Path) -> String {
         let mut doc = Table::new();
         let mut output = Table::new();
-        output.insert("index".into(), Value::String(self.index.display().to_string()));
+        let index = std::path::absolute(index).unwrap_or_else(|_| index.to_owned());
+        output.insert("index".into(), Value::String(clean(&index).display().to_string()));
         doc.insert("output".into(), Value::Table(output));
         let sources: Vec<Value> =
             self.sources.iter().map(|s| Value::try_from(s).expect("plain data")).collect();

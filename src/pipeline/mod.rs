@@ -1,18 +1,22 @@
-//! `toporec run`: the staged streaming processor.
+//! `toporec run`: the staged streaming processor, incremental and crash-safe.
 //!
 //! ```text
 //!  source thread ──jobs──► worker threads ──outcomes──► ordered writer (this thread)
-//!  (sources, in order)     Describer: preprocess →      reorders by seq, writes scans +
-//!                          persistence (→ vectorize)    diagrams, feeds the codebook fit
-//!                                                       └► fit → pass 2: descriptors → commit
+//!  reads each scan, skips   Describer: preprocess →      reorders by seq, adds rows to the
+//!  the up-to-date ones      persistence (→ vectorize)    open chunk, commits every N scans
+//!                                                        or T seconds
+//!  then: prune → fit the codebook (first run) → descriptors of ok scans without one
 //! ```
 //!
-//! [`run`] is its four steps: pass 1 (sources → workers → ordered writer), the codebook
-//! (loaded, or fitted on pass 1's diagrams), pass 2 (descriptors from the staged diagrams,
-//! when the codebook was fitted) and the commit. Channels are bounded (crossbeam), and the source may run at most a window of scans
-//! ahead of the writer (a credit channel), so memory is bounded whatever the session length.
-//! Outcomes are written in input order, so the index does not depend on the thread count.
-//! One bad scan is one `error` row; a panic in a stage is caught and recorded the same way.
+//! A scan is up to date when the index holds a row of the same id made from the same bytes
+//! (content fingerprint) with the same settings; only the others are computed, and their old
+//! rows replaced. The index's settings (preprocess, persistence) and codebook are fixed once
+//! set: a run with other settings is refused unless `--full` rebuilds the index. Rows are
+//! committed in chunks through [`IndexWriter`]; a run killed at any moment resumes from its
+//! last commit. Channels are bounded (crossbeam), and the source may run at most a window of
+//! scans ahead of the writer, so memory is bounded whatever the session length. Outcomes are
+//! written in input order, so the index does not depend on the thread count. One bad scan is
+//! one `error` row; a panic in a stage is caught and recorded the same way.
 
 pub mod config;
 mod progress;
@@ -22,18 +26,19 @@ use crate::error::{Error, Result};
 use crate::homology::Diagram;
 use crate::sinks::index::IndexWriter;
 use crate::sinks::index::reader::diagrams;
-use crate::sinks::index::writer::ScanCounts;
-use crate::sinks::parquet::{DescriptorRow, DescriptorsFile, ScanRow, Status};
+use crate::sinks::index::writer::CommittedScan;
+use crate::sinks::parquet::{DescriptorRow, ScanRow, Status};
+use crate::sinks::schema::tables;
 use crate::sources::{Scan, ScanFailure};
-use crate::types::Pose;
-use crate::vectorize::codebook::{Codebook, CodebookFitter};
+use crate::vectorize::codebook::{Codebook, CodebookFitter, Descriptor};
 use config::{Pipeline, Vectorize};
 use cpu_time::ThreadTime;
 use crossbeam_channel::{Receiver, Sender, bounded};
 use progress::Progress;
 use rayon::prelude::*;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Runtime options (everything else is in the pipeline file).
@@ -45,6 +50,29 @@ pub struct RunOptions {
     pub index: Option<PathBuf>,
     /// Show a progress bar (when stderr is a terminal) or periodic log lines.
     pub progress: bool,
+    /// Rebuild the index from scratch.
+    pub full: bool,
+    /// Remove indexed scans that this run's sources no longer yield.
+    pub prune: bool,
+    /// Commit after this many scans.
+    pub commit_every: u64,
+    /// Commit after this many seconds.
+    pub commit_seconds: f64,
+}
+
+impl RunOptions {
+    /// Defaults: all cores, progress, incremental, commits every 500 scans or 60 s.
+    pub fn new(threads: usize) -> Self {
+        RunOptions {
+            threads,
+            index: None,
+            progress: true,
+            full: false,
+            prune: false,
+            commit_every: 500,
+            commit_seconds: 60.0,
+        }
+    }
 }
 
 /// What a run did.
@@ -52,16 +80,34 @@ pub struct RunOptions {
 pub struct RunSummary {
     /// The index folder.
     pub index: PathBuf,
-    /// Scans read (every row of `scans`).
+    /// Scans the sources yielded (every one, up to date or not).
     pub read: u64,
-    /// Scans indexed (status ok).
+    /// Of those, ok (indexed).
     pub indexed: u64,
-    /// Skipped, by reason.
+    /// Of those, skipped, by reason.
     pub skipped: BTreeMap<String, u64>,
-    /// Scans that failed.
+    /// Of those, failed.
     pub errors: u64,
     /// First error messages (at most 10).
     pub first_errors: Vec<String>,
+    /// Scans already in the index from the same bytes and settings: not computed.
+    pub up_to_date: u64,
+    /// Scans new to the index.
+    pub added: u64,
+    /// Scans whose bytes changed: recomputed, their old rows replaced.
+    pub replaced: u64,
+    /// Indexed scans the sources no longer yield, removed (`--prune`).
+    pub pruned: u64,
+    /// Indexed scans the sources no longer yield, kept (no `--prune`).
+    pub not_in_sources: u64,
+    /// Scans the sources yielded twice under one id (the later ones are left out).
+    pub duplicates: u64,
+    /// Scans that went through preprocessing and persistence.
+    pub computed: u64,
+    /// Descriptors made from stored diagrams (after a codebook fit, or a resumed run).
+    pub descriptors_from_stored: u64,
+    /// Commits.
+    pub commits: u64,
     /// Wall time.
     pub wall: Duration,
     /// CPU seconds per stage (worker stages summed over threads).
@@ -80,15 +126,6 @@ impl RunSummary {
         self.errors > 0
     }
 
-    fn counts(&self) -> ScanCounts {
-        ScanCounts {
-            read: self.read,
-            indexed: self.indexed,
-            skipped: self.skipped.values().sum(),
-            errors: self.errors,
-        }
-    }
-
     /// The summary as JSON (`toporec run --summary-json`): counts, wall seconds and CPU
     /// seconds per stage.
     pub fn to_json(&self) -> serde_json::Value {
@@ -99,8 +136,17 @@ impl RunSummary {
                 "indexed": self.indexed,
                 "skipped": self.skipped,
                 "errors": self.errors,
+                "up_to_date": self.up_to_date,
+                "added": self.added,
+                "replaced": self.replaced,
+                "pruned": self.pruned,
+                "not_in_sources": self.not_in_sources,
+                "duplicates": self.duplicates,
+                "computed": self.computed,
+                "descriptors_from_stored": self.descriptors_from_stored,
             },
             "first_errors": self.first_errors,
+            "commits": self.commits,
             "codebook_id": self.codebook_id,
             "descriptor_length": self.descriptor_len,
             "threads": self.threads,
@@ -109,9 +155,10 @@ impl RunSummary {
         })
     }
 
-    fn count(&mut self, row: &ScanRow) {
+    /// Counts one scan by its status.
+    fn count(&mut self, status: Status, error: Option<&str>) {
         self.read += 1;
-        match row.status {
+        match status {
             Status::Ok => self.indexed += 1,
             Status::Skipped => {
                 *self.skipped.entry("too few points after preprocessing".into()).or_default() += 1
@@ -119,7 +166,7 @@ impl RunSummary {
             Status::Error => {
                 self.errors += 1;
                 if self.first_errors.len() < 10 {
-                    self.first_errors.push(row.error.clone().unwrap_or_default());
+                    self.first_errors.push(error.unwrap_or_default().to_string());
                 }
             }
         }
@@ -130,7 +177,9 @@ impl std::fmt::Display for RunSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let secs = self.wall.as_secs_f64();
         let skipped: u64 = self.skipped.values().sum();
-        writeln!(f, "index: {}", self.index.display())?;
+        // Relative to the working folder when inside it: the path the user typed.
+        let cwd = std::env::current_dir().unwrap_or_default();
+        writeln!(f, "index: {}", self.index.strip_prefix(&cwd).unwrap_or(&self.index).display())?;
         writeln!(
             f,
             "scans: {} read, {} indexed, {skipped} skipped, {} errors",
@@ -141,6 +190,21 @@ impl std::fmt::Display for RunSummary {
         }
         for e in &self.first_errors {
             writeln!(f, "  error: {e}")?;
+        }
+        writeln!(
+            f,
+            "changes: {} up to date, {} added, {} replaced, {} pruned ({} computed, {} commits)",
+            self.up_to_date, self.added, self.replaced, self.pruned, self.computed, self.commits
+        )?;
+        if self.not_in_sources > 0 {
+            writeln!(
+                f,
+                "  {} indexed scans are not in this run's sources: kept (`--prune` removes them)",
+                self.not_in_sources
+            )?;
+        }
+        if self.duplicates > 0 {
+            writeln!(f, "  {} scans came twice under one id: the later ones were left out", self.duplicates)?;
         }
         writeln!(f, "descriptors: length {}, codebook {}", self.descriptor_len, self.codebook_id)?;
         writeln!(f, "wall time: {secs:.2} s, {:.1} scans/s", self.read as f64 / secs.max(1e-9))?;
@@ -154,68 +218,109 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
     let start = Instant::now();
     let index = opts.index.clone().unwrap_or_else(|| p.index.clone());
     let threads = opts.threads.max(1);
-    let loaded = match &p.vectorize {
-        Vectorize::Load(_, cb) => Some((**cb).clone()),
-        Vectorize::Fit(_) => None,
+    let settings = p.settings_hash();
+    let mut writer = IndexWriter::open(&index, &settings, opts.full)?;
+    let indexed_before = writer.manifest().generation > 0;
+    if indexed_before && writer.manifest().settings_hash != settings {
+        return Err(Error::index(
+            &index,
+            "made with other preprocess or persistence settings than this pipeline's; \
+             rebuild it with `toporec run --full` (every scan is recomputed)",
+        ));
+    }
+    let codebook = frozen_codebook(&writer, p, &index)?;
+    let pipeline_toml = p.effective_toml(&index);
+    if let (Some(cb), false) = (&codebook, writer.manifest().codebook.is_some()) {
+        writer.set_codebook(cb.clone(), Some(pipeline_toml.clone()));
+    } else {
+        writer.set_pipeline(pipeline_toml.clone());
+    }
+    let describer = Describer {
+        preprocess: p.preprocess.clone(),
+        squared: p.persistence.squared,
+        codebook: codebook.clone(),
     };
-    let describer =
-        Describer { preprocess: p.preprocess.clone(), squared: p.persistence.squared, codebook: loaded };
-    let mut writer = IndexWriter::create(&index)?;
     let mut summary = RunSummary { index: index.clone(), threads, ..Default::default() };
 
-    let pass = match index_scans(p, &describer, threads, opts.progress, &mut writer, &mut summary) {
-        Ok(pass) => pass,
-        Err(e) => {
-            writer.abandon();
-            return Err(e);
+    let pass = index_scans(p, &describer, &settings, opts, &mut writer, &mut summary)?;
+    let mut stages = pass.stages;
+
+    // Scans the sources no longer yield.
+    let gone: Vec<String> =
+        writer.committed().keys().filter(|id| !pass.seen.contains(*id)).cloned().collect();
+    if opts.prune {
+        gone.iter().for_each(|id| writer.remove(id));
+        writer.commit()?;
+        summary.pruned = gone.len() as u64;
+    } else {
+        summary.not_in_sources = gone.len() as u64;
+    }
+
+    // The codebook: frozen in the index, or fitted now on every committed diagram.
+    let t = ThreadTime::now();
+    let codebook = match codebook {
+        Some(cb) => cb,
+        None => {
+            let cb = fit_codebook(&writer, p, &index)?;
+            writer.set_codebook(cb.clone(), Some(pipeline_toml));
+            writer.commit()?;
+            cb
         }
     };
-    let t = ThreadTime::now();
-    let codebook = match (describer.codebook, pass.fitter) {
-        (Some(cb), _) => cb,
-        (None, Some(fitter)) => match fitter.finish() {
-            Ok(cb) => cb,
-            Err(e) => {
-                writer.abandon();
-                return Err(Error::index(
-                    &index,
-                    format!(
-                        "no codebook could be fitted on this run's diagrams ({e}); no descriptors ({} scans read, {} indexed)",
-                        summary.read, summary.indexed
-                    ),
-                ));
-            }
-        },
-        (None, None) => unreachable!("a codebook is loaded or fitted"),
-    };
     let fit_secs = t.elapsed().as_secs_f64();
-    let mut stages = pass.stages;
-    if pass.fitted {
-        let (vectorize, read_back) = vectorize_pass(&mut writer, &codebook, &pass.ok_scans, threads)?;
-        stages.vectorize += vectorize;
-        summary.stages.insert("read back", read_back);
-    }
-    let t = ThreadTime::now();
-    writer.commit(&codebook, &p.effective_toml(), summary.counts())?;
-    let commit_secs = t.elapsed().as_secs_f64();
-
+    let (vectorize, read_back, made) = stored_descriptors(&mut writer, &codebook, threads, opts)?;
+    stages.vectorize += vectorize;
+    summary.descriptors_from_stored = made;
+    summary.commits = writer.commits();
     summary.codebook_id = codebook.id();
     summary.descriptor_len = codebook.len();
     summary.wall = start.elapsed();
-    summary.stages.extend([
+    summary.stages = BTreeMap::from([
         ("read", pass.read_secs),
         ("preprocess", stages.preprocess),
         ("persistence", stages.persistence),
         ("fit", fit_secs),
         ("vectorize", stages.vectorize),
-        ("write", pass.write_secs + commit_secs),
+        ("read back", read_back),
+        ("write", pass.write_secs),
     ]);
     Ok(summary)
 }
 
+/// The codebook the run must use: the index's (checked against the pipeline's), or the
+/// pipeline's saved one for a new index; `None` when it is to be fitted on this run.
+fn frozen_codebook(writer: &IndexWriter, p: &Pipeline, index: &std::path::Path) -> Result<Option<Codebook>> {
+    let frozen = writer.manifest().codebook(index)?;
+    match (frozen, &p.vectorize) {
+        (Some(cb), Vectorize::Fit(spec)) if cb.spec != spec.clone() => Err(Error::index(
+            index,
+            format!(
+                "its codebook {} was fitted with other [vectorize] settings than this pipeline's; \
+                 switch codebooks with `toporec revectorize`, or rebuild with `toporec run --full`",
+                cb.id()
+            ),
+        )),
+        (Some(cb), Vectorize::Load(path, loaded)) if loaded.id() != cb.id() => Err(Error::index(
+            index,
+            format!(
+                "its codebook is {}, the pipeline's ({}) is {}; switch with `toporec revectorize --codebook`",
+                cb.id(),
+                path.display(),
+                loaded.id()
+            ),
+        )),
+        (Some(cb), _) => Ok(Some(cb)),
+        (None, Vectorize::Load(_, loaded)) => Ok(Some((**loaded).clone())),
+        (None, Vectorize::Fit(_)) => Ok(None),
+    }
+}
+
 /// One scan handed from the source thread to the workers.
 struct Job {
+    /// Order among the computed scans (the writer's reordering key).
     seq: u64,
+    /// Position among all the scans the sources yielded (the `seq` column).
+    position: u64,
     item: std::result::Result<Scan, ScanFailure>,
 }
 
@@ -224,21 +329,17 @@ struct Outcome {
     seq: u64,
     row: ScanRow,
     diagram: Option<Diagram>,
-    descriptor: Option<crate::vectorize::codebook::Descriptor>,
+    descriptor: Option<Descriptor>,
     times: StageTimes,
 }
 
-/// An ok scan, as the descriptors table needs it.
-type OkScan = (String, Option<i64>, Option<Pose>);
+/// What the index holds for a scan, as the source thread needs it.
+type Known = HashMap<String, CommittedScan>;
 
 /// What pass 1 leaves for the rest of the run.
 struct IndexedPass {
-    /// The codebook fitter, fed every diagram (when the codebook is fitted).
-    fitter: Option<CodebookFitter>,
-    /// Whether descriptors still have to be made (pass 2).
-    fitted: bool,
-    /// The ok scans of each staged diagrams file, in the order written.
-    ok_scans: Vec<(String, Vec<OkScan>)>,
+    /// Ids the sources yielded.
+    seen: HashSet<String>,
     /// Worker CPU time per stage.
     stages: StageTimes,
     /// CPU seconds of the source thread and of the writer.
@@ -246,61 +347,127 @@ struct IndexedPass {
     write_secs: f64,
 }
 
-/// Pass 1: sources → workers → ordered writer. Writes `scans` and `diagrams` (and
-/// `descriptors`, with a loaded codebook).
+/// What the source thread found.
+#[derive(Default)]
+struct SourceReport {
+    seen: HashSet<String>,
+    /// Up-to-date scans: (status, error).
+    up_to_date: Vec<(Status, Option<String>)>,
+    added: u64,
+    replaced: u64,
+    duplicates: u64,
+    secs: f64,
+}
+
+/// Pass 1: sources → workers → ordered writer; commits chunks as it goes.
 fn index_scans(
     p: &Pipeline,
     describer: &Describer,
-    threads: usize,
-    show_progress: bool,
+    settings: &str,
+    opts: &RunOptions,
     writer: &mut IndexWriter,
     summary: &mut RunSummary,
 ) -> Result<IndexedPass> {
-    let progress = Progress::new(show_progress, || p.sources.iter().map(|s| s.count_hint()).sum());
+    let threads = opts.threads.max(1);
+    let progress = Progress::new(opts.progress, || p.sources.iter().map(|s| s.count_hint()).sum());
     let window = 4 * threads + 8;
     let (job_tx, job_rx) = bounded::<Job>(2 * threads);
     let (out_tx, out_rx) = bounded::<Outcome>(2 * threads);
     let (credit_tx, credit_rx) = bounded::<()>(window);
     (0..window).for_each(|_| credit_tx.send(()).expect("capacity"));
-    let fitter = match &p.vectorize {
-        Vectorize::Fit(spec) => Some(CodebookFitter::new(spec.clone())),
-        Vectorize::Load(..) => None,
-    };
+    let known: Arc<Known> = Arc::new(writer.committed().clone());
     let mut ordered =
-        OrderedWriter::new(writer, summary, fitter, describer.codebook.as_ref(), &p.persistence.dims);
-    let read_secs = std::thread::scope(|scope| -> Result<f64> {
-        let reader = scope.spawn(|| read_sources(p, job_tx, credit_rx));
+        OrderedWriter::new(writer, summary, describer.codebook.as_ref(), &p.persistence.dims, opts);
+    let report = std::thread::scope(|scope| -> Result<SourceReport> {
+        let known = known.clone();
+        let reader = scope.spawn(move || read_sources(p, settings, &known, job_tx, credit_rx));
         for _ in 0..threads {
             let (rx, tx) = (job_rx.clone(), out_tx.clone());
             scope.spawn(move || {
                 for job in rx {
-                    if tx.send(describe(job, describer)).is_err() {
+                    if tx.send(describe(job, describer, settings)).is_err() {
                         break;
                     }
                 }
             });
         }
         drop((job_rx, out_tx));
+        let mut failed = None;
         for outcome in out_rx {
-            let written = ordered.accept(outcome)?;
-            progress.tick(ordered.summary);
-            // Tell the source that many more scans may start.
-            for _ in 0..written {
-                let _ = credit_tx.send(());
+            match ordered.accept(outcome) {
+                Ok(written) => {
+                    progress.tick(ordered.summary);
+                    // Tell the source that many more scans may start.
+                    for _ in 0..written {
+                        let _ = credit_tx.send(());
+                    }
+                }
+                Err(e) => {
+                    // Stop the source and the workers; what is committed stays.
+                    failed = Some(e);
+                    break;
+                }
             }
         }
-        Ok(reader.join().expect("source thread"))
+        drop(credit_tx);
+        let report = reader.join().expect("source thread");
+        match failed {
+            Some(e) => Err(e),
+            None => Ok(report),
+        }
     })?;
     progress.finish();
-    ordered.finish(read_secs)
+    let (stages, mut write_secs) = (ordered.stages, ordered.write_secs);
+    let t = ThreadTime::now();
+    ordered.writer.commit()?;
+    write_secs += t.elapsed().as_secs_f64();
+    for (status, error) in &report.up_to_date {
+        summary.count(*status, error.as_deref());
+    }
+    summary.up_to_date = report.up_to_date.len() as u64;
+    summary.added = report.added;
+    summary.replaced = report.replaced;
+    summary.duplicates = report.duplicates;
+    Ok(IndexedPass { seen: report.seen, stages, read_secs: report.secs, write_secs })
 }
 
-/// The source thread: every source's scans in order, each waiting for a credit.
-fn read_sources(p: &Pipeline, jobs: Sender<Job>, credits: Receiver<()>) -> f64 {
+/// The source thread: every source's scans in order; the up-to-date ones are counted, the
+/// others sent to the workers, each waiting for a credit.
+fn read_sources(
+    p: &Pipeline,
+    settings: &str,
+    known: &Known,
+    jobs: Sender<Job>,
+    credits: Receiver<()>,
+) -> SourceReport {
     let t = ThreadTime::now();
-    let mut seq = 0u64;
-    let mut send = |item| {
-        let ok = credits.recv().is_ok() && jobs.send(Job { seq, item }).is_ok();
+    let mut report = SourceReport::default();
+    let (mut seq, mut position) = (0u64, 0u64);
+    let mut consider = |item: std::result::Result<Scan, ScanFailure>, report: &mut SourceReport| -> bool {
+        let (id, fingerprint, error) = match &item {
+            Ok(s) => (s.id.clone(), Some(s.fingerprint), None),
+            Err(f) => (f.id.clone(), f.fingerprint, Some(f.error.clone())),
+        };
+        position += 1;
+        if !report.seen.insert(id.clone()) {
+            tracing::warn!("scan {id} came twice; the later one is left out");
+            report.duplicates += 1;
+            return true;
+        }
+        let fingerprint = fingerprint.map(crate::fingerprint::hex);
+        match known.get(&id) {
+            Some(c)
+                if c.settings_hash == settings
+                    && c.fingerprint == fingerprint
+                    && (error.is_none() || c.error == error) =>
+            {
+                report.up_to_date.push((c.status, c.error.clone()));
+                return true;
+            }
+            Some(_) => report.replaced += 1,
+            None => report.added += 1,
+        }
+        let ok = credits.recv().is_ok() && jobs.send(Job { seq, position: position - 1, item }).is_ok();
         seq += 1;
         ok
     };
@@ -314,33 +481,37 @@ fn read_sources(p: &Pipeline, jobs: Sender<Job>, credits: Receiver<()>) -> f64 {
                     path: PathBuf::new(),
                     message_index: None,
                     utime: None,
+                    fingerprint: None,
                     error: e.to_string(),
                 };
-                if !send(Err(failure)) {
+                if !consider(Err(failure), &mut report) {
                     break 'all;
                 }
                 continue;
             }
         };
         for item in stream {
-            if !send(item) {
+            if !consider(item, &mut report) {
                 break 'all;
             }
         }
     }
-    t.elapsed().as_secs_f64()
+    report.secs = t.elapsed().as_secs_f64();
+    report
 }
 
 /// A worker's step: one scan through the [`Describer`], as a `scans` row and its results.
-fn describe(job: Job, describer: &Describer) -> Outcome {
-    let seq = job.seq;
+fn describe(job: Job, describer: &Describer, settings: &str) -> Outcome {
+    let (seq, position) = (job.seq, job.position);
     let scan = match job.item {
         Ok(scan) => scan,
         Err(f) => {
             let row = ScanRow {
                 scan_id: f.id,
+                fingerprint: f.fingerprint.map(crate::fingerprint::hex),
+                settings_hash: settings.to_string(),
                 session: f.session,
-                seq,
+                seq: position,
                 source_path: f.path.display().to_string(),
                 message_index: f.message_index,
                 utime: f.utime,
@@ -355,8 +526,10 @@ fn describe(job: Job, describer: &Describer) -> Outcome {
     };
     let mut row = ScanRow {
         scan_id: scan.id.clone(),
+        fingerprint: Some(crate::fingerprint::hex(scan.fingerprint)),
+        settings_hash: settings.to_string(),
         session: scan.session.clone(),
-        seq,
+        seq: position,
         source_path: scan.path.display().to_string(),
         message_index: scan.message_index,
         utime: Some(scan.utime),
@@ -383,13 +556,11 @@ fn describe(job: Job, describer: &Describer) -> Outcome {
 struct OrderedWriter<'a> {
     writer: &'a mut IndexWriter,
     summary: &'a mut RunSummary,
-    fitter: Option<CodebookFitter>,
     codebook: Option<&'a Codebook>,
     dims: &'a [u8],
+    opts: &'a RunOptions,
     pending: BTreeMap<u64, Outcome>,
     next: u64,
-    descriptor_files: HashMap<String, DescriptorsFile>,
-    ok_scans: Vec<(String, Vec<OkScan>)>,
     stages: StageTimes,
     write_secs: f64,
 }
@@ -398,20 +569,18 @@ impl<'a> OrderedWriter<'a> {
     fn new(
         writer: &'a mut IndexWriter,
         summary: &'a mut RunSummary,
-        fitter: Option<CodebookFitter>,
         codebook: Option<&'a Codebook>,
         dims: &'a [u8],
+        opts: &'a RunOptions,
     ) -> Self {
         OrderedWriter {
             writer,
             summary,
-            fitter,
             codebook,
             dims,
+            opts,
             pending: BTreeMap::new(),
             next: 0,
-            descriptor_files: HashMap::new(),
-            ok_scans: Vec::new(),
             stages: StageTimes::default(),
             write_secs: 0.0,
         }
@@ -433,99 +602,137 @@ impl<'a> OrderedWriter<'a> {
 
     fn write(&mut self, o: Outcome) -> Result<()> {
         self.stages += o.times;
-        self.summary.count(&o.row);
-        // A new staged part starts where the session changes (as in IndexWriter::write_scan).
-        if self.ok_scans.last().is_none_or(|(s, _)| *s != o.row.session) {
-            self.ok_scans.push((o.row.session.clone(), Vec::new()));
-        }
-        if let (Some(f), Some(d)) = (self.fitter.as_mut(), &o.diagram) {
-            f.add(d);
-        }
-        if o.row.status == Status::Ok {
-            let group = &mut self.ok_scans.last_mut().expect("pushed above").1;
-            group.push((o.row.scan_id.clone(), o.row.utime, o.row.pose));
-        }
-        if let (Some(cb), Some(d)) = (self.codebook, &o.descriptor) {
-            let session = &o.row.session;
-            if !self.descriptor_files.contains_key(session) {
-                let f = self.writer.descriptors_file(session, cb)?;
-                self.descriptor_files.insert(session.clone(), f);
+        self.summary.count(o.row.status, o.row.error.as_deref());
+        self.summary.computed += 1;
+        let descriptor = match (self.codebook, &o.descriptor) {
+            (Some(cb), Some(d)) => {
+                Some((DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, d), cb))
             }
-            let row = DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, d);
-            self.descriptor_files.get_mut(session).expect("inserted").push(row)?;
+            _ => None,
+        };
+        self.writer.write_scan(o.row, o.diagram.as_ref(), self.dims, descriptor)?;
+        if self.writer.chunk_len() >= self.opts.commit_every
+            || self.writer.chunk_age().as_secs_f64() >= self.opts.commit_seconds
+        {
+            self.writer.commit()?;
         }
-        self.writer.write_scan(o.row, o.diagram.as_ref(), self.dims)
-    }
-
-    /// Closes the files of pass 1.
-    fn finish(self, read_secs: f64) -> Result<IndexedPass> {
-        let t = ThreadTime::now();
-        self.writer.close_session()?;
-        let mut files: Vec<DescriptorsFile> = self.descriptor_files.into_values().collect();
-        files.sort_by(|a, b| a.session().cmp(b.session()));
-        for f in files {
-            self.writer.finish_descriptors(f)?;
-        }
-        Ok(IndexedPass {
-            fitted: self.fitter.is_some(),
-            fitter: self.fitter,
-            ok_scans: self.ok_scans,
-            stages: self.stages,
-            read_secs,
-            write_secs: self.write_secs + t.elapsed().as_secs_f64(),
-        })
+        Ok(())
     }
 }
 
-/// Pass 2 (a codebook fitted on this run): streams each staged diagrams file back,
-/// vectorizes in parallel batches and writes the descriptors in order. Returns the CPU seconds
-/// spent vectorizing and reading back (decoding and writing included).
-fn vectorize_pass(
+/// Fits the pipeline's codebook on every committed ok scan's diagram. The sample depends only
+/// on which diagrams the index holds, so a run resumed after a crash fits the same codebook.
+fn fit_codebook(writer: &IndexWriter, p: &Pipeline, index: &std::path::Path) -> Result<Codebook> {
+    let Vectorize::Fit(spec) = &p.vectorize else { unreachable!("a loaded codebook is never fitted") };
+    let mut fitter = CodebookFitter::new(spec.clone());
+    let ok: HashSet<&str> = writer
+        .committed()
+        .iter()
+        .filter(|(_, c)| c.status == Status::Ok)
+        .map(|(id, _)| id.as_str())
+        .collect();
+    let mut with_pairs: HashSet<String> = HashSet::new();
+    for f in writer.manifest().files_of(tables::DIAGRAMS) {
+        for d in diagrams(&index.join(&f.path))? {
+            let (id, diagram) = d?;
+            if ok.contains(id.as_str()) {
+                fitter.add(&diagram, &id);
+                with_pairs.insert(id);
+            }
+        }
+    }
+    // Ok scans whose stored dimensions hold no pair: empty diagrams.
+    for id in ok.iter().filter(|id| !with_pairs.contains(**id)) {
+        fitter.add(&Diagram::default(), id);
+    }
+    let counts = writer.manifest().counts;
+    fitter.finish().map_err(|e| {
+        Error::index(
+            index,
+            format!(
+                "no codebook could be fitted on its diagrams ({e}); no descriptors ({} scans, {} ok)",
+                counts.scans, counts.ok
+            ),
+        )
+    })
+}
+
+/// Descriptors for the committed ok scans that have none (after a codebook fit, a run killed
+/// before its descriptors were committed, a new codebook), made from their stored diagrams and
+/// committed in chunks of `opts.commit_every` scans. Returns the CPU seconds spent vectorizing and reading back, and the
+/// number made.
+pub fn stored_descriptors(
     writer: &mut IndexWriter,
     codebook: &Codebook,
-    ok_scans: &[(String, Vec<OkScan>)],
     threads: usize,
-) -> Result<(f64, f64)> {
+    opts: &RunOptions,
+) -> Result<(f64, f64, u64)> {
+    let missing: HashMap<String, (String, Option<i64>, Option<crate::types::Pose>)> = writer
+        .committed()
+        .iter()
+        .filter(|(_, c)| c.status == Status::Ok && !c.has_descriptor)
+        .map(|(id, c)| (id.clone(), (c.session.clone(), c.utime, c.pose)))
+        .collect();
+    if missing.is_empty() {
+        return Ok((0.0, 0.0, 0));
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .map_err(|e| Error::invalid(format!("starting {threads} threads: {e}")))?;
-    let staged = writer.staged_diagrams();
     let t = ThreadTime::now();
     let mut vectorize_secs = 0.0;
-    for ((session, path), (ok_session, ok)) in staged.iter().zip(ok_scans) {
-        assert_eq!(session, ok_session, "staged files in step with the scans written");
-        let mut file = writer.descriptors_file(session, codebook)?;
-        let mut groups = diagrams(path)?.peekable();
-        // Small batches: each holds its diagrams in memory.
-        for chunk in ok.chunks(64) {
-            let mut batch = Vec::with_capacity(chunk.len());
-            for (scan_id, utime, pose) in chunk {
-                // A scan whose stored dimensions hold no pair has no diagram rows.
-                let diagram = match groups.peek() {
-                    Some(Ok((gid, _))) if gid == scan_id => groups.next().expect("peeked")?.1,
-                    Some(Err(_)) => return Err(groups.next().expect("peeked").unwrap_err()),
-                    _ => Diagram::default(),
-                };
-                batch.push((scan_id, *utime, *pose, diagram));
-            }
-            let rows: Vec<(DescriptorRow, f64)> = pool.install(|| {
-                batch
-                    .par_iter()
-                    .map(|(scan_id, utime, pose, diagram)| {
-                        let t = ThreadTime::now();
-                        let d = codebook.vectorize(diagram);
-                        let secs = t.elapsed().as_secs_f64();
-                        (DescriptorRow::new(scan_id.to_string(), *utime, *pose, &d), secs)
-                    })
-                    .collect()
-            });
-            for (r, secs) in rows {
-                vectorize_secs += secs;
-                file.push(r)?;
+    let mut made = 0u64;
+    let files: Vec<PathBuf> =
+        writer.manifest().files_of(tables::DIAGRAMS).map(|f| writer.root().join(&f.path)).collect();
+    let mut done: HashSet<String> = HashSet::new();
+    let mut batch: Vec<(String, Diagram)> = Vec::new();
+    let mut flush = |batch: &mut Vec<(String, Diagram)>, writer: &mut IndexWriter| -> Result<()> {
+        let rows: Vec<(String, DescriptorRow, f64)> = pool.install(|| {
+            batch
+                .par_iter()
+                .map(|(id, diagram)| {
+                    let (session, utime, pose) = &missing[id];
+                    let t = ThreadTime::now();
+                    let d = codebook.vectorize(diagram);
+                    let secs = t.elapsed().as_secs_f64();
+                    (session.clone(), DescriptorRow::new(id.clone(), *utime, *pose, &d), secs)
+                })
+                .collect()
+        });
+        for (session, row, secs) in rows {
+            vectorize_secs += secs;
+            made += 1;
+            writer.write_descriptor(&session, row, codebook)?;
+        }
+        batch.clear();
+        if writer.chunk_len() >= opts.commit_every || writer.chunk_age().as_secs_f64() >= opts.commit_seconds
+        {
+            writer.commit()?;
+        }
+        Ok(())
+    };
+    for path in files {
+        for d in diagrams(&path)? {
+            let (id, diagram) = d?;
+            if missing.contains_key(&id) && done.insert(id.clone()) {
+                batch.push((id, diagram));
+                if batch.len() == 64 {
+                    flush(&mut batch, writer)?;
+                }
             }
         }
-        writer.finish_descriptors(file)?;
     }
-    Ok((vectorize_secs, t.elapsed().as_secs_f64()))
+    // Ok scans whose stored dimensions hold no pair.
+    let mut rest: Vec<&String> = missing.keys().filter(|id| !done.contains(*id)).collect();
+    rest.sort();
+    for id in rest {
+        batch.push((id.clone(), Diagram::default()));
+        if batch.len() == 64 {
+            flush(&mut batch, writer)?;
+        }
+    }
+    flush(&mut batch, writer)?;
+    writer.commit()?;
+    Ok((vectorize_secs, t.elapsed().as_secs_f64(), made))
 }

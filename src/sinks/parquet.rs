@@ -4,7 +4,7 @@
 
 use super::schema::{self, Table};
 use crate::error::{Error, Result, ResultExt};
-use crate::fsutil::AtomicFile;
+use crate::fsutil::{AtomicFile, StagedFile};
 use crate::homology::Diagram;
 use crate::types::Pose;
 use crate::vectorize::codebook::Descriptor;
@@ -54,6 +54,10 @@ impl Status {
 pub struct ScanRow {
     /// Scan id.
     pub scan_id: String,
+    /// xxh3-64 of the scan's raw bytes (16 hex digits), when they could be read.
+    pub fingerprint: Option<String>,
+    /// Fingerprint of the preprocess and persistence settings the row was made with.
+    pub settings_hash: String,
     /// Session (the partition).
     pub session: String,
     /// Position in the run's input.
@@ -135,10 +139,24 @@ impl TableFile {
         self.writer.write(&batch).at(&self.path)
     }
 
-    /// Closes the file (footer written) and puts it in place; returns its path and row count.
-    pub fn finish(self) -> Result<(PathBuf, u64)> {
+    /// Creates `path` with a given schema (a table being rewritten).
+    pub fn with_schema(path: &Path, schema: Arc<Schema>) -> Result<Self> {
+        let file = AtomicFile::create(path)?;
+        let writer = ArrowWriter::try_new(file, schema.clone(), Some(properties(&schema))).at(path)?;
+        Ok(TableFile { path: path.to_owned(), writer, schema, rows: 0 })
+    }
+
+    /// Writes a batch of this file's schema.
+    pub fn write_batch(&mut self, batch: &RecordBatch) -> Result<()> {
+        self.rows += batch.num_rows() as u64;
+        self.writer.write(batch).at(&self.path)
+    }
+
+    /// Closes the file (footer written), complete under its temporary name; returns it and its
+    /// row count.
+    pub fn finish(self) -> Result<(StagedFile, u64)> {
         let file = self.writer.into_inner().at(&self.path)?;
-        Ok((file.commit()?, self.rows))
+        Ok((file.finish()?, self.rows))
     }
 }
 
@@ -187,6 +205,8 @@ impl ScansFile {
         rows.iter().for_each(|r| utime.append_option(r.utime));
         let columns = vec![
             s(&|r| Some(r.scan_id.clone())),
+            s(&|r| r.fingerprint.clone()),
+            s(&|r| Some(r.settings_hash.clone())),
             u(&|r| Some(r.seq)),
             s(&|r| Some(r.source_path.clone())),
             u(&|r| r.message_index),
@@ -203,8 +223,8 @@ impl ScansFile {
         self.file.write(columns)
     }
 
-    /// Flushes and closes.
-    pub fn finish(mut self) -> Result<(PathBuf, u64)> {
+    /// Flushes and closes (see [`TableFile::finish`]).
+    pub fn finish(mut self) -> Result<(StagedFile, u64)> {
         self.flush()?;
         self.file.finish()
     }
@@ -259,8 +279,8 @@ impl DiagramsFile {
         self.file.write(columns)
     }
 
-    /// Flushes and closes.
-    pub fn finish(mut self) -> Result<(PathBuf, u64)> {
+    /// Flushes and closes (see [`TableFile::finish`]).
+    pub fn finish(mut self) -> Result<(StagedFile, u64)> {
         self.flush()?;
         self.file.finish()
     }
@@ -345,8 +365,8 @@ impl DescriptorsFile {
         self.file.write(columns)
     }
 
-    /// Flushes and closes.
-    pub fn finish(mut self) -> Result<(PathBuf, u64)> {
+    /// Flushes and closes (see [`TableFile::finish`]).
+    pub fn finish(mut self) -> Result<(StagedFile, u64)> {
         self.flush()?;
         self.file.finish()
     }

@@ -8,7 +8,7 @@ use arrow::datatypes::{DataType, Field, Schema};
 use std::sync::Arc;
 
 /// Version of the table layout, written into every file's key-value metadata.
-pub const SCHEMA_VERSION: &str = "1";
+pub const SCHEMA_VERSION: &str = "2";
 /// Key-value metadata keys.
 pub mod meta {
     /// Table layout version.
@@ -25,6 +25,10 @@ pub mod meta {
 pub mod columns {
     /// The scan's id (every table).
     pub const SCAN_ID: &str = "scan_id";
+    /// xxh3-64 of the scan's raw bytes (`scans`).
+    pub const FINGERPRINT: &str = "fingerprint";
+    /// Fingerprint of the settings that made the row (`scans`).
+    pub const SETTINGS_HASH: &str = "settings_hash";
     /// Position in the run's input order (`scans`).
     pub const SEQ: &str = "seq";
     /// The scan's file (`scans`).
@@ -115,7 +119,19 @@ pub fn scans() -> Table {
                 false,
                 "stable id: <session>/<utime> (NCLT), <session>/<frame> (KITTI), <session>/<index> (MCAP)",
             ),
-            col(C::SEQ, UInt64, false, "position in the run's input order"),
+            col(
+                C::FINGERPRINT,
+                Utf8,
+                true,
+                "xxh3-64 of the scan's raw bytes (16 hex digits; the file, MCAP message or packets); null when unreadable",
+            ),
+            col(
+                C::SETTINGS_HASH,
+                Utf8,
+                false,
+                "fingerprint of the preprocess and persistence settings that made this row (manifest settings_hash)",
+            ),
+            col(C::SEQ, UInt64, false, "position in the input order of the run that indexed the scan"),
             col(C::SOURCE_PATH, Utf8, false, "file the scan came from"),
             col(C::MESSAGE_INDEX, UInt64, true, "MCAP: index of the message among the topic's point clouds"),
             col(

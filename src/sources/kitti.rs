@@ -124,13 +124,15 @@ fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFa
         return Err(fail(format!("{}: file name is not a frame number", path.display())));
     };
     let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
-    let mut scan = decode(&bytes, path).map_err(|e| fail(e.to_string()))?;
+    let fingerprint = crate::fingerprint::of_bytes(&bytes);
+    let mut scan = decode(&bytes, path).map_err(|e| fail(e.to_string()).with_fingerprint(fingerprint))?;
     let raw_points = scan.points.len();
     let mut intensity = Some(std::mem::take(&mut scan.reflectance));
     let mut ring = None;
     super::drop_invalid(&mut scan.points, &mut intensity, &mut ring);
     Ok(Scan {
         id: format!("{session}/{frame:06}"),
+        fingerprint,
         session: session.to_string(),
         path: path.to_owned(),
         message_index: None,

@@ -137,6 +137,7 @@ impl Iterator for McapScans {
                 path: path.clone(),
                 message_index: index,
                 utime: None,
+                fingerprint: None,
                 error,
             };
             let message = match self.messages.next()? {
@@ -154,6 +155,7 @@ impl Iterator for McapScans {
             let index = self.index;
             self.index += 1;
             let id = format!("{}/{index:06}", self.session);
+            let fingerprint = crate::fingerprint::of_bytes(&message.data);
             let encoding = Encoding::of_channel(&message.channel.message_encoding);
             let decoded =
                 pointcloud2::parse(&message.data, encoding).and_then(|c| Ok((c.stamp_ns, c.decode()?)));
@@ -161,7 +163,7 @@ impl Iterator for McapScans {
                 Ok(x) => x,
                 Err(e) => {
                     let e = format!("{}: message {index} on {}: {e}", path.display(), self.topic);
-                    return Some(Err(failure(id, Some(index), e)));
+                    return Some(Err(failure(id, Some(index), e).with_fingerprint(fingerprint)));
                 }
             };
             let utime =
@@ -169,6 +171,7 @@ impl Iterator for McapScans {
             let pose = self.poses.as_ref().and_then(|g| g.pose_at(utime, self.tolerance));
             return Some(Ok(Scan {
                 id,
+                fingerprint,
                 session: self.session.clone(),
                 path,
                 message_index: Some(index),

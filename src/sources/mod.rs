@@ -31,6 +31,9 @@ pub struct Scan {
     /// Stable id, `<session>/<utime>` (NCLT), `<session>/<frame>` (KITTI) or
     /// `<session>/<index>` (MCAP, index of the message on its topic).
     pub id: String,
+    /// Content fingerprint: xxh3-64 of the scan's raw bytes (the file, the MCAP message, the
+    /// packets). Every random choice made for the scan is seeded from it.
+    pub fingerprint: u64,
     /// Session (NCLT date folder, KITTI sequence folder, MCAP file stem).
     pub session: String,
     /// The file it came from.
@@ -64,6 +67,8 @@ pub struct ScanFailure {
     pub message_index: Option<u64>,
     /// Timestamp, when known.
     pub utime: Option<i64>,
+    /// Content fingerprint of the bytes, when they could be read.
+    pub fingerprint: Option<u64>,
     /// The error, naming the file (and message or record).
     pub error: String,
 }
@@ -77,8 +82,14 @@ impl ScanFailure {
             path: path.to_owned(),
             message_index: None,
             utime,
+            fingerprint: None,
             error,
         }
+    }
+
+    /// The same failure, with the fingerprint of the bytes that were read.
+    pub fn with_fingerprint(self, fingerprint: u64) -> Self {
+        ScanFailure { fingerprint: Some(fingerprint), ..self }
     }
 }
 
@@ -191,6 +202,11 @@ pub(crate) fn drop_invalid(
 
 /// Reads one cloud from `path` in `format` (detected from the path if `None`).
 pub fn read_cloud(path: &Path, format: Option<CloudFormat>) -> Result<Vec<Point>, SourceError> {
+    read_cloud_file(path, format).map(|(points, _)| points)
+}
+
+/// Reads one cloud and the content fingerprint of its file.
+pub fn read_cloud_file(path: &Path, format: Option<CloudFormat>) -> Result<(Vec<Point>, u64), SourceError> {
     let format = match format {
         Some(f) => f,
         None => match InputKind::detect(path)? {
@@ -204,6 +220,7 @@ pub fn read_cloud(path: &Path, format: Option<CloudFormat>) -> Result<Vec<Point>
         },
     };
     let bytes = std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+    let fingerprint = crate::fingerprint::of_bytes(&bytes);
     let points = match format {
         CloudFormat::Csv => csv::parse_xyz(&bytes, path)?,
         CloudFormat::Kitti => kitti::decode(&bytes, path)?.points,
@@ -212,5 +229,5 @@ pub fn read_cloud(path: &Path, format: Option<CloudFormat>) -> Result<Vec<Point>
     if let Some(index) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
         return Err(SourceError::NonFinite { path: path.to_owned(), index });
     }
-    Ok(points)
+    Ok((points, fingerprint))
 }

@@ -196,13 +196,14 @@ fn sync_scan(
         return Err(fail(format!("{}: file name is not a utime (µs)", path.display())));
     };
     let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
-    let scan = decode_sync(&bytes, path).map_err(|e| fail(e.to_string()))?;
+    let fingerprint = crate::fingerprint::of_bytes(&bytes);
+    let scan = decode_sync(&bytes, path).map_err(|e| fail(e.to_string()).with_fingerprint(fingerprint))?;
     Ok(to_scan(
         scan,
         format!("{session}/{utime}"),
         session,
         path,
-        utime,
+        (utime, fingerprint),
         gt.and_then(|g| g.pose_at(utime, tolerance)),
     ))
 }
@@ -212,11 +213,12 @@ fn to_scan(
     id: String,
     session: &str,
     path: &Path,
-    utime: i64,
+    (utime, fingerprint): (i64, u64),
     pose: Option<super::Pose>,
 ) -> Scan {
     Scan {
         id,
+        fingerprint,
         session: session.to_string(),
         path: path.to_owned(),
         message_index: None,
@@ -242,6 +244,8 @@ pub struct HitsScans<R> {
     tolerance: i64,
     offset: u64,
     current: NcltScan,
+    /// The fingerprint of the current scan's packets (utime and records).
+    hash: crate::fingerprint::Streaming,
     start_utime: Option<i64>,
     turned: f64,
     last_azimuth: Option<f64>,
@@ -269,6 +273,7 @@ impl<R: std::io::Read> HitsScans<R> {
             tolerance,
             offset: 0,
             current: NcltScan::default(),
+            hash: Default::default(),
             start_utime: None,
             turned: 0.0,
             last_azimuth: None,
@@ -285,6 +290,7 @@ impl<R: std::io::Read> HitsScans<R> {
             path: self.path.clone(),
             message_index: None,
             utime: None,
+            fingerprint: None,
             error: format!("{}: byte {}: {error}", self.path.display(), self.offset),
         }
     }
@@ -306,8 +312,17 @@ impl<R: std::io::Read> HitsScans<R> {
             let scan = std::mem::take(&mut self.current);
             let pose = self.gt.as_ref().and_then(|g| g.pose_at(utime, self.tolerance));
             let id = format!("{}/{utime}", self.session);
-            self.pending.push_back(Ok(to_scan(scan, id, &self.session, &self.path, utime, pose)));
+            let fingerprint = self.hash.take();
+            self.pending.push_back(Ok(to_scan(
+                scan,
+                id,
+                &self.session,
+                &self.path,
+                (utime, fingerprint),
+                pose,
+            )));
         }
+        self.hash.take();
         self.current = NcltScan::default();
         self.turned = 0.0;
     }
@@ -401,6 +416,8 @@ impl<R: std::io::Read> HitsScans<R> {
             self.turned += delta;
         }
         self.start_utime.get_or_insert(utime);
+        self.hash.write(&utime.to_le_bytes());
+        self.hash.write(body);
         self.current.points.extend(packet.points);
         self.current.intensity.extend(packet.intensity);
         self.current.laser.extend(packet.laser);

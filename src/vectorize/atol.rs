@@ -101,15 +101,16 @@ impl AtolFitter {
     }
 
     /// Adds one measure (a diagram's points; infinite points are counted for `iidproba`'s
-    /// weights, then dropped).
-    pub fn add(&mut self, measure: &[Point2]) {
+    /// weights, then dropped). `key` names the measure (a hash of its scan id): the sample
+    /// depends on the keys offered, not on their order.
+    pub fn add(&mut self, measure: &[Point2], key: u64) {
         self.measures += 1;
         let w = match self.weighting {
             Weighting::Cloud => 1.0,
             Weighting::Iidproba => 1.0 / measure.len() as f64,
         };
-        for p in measure.iter().filter(|p| !p[0].is_infinite() && !p[1].is_infinite()) {
-            self.reservoir.push(*p, w);
+        for (i, p) in measure.iter().enumerate().filter(|(_, p)| !p[0].is_infinite() && !p[1].is_infinite()) {
+            self.reservoir.push(key, i as u64, *p, w);
         }
     }
 
@@ -126,7 +127,8 @@ impl AtolFitter {
         if self.measures == 0 {
             return Err(AtolError::EmptyTarget);
         }
-        let (points, weights) = self.reservoir.sample();
+        let (points, weights) = self.reservoir.into_sample();
+        let (points, weights) = (&points[..], &weights[..]);
         if points.is_empty() {
             return Err(AtolError::OnlyInfinite);
         }
@@ -154,7 +156,7 @@ impl Atol {
         seed: u64,
     ) -> Result<Self, AtolError> {
         let mut fitter = AtolFitter::new(b, contrast, weighting, kmeans.clone(), usize::MAX, seed);
-        measures.iter().for_each(|m| fitter.add(m));
+        measures.iter().enumerate().for_each(|(i, m)| fitter.add(m, i as u64));
         fitter.finish()
     }
 

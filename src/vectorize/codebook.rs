@@ -212,12 +212,14 @@ impl CodebookFitter {
         CodebookFitter { spec, fitters }
     }
 
-    /// Adds one scan's diagram.
-    pub fn add(&mut self, diagram: &Diagram) {
+    /// Adds one scan's diagram; `id` names it (the scan id). The fitted codebook depends on
+    /// the set of diagrams offered, not on their order.
+    pub fn add(&mut self, diagram: &Diagram, id: &str) {
+        let key = crate::fingerprint::of_bytes(id.as_bytes());
         for (dim, fitter) in &mut self.fitters {
             match dim {
-                None => fitter.add(&paper_measure(diagram).1),
-                Some(d) => fitter.add(&points(diagram.dimension(*d))),
+                None => fitter.add(&paper_measure(diagram).1, key),
+                Some(d) => fitter.add(&points(diagram.dimension(*d)), key),
             }
         }
     }

@@ -1,45 +1,56 @@
-//! A uniform reservoir sample (Vitter's algorithm R) of weighted diagram points, drawn while
-//! diagrams stream by, so codebooks can be fitted on tens of millions of points in bounded
-//! memory. Seeded: the same seed and input order give the same sample.
+//! A uniform sample of weighted diagram points, drawn while diagrams stream by, so codebooks can
+//! be fitted on tens of millions of points in bounded memory.
+//!
+//! It is a bottom-k sample: every point gets a pseudo-random priority from a hash of the key of
+//! its diagram (the scan id), its place in the diagram and the seed, and the `capacity` points
+//! of smallest priority are kept, in priority order. So the sample is uniform, and it depends
+//! only on which diagrams were offered — not on their order, nor on how a run was split into
+//! chunks or resumed after a crash.
 
 use crate::rng::SplitMix64;
 use crate::types::Point2;
 
-/// At most `capacity` (point, weight) items, each seen item equally likely to be kept.
+/// One sampled point.
+#[derive(Clone, Copy, Debug)]
+struct Item {
+    priority: u64,
+    point: Point2,
+    weight: f64,
+}
+
+/// At most `capacity` (point, weight) items, each offered item equally likely to be kept.
 #[derive(Clone, Debug)]
 pub struct Reservoir {
     capacity: usize,
+    seed: u64,
     seen: u64,
-    points: Vec<Point2>,
-    weights: Vec<f64>,
-    rng: SplitMix64,
+    items: Vec<Item>,
 }
 
 impl Reservoir {
-    /// An empty reservoir.
+    /// An empty sample.
     pub fn new(capacity: usize, seed: u64) -> Self {
-        Reservoir {
-            capacity,
-            seen: 0,
-            points: Vec::with_capacity(capacity.min(1 << 20)),
-            weights: Vec::new(),
-            rng: SplitMix64(seed ^ 0x7265_7365_7276_6F69),
+        Reservoir { capacity, seed: seed ^ 0x7265_7365_7276_6F69, seen: 0, items: Vec::new() }
+    }
+
+    /// Offers the `index`-th point of the diagram keyed `key`.
+    #[inline]
+    pub fn push(&mut self, key: u64, index: u64, point: Point2, weight: f64) {
+        self.seen += 1;
+        let mut rng = SplitMix64(self.seed ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index);
+        let priority = rng.next_u64();
+        self.items.push(Item { priority, point, weight });
+        // Amortized: trim to the capacity smallest whenever twice as many are held.
+        if self.items.len() >= self.capacity.max(1 << 16).saturating_mul(2) {
+            self.trim();
         }
     }
 
-    /// Offers one item.
-    #[inline]
-    pub fn push(&mut self, point: Point2, weight: f64) {
-        self.seen += 1;
-        if self.points.len() < self.capacity {
-            self.points.push(point);
-            self.weights.push(weight);
-        } else {
-            let j = self.rng.below(self.seen as usize);
-            if j < self.capacity {
-                self.points[j] = point;
-                self.weights[j] = weight;
-            }
+    fn trim(&mut self) {
+        if self.items.len() > self.capacity {
+            let key = |i: &Item| (i.priority, i.point[0].to_bits(), i.point[1].to_bits());
+            self.items.select_nth_unstable_by_key(self.capacity, key);
+            self.items.truncate(self.capacity);
         }
     }
 
@@ -48,8 +59,10 @@ impl Reservoir {
         self.seen
     }
 
-    /// The sample: points and their weights.
-    pub fn sample(&self) -> (&[Point2], &[f64]) {
-        (&self.points, &self.weights)
+    /// The sample, in priority order: points and their weights.
+    pub fn into_sample(mut self) -> (Vec<Point2>, Vec<f64>) {
+        self.trim();
+        self.items.sort_unstable_by_key(|i| (i.priority, i.point[0].to_bits(), i.point[1].to_bits()));
+        self.items.iter().map(|i| (i.point, i.weight)).unzip()
     }
 }

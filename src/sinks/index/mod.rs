@@ -12,6 +12,7 @@
 //! every table against the schemas of [`super::schema`] so that a foreign or rewritten table
 //! gives an error, never a panic. This module owns the layout both agree on.
 
+pub mod manifest;
 pub mod reader;
 pub mod writer;
 

@@ -8,7 +8,8 @@
 //! `List<float64>` descriptor as `FixedSizeList<float32>`); anything else is an error naming the
 //! file and the column, never a panic.
 
-use super::{CODEBOOK_FILE, table_files};
+use super::manifest::Manifest;
+use super::{CODEBOOK_FILE, MANIFEST_FILE, table_files};
 use crate::error::{Error, FileError, Result, ResultExt};
 use crate::homology::{Diagram, Pair};
 use crate::sinks::parquet::{ScanRow, Status};
@@ -43,19 +44,23 @@ pub struct IndexedScan {
 /// One row of `scans`, as stored.
 pub type ScanRecord = ScanRow;
 
-/// An index folder, opened for reading.
+/// An index folder, opened for reading. With a manifest (every index toporec writes), it
+/// sees exactly the committed files, whatever a running writer is doing; without one (a
+/// folder of tables assembled by other tools), every part file in the partitions.
 #[derive(Clone, Debug)]
 pub struct IndexReader {
     root: PathBuf,
+    manifest: Option<Manifest>,
 }
 
 impl IndexReader {
-    /// Opens `root`; fails when it is not a folder.
+    /// Opens `root`; fails when it is not a folder or its manifest cannot be read.
     pub fn open(root: &Path) -> Result<Self> {
         if !root.is_dir() {
             return Err(Error::index(root, "no such index folder"));
         }
-        Ok(IndexReader { root: root.to_owned() })
+        let manifest = Manifest::load(&root.join(MANIFEST_FILE))?;
+        Ok(IndexReader { root: root.to_owned(), manifest })
     }
 
     /// The folder.
@@ -63,14 +68,33 @@ impl IndexReader {
         &self.root
     }
 
-    /// The index's codebook.
+    /// The manifest, when the index has one.
+    pub fn manifest(&self) -> Option<&Manifest> {
+        self.manifest.as_ref()
+    }
+
+    /// The index's codebook: the committed one, or `codebook.json` in an index without a
+    /// manifest.
     pub fn codebook(&self) -> Result<Codebook> {
-        Codebook::load(&self.root.join(CODEBOOK_FILE))
+        match &self.manifest {
+            Some(m) => m.codebook(&self.root)?.ok_or_else(|| {
+                Error::index(&self.root, "no codebook yet (its first run has not finished): no descriptors")
+            }),
+            None => Codebook::load(&self.root.join(CODEBOOK_FILE)),
+        }
     }
 
     /// The part files of a table, with their sessions, sorted by (session, part).
     pub fn files(&self, table: &str) -> Result<Vec<(String, PathBuf)>> {
-        table_files(&self.root, table)
+        match &self.manifest {
+            Some(m) => {
+                let mut files: Vec<(String, PathBuf)> =
+                    m.files_of(table).map(|f| (f.session.clone(), self.root.join(&f.path))).collect();
+                files.sort();
+                Ok(files)
+            }
+            None => table_files(&self.root, table),
+        }
     }
 
     /// Every descriptor (only `sessions`, when not empty), in (session, part, row) order.
@@ -165,6 +189,18 @@ impl CheckedTable {
         names: &[&'static str],
         length: Option<usize>,
     ) -> Result<Self> {
+        Self::open_any(path, table, Some(table.name), names, length)
+    }
+
+    /// Opens `path`, reading `names` as `table` declares them; `table_name`: the table it must
+    /// be (when its metadata names one).
+    fn open_any(
+        path: &Path,
+        table: &schema::Table,
+        table_name: Option<&str>,
+        names: &[&'static str],
+        length: Option<usize>,
+    ) -> Result<Self> {
         let file = std::fs::File::open(path).at(path)?;
         let builder = ParquetRecordBatchReaderBuilder::try_new(file).at(path)?;
         let kv = builder.metadata().file_metadata().key_value_metadata();
@@ -176,8 +212,10 @@ impl CheckedTable {
                 format!("table layout version {v}; this toporec reads version {SCHEMA_VERSION}"),
             ));
         }
-        if let Some(t) = get(meta::TABLE).filter(|t| t != table.name) {
-            return Err(Error::table(path, format!("a `{t}` table where `{}` was expected", table.name)));
+        if let (Some(t), Some(want)) = (get(meta::TABLE), table_name)
+            && t != want
+        {
+            return Err(Error::table(path, format!("a `{t}` table where `{want}` was expected")));
         }
         let arrow_schema = builder.schema().clone();
         let mut wanted = Vec::new();
@@ -289,10 +327,61 @@ pub fn read_descriptors(path: &Path, session: &str, length: Option<usize>) -> Re
     Ok(out)
 }
 
+/// What [`check_file`] found in a table file.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FileInfo {
+    /// Rows.
+    pub rows: u64,
+    /// Descriptors: the codebook id of every row (an error when they differ).
+    pub codebook_id: Option<String>,
+}
+
+/// Reads a whole table file, checking every column of `table`'s schema (types, nulls).
+pub fn check_file(path: &Path, table: &str, descriptor_length: Option<usize>) -> Result<FileInfo> {
+    let schema = match table {
+        tables::SCANS => schema::scans(),
+        tables::DIAGRAMS => schema::diagrams(),
+        tables::DESCRIPTORS => schema::descriptors(descriptor_length.unwrap_or(1)),
+        other => return Err(Error::table(path, format!("`{other}` is not a table of an index"))),
+    };
+    let names: Vec<&'static str> = schema.columns.iter().map(|c| c.name).collect();
+    let mut checked = CheckedTable::open(path, &schema, &names, descriptor_length)?;
+    let mut info = FileInfo { rows: 0, codebook_id: None };
+    let codebook_column = names.iter().position(|n| *n == C::CODEBOOK_ID);
+    while let Some(columns) = checked.next_batch() {
+        let columns = columns?;
+        info.rows += columns[0].len() as u64;
+        if let Some(i) = codebook_column {
+            for id in columns[i].as_string::<i32>().iter().flatten() {
+                match &info.codebook_id {
+                    None => info.codebook_id = Some(id.to_string()),
+                    Some(c) if c != id => {
+                        return Err(Error::table(path, format!("rows made with codebooks {c} and {id}")));
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+    Ok(info)
+}
+
+/// The `scan_id` column of any table file (one entry per row).
+pub fn scan_ids(path: &Path) -> Result<Vec<String>> {
+    let mut table = CheckedTable::open_any(path, &schema::diagrams(), None, &[C::SCAN_ID], None)?;
+    let mut out = Vec::new();
+    while let Some(columns) = table.next_batch() {
+        out.extend(columns?[0].as_string::<i32>().iter().map(|s| s.unwrap_or_default().to_string()));
+    }
+    Ok(out)
+}
+
 /// Reads one `scans` file of `session`.
 pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
     let names = [
         C::SCAN_ID,
+        C::FINGERPRINT,
+        C::SETTINGS_HASH,
         C::SEQ,
         C::SOURCE_PATH,
         C::MESSAGE_INDEX,
@@ -313,10 +402,11 @@ pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
         let text = |i: usize| c[i].as_string::<i32>();
         let uint = |i: usize| c[i].as_primitive::<UInt64Type>();
         let float = |i: usize| c[i].as_primitive::<Float64Type>();
-        let (ids, seq, source, message) = (text(0), uint(1), text(2), uint(3));
-        let utime = c[4].as_primitive::<Int64Type>();
-        let [x, y, z, yaw] = [5, 6, 7, 8].map(float);
-        let (raw, kept, status, error) = (uint(9), uint(10), text(11), text(12));
+        let (ids, fingerprint, settings) = (text(0), text(1), text(2));
+        let (seq, source, message) = (uint(3), text(4), uint(5));
+        let utime = c[6].as_primitive::<Int64Type>();
+        let [x, y, z, yaw] = [7, 8, 9, 10].map(float);
+        let (raw, kept, status, error) = (uint(11), uint(12), text(13), text(14));
         for i in 0..ids.len() {
             let status = Status::parse(status.value(i)).ok_or_else(|| {
                 Error::table(
@@ -332,6 +422,8 @@ pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
             });
             out.push(ScanRow {
                 scan_id: ids.value(i).to_string(),
+                fingerprint: fingerprint.is_valid(i).then(|| fingerprint.value(i).to_string()),
+                settings_hash: settings.value(i).to_string(),
                 session: session.to_string(),
                 seq: seq.value(i),
                 source_path: source.value(i).to_string(),

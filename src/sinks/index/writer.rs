@@ -1,211 +1,563 @@
-//! Writing an index: a run's files are staged in `INDEX/.staging-<pid>/` and moved into place
-//! at the commit, partition by partition, with the codebook, the effective pipeline and the
-//! manifest written last. Readers never see a half-written file, and a crashed run leaves the
-//! previous index intact (the next run removes its staging folder). A run that fits a new
-//! codebook replaces the whole index; a run with the index's own codebook replaces only the
-//! sessions it wrote.
+//! Writing an index: one writer at a time, rows committed in chunks.
+//!
+//! [`IndexWriter::open`] takes an OS advisory lock on `INDEX/.lock` (released by the OS when
+//! the process ends, however it ends: a killed writer leaves no stale lock), reads the
+//! manifest, and deletes every file the manifest does not name — the leftovers of a writer
+//! killed mid-chunk.
+//!
+//! Rows go into the open chunk's part files, written under hidden temporary names.
+//! [`IndexWriter::commit`] closes them (fsync), rewrites the committed files that hold rows
+//! being replaced or pruned, renames the new files into place, and then replaces the manifest
+//! atomically (temporary file, fsync, rename, fsync of the folder): that rename is the commit
+//! point. Files the new manifest no longer names are deleted last. Killed at any moment, the
+//! index keeps every chunk committed before; the next writer resumes from there.
 
+use super::manifest::{Counts, FileEntry, Manifest, file_checksum};
+use super::reader::{read_scans, scan_ids};
 use super::{CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, partition};
-use crate::error::{Result, ResultExt};
+use crate::error::{Error, Result, ResultExt};
+use crate::fsutil::{StagedFile, is_temp_name};
 use crate::homology::Diagram;
-use crate::sinks::parquet::{DescriptorsFile, DiagramsFile, ScanRow, ScansFile};
-use crate::sinks::schema::{self, tables};
+use crate::sinks::parquet::{
+    DescriptorRow, DescriptorsFile, DiagramsFile, ScanRow, ScansFile, Status, TableFile,
+};
+use crate::sinks::schema::tables;
 use crate::vectorize::codebook::Codebook;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
-/// A finished file in staging.
-#[derive(Clone, Debug)]
-pub struct WrittenFile {
-    /// `scans`, `diagrams` or `descriptors`.
-    pub table: &'static str,
+/// The lock file of an index.
+pub const LOCK_FILE: &str = ".lock";
+
+/// What the index holds for one committed scan.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CommittedScan {
     /// Session.
     pub session: String,
-    /// Path (in staging until committed).
-    pub path: PathBuf,
-    /// Rows.
-    pub rows: u64,
+    /// Content fingerprint (hex), when the scan could be read.
+    pub fingerprint: Option<String>,
+    /// Settings fingerprint of its row.
+    pub settings_hash: String,
+    /// Its status.
+    pub status: Status,
+    /// Why skipped or failed.
+    pub error: Option<String>,
+    /// Whether the descriptors table has its row.
+    pub has_descriptor: bool,
+    /// Timestamp (µs).
+    pub utime: Option<i64>,
+    /// Ground-truth pose.
+    pub pose: Option<crate::types::Pose>,
 }
 
-/// Scan counts recorded in the manifest.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct ScanCounts {
-    /// Scans read.
-    pub read: u64,
-    /// Scans indexed (status ok).
-    pub indexed: u64,
-    /// Scans skipped on purpose.
-    pub skipped: u64,
-    /// Scans that failed.
-    pub errors: u64,
-}
-
+/// The files of the open chunk, per session.
+#[derive(Default)]
 struct SessionFiles {
-    session: String,
-    scans: ScansFile,
-    diagrams: DiagramsFile,
+    scans: Option<ScansFile>,
+    diagrams: Option<DiagramsFile>,
+    descriptors: Option<DescriptorsFile>,
 }
 
-/// Writes a new index into staging, then commits it.
+/// The index writer (see the module doc).
 pub struct IndexWriter {
     root: PathBuf,
-    staging: PathBuf,
-    current: Option<SessionFiles>,
-    parts: HashMap<(&'static str, String), usize>,
-    written: Vec<WrittenFile>,
-    /// The codebook id of the index before this run, if any.
-    previous_codebook: Option<String>,
+    _lock: std::fs::File,
+    manifest: Manifest,
+    committed: HashMap<String, CommittedScan>,
+    chunk: BTreeMap<String, SessionFiles>,
+    chunk_rows: u64,
+    chunk_started: Instant,
+    /// Scans of the open chunk (for the counts and the committed-scan map).
+    chunk_scans: Vec<(String, CommittedScan)>,
+    /// Committed scans to drop at the next commit (replaced or pruned).
+    removals: HashSet<String>,
+    /// The codebook (and pipeline text) to commit with the next chunk.
+    pending_codebook: Option<(Codebook, Option<String>)>,
+    /// The effective pipeline to write with the next commit.
+    pending_pipeline: Option<String>,
+    /// Committed files to drop at the next commit (a new descriptors table, compaction).
+    dropped: HashSet<String>,
+    /// Merged files to add at the next commit (compaction).
+    compacted: Vec<(&'static str, String, StagedFile, u64)>,
+    /// A pause between publishing a chunk's files and committing its manifest
+    /// (`TOPOREC_COMMIT_PAUSE_MS`: fault injection for crash tests).
+    pause: Option<Duration>,
+    commits: u64,
 }
 
 impl IndexWriter {
-    /// Prepares `root` (created if needed; stale staging folders of crashed runs removed).
-    pub fn create(root: &Path) -> Result<Self> {
+    /// Opens (or creates) the index at `root` for writing. `full`: delete what it holds first.
+    /// Fails at once when another writer holds the index.
+    pub fn open(root: &Path, settings_hash: &str, full: bool) -> Result<Self> {
         std::fs::create_dir_all(root).at(root)?;
-        for e in std::fs::read_dir(root).at(root)?.flatten() {
-            if e.file_name().to_string_lossy().starts_with(".staging-") {
-                tracing::info!("{}: removing a crashed run's staging folder", e.path().display());
-                let _ = std::fs::remove_dir_all(e.path());
+        let lock = take_lock(root)?;
+        if full {
+            for table in tables::ALL {
+                let dir = root.join(table);
+                if dir.exists() {
+                    std::fs::remove_dir_all(&dir).at(&dir)?;
+                }
+            }
+            for name in [MANIFEST_FILE, CODEBOOK_FILE, PIPELINE_FILE] {
+                let _ = std::fs::remove_file(root.join(name));
             }
         }
-        let previous_codebook = Codebook::load(&root.join(CODEBOOK_FILE)).ok().map(|c| c.id());
-        let staging = root.join(format!(".staging-{}", std::process::id()));
-        std::fs::create_dir_all(&staging).at(&staging)?;
+        let manifest =
+            Manifest::load(&root.join(MANIFEST_FILE))?.unwrap_or_else(|| Manifest::empty(settings_hash));
+        remove_uncommitted(root, &manifest)?;
+        let committed = committed_scans(root, &manifest)?;
+        let pause = std::env::var("TOPOREC_COMMIT_PAUSE_MS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .map(Duration::from_millis);
         Ok(IndexWriter {
             root: root.to_owned(),
-            staging,
-            current: None,
-            parts: HashMap::new(),
-            written: Vec::new(),
-            previous_codebook,
+            _lock: lock,
+            manifest,
+            committed,
+            chunk: BTreeMap::new(),
+            chunk_rows: 0,
+            chunk_started: Instant::now(),
+            chunk_scans: Vec::new(),
+            removals: HashSet::new(),
+            pending_codebook: None,
+            pending_pipeline: None,
+            dropped: HashSet::new(),
+            compacted: Vec::new(),
+            pause,
+            commits: 0,
         })
     }
 
-    /// The next part path of `table` for `session`, in staging.
-    fn part_path(&mut self, table: &'static str, session: &str) -> PathBuf {
-        let n = self.parts.entry((table, session.to_string())).or_insert(0);
-        let p = self.staging.join(table).join(partition(session)).join(format!("part-{n}.parquet"));
-        *n += 1;
-        p
+    /// The index folder.
+    pub fn root(&self) -> &Path {
+        &self.root
     }
 
-    /// Writes one scan's row and, for an ok scan, its pairs in `dims`. Scans of one session
-    /// come together.
-    pub fn write_scan(&mut self, row: ScanRow, diagram: Option<&Diagram>, dims: &[u8]) -> Result<()> {
-        if self.current.as_ref().is_none_or(|c| c.session != row.session) {
-            self.close_session()?;
-            let scans = ScansFile::create(&self.part_path(tables::SCANS, &row.session))?;
-            let diagrams = DiagramsFile::create(&self.part_path(tables::DIAGRAMS, &row.session))?;
-            self.current = Some(SessionFiles { session: row.session.clone(), scans, diagrams });
+    /// The committed manifest.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// The committed scans, by id.
+    pub fn committed(&self) -> &HashMap<String, CommittedScan> {
+        &self.committed
+    }
+
+    /// Chunks committed by this writer.
+    pub fn commits(&self) -> u64 {
+        self.commits
+    }
+
+    /// Scans in the open chunk.
+    pub fn chunk_len(&self) -> u64 {
+        self.chunk_rows
+    }
+
+    /// Seconds since the open chunk started.
+    pub fn chunk_age(&self) -> Duration {
+        self.chunk_started.elapsed()
+    }
+
+    fn next_part(&mut self, table: &str, session: &str) -> PathBuf {
+        let n = self.manifest.next_part;
+        self.manifest.next_part += 1;
+        self.root.join(table).join(partition(session)).join(format!("part-{n:06}.parquet"))
+    }
+
+    fn session_files(&mut self, session: &str) -> &mut SessionFiles {
+        if !self.chunk.contains_key(session) {
+            self.chunk.insert(session.to_string(), SessionFiles::default());
         }
-        let files = self.current.as_mut().expect("opened above");
+        self.chunk.get_mut(session).expect("inserted")
+    }
+
+    /// Adds one scan to the open chunk: its row, its pairs in `dims` (ok scans), its
+    /// descriptor (when there is one). A committed scan of the same id is replaced at the
+    /// commit.
+    pub fn write_scan(
+        &mut self,
+        row: ScanRow,
+        diagram: Option<&Diagram>,
+        dims: &[u8],
+        descriptor: Option<(DescriptorRow, &Codebook)>,
+    ) -> Result<()> {
+        if self.committed.contains_key(&row.scan_id) {
+            self.removals.insert(row.scan_id.clone());
+        }
+        let session = row.session.clone();
         if let Some(d) = diagram {
-            files.diagrams.push(&row.scan_id, d, dims)?;
-        }
-        files.scans.push(row)
-    }
-
-    /// Closes the open session's scans and diagrams files.
-    pub fn close_session(&mut self) -> Result<()> {
-        if let Some(f) = self.current.take() {
-            self.record(tables::SCANS, &f.session, f.scans.finish()?);
-            self.record(tables::DIAGRAMS, &f.session, f.diagrams.finish()?);
-        }
-        Ok(())
-    }
-
-    /// Opens a descriptors file for `session` in staging.
-    pub fn descriptors_file(&mut self, session: &str, codebook: &Codebook) -> Result<DescriptorsFile> {
-        let path = self.part_path(tables::DESCRIPTORS, session);
-        DescriptorsFile::create(&path, session, codebook.len(), &codebook.id())
-    }
-
-    /// Closes a descriptors file opened by [`IndexWriter::descriptors_file`].
-    pub fn finish_descriptors(&mut self, file: DescriptorsFile) -> Result<()> {
-        let session = file.session().to_string();
-        let finished = file.finish()?;
-        self.record(tables::DESCRIPTORS, &session, finished);
-        Ok(())
-    }
-
-    fn record(&mut self, table: &'static str, session: &str, (path, rows): (PathBuf, u64)) {
-        self.written.push(WrittenFile { table, session: session.to_string(), path, rows });
-    }
-
-    /// The staged diagrams files, with their sessions, in the order written.
-    pub fn staged_diagrams(&self) -> Vec<(String, PathBuf)> {
-        self.written
-            .iter()
-            .filter(|w| w.table == tables::DIAGRAMS)
-            .map(|w| (w.session.clone(), w.path.clone()))
-            .collect()
-    }
-
-    /// The manifest: versions, the codebook, the counts, and every file written.
-    fn manifest(&self, codebook: &Codebook, counts: ScanCounts) -> serde_json::Value {
-        let files: Vec<serde_json::Value> = self
-            .written
-            .iter()
-            .map(|w| {
-                let name = w.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-                serde_json::json!({
-                    "table": w.table,
-                    "session": w.session,
-                    "path": format!("{}/{}/{name}", w.table, partition(&w.session)),
-                    "rows": w.rows,
-                })
-            })
-            .collect();
-        serde_json::json!({
-            "toporec_version": env!("CARGO_PKG_VERSION"),
-            "schema_version": schema::SCHEMA_VERSION,
-            "codebook_id": codebook.id(),
-            "descriptor_length": codebook.len(),
-            "scans": {"read": counts.read, "indexed": counts.indexed, "skipped": counts.skipped, "errors": counts.errors},
-            "files": files,
-        })
-    }
-
-    /// Moves the staged partitions into the index, then writes the codebook, the effective
-    /// pipeline and the manifest. A new codebook replaces the whole index; the index's own
-    /// codebook replaces only the sessions written.
-    pub fn commit(mut self, codebook: &Codebook, pipeline_toml: &str, counts: ScanCounts) -> Result<PathBuf> {
-        self.close_session()?;
-        let replace_all = self.previous_codebook.as_deref() != Some(codebook.id().as_str());
-        for table in tables::ALL {
-            let live = self.root.join(table);
-            if replace_all && live.exists() {
-                std::fs::remove_dir_all(&live).at(&live)?;
+            if self.session_files(&session).diagrams.is_none() {
+                let f = DiagramsFile::create(&self.next_part(tables::DIAGRAMS, &session))?;
+                self.session_files(&session).diagrams = Some(f);
             }
-            let staged = self.staging.join(table);
-            if !staged.exists() {
-                continue;
-            }
-            std::fs::create_dir_all(&live).at(&live)?;
-            for part in std::fs::read_dir(&staged).at(&staged)?.flatten() {
-                let target = live.join(part.file_name());
-                if target.exists() {
-                    std::fs::remove_dir_all(&target).at(&target)?;
+            self.session_files(&session).diagrams.as_mut().expect("opened").push(&row.scan_id, d, dims)?;
+        }
+        let has_descriptor = descriptor.is_some();
+        if let Some((d, codebook)) = descriptor {
+            self.push_descriptor(&session, d, codebook)?;
+        }
+        if self.session_files(&session).scans.is_none() {
+            let f = ScansFile::create(&self.next_part(tables::SCANS, &session))?;
+            self.session_files(&session).scans = Some(f);
+        }
+        let record = CommittedScan {
+            session: session.clone(),
+            fingerprint: row.fingerprint.clone(),
+            settings_hash: row.settings_hash.clone(),
+            status: row.status,
+            error: row.error.clone(),
+            has_descriptor,
+            utime: row.utime,
+            pose: row.pose,
+        };
+        self.chunk_scans.push((row.scan_id.clone(), record));
+        self.chunk_rows += 1;
+        self.session_files(&session).scans.as_mut().expect("opened").push(row)
+    }
+
+    /// Adds the descriptor of a committed scan to the open chunk.
+    pub fn write_descriptor(&mut self, session: &str, row: DescriptorRow, codebook: &Codebook) -> Result<()> {
+        self.chunk_rows += 1;
+        if let Some(c) = self.committed.get_mut(&row.scan_id) {
+            c.has_descriptor = true;
+        }
+        self.push_descriptor(session, row, codebook)
+    }
+
+    fn push_descriptor(&mut self, session: &str, row: DescriptorRow, codebook: &Codebook) -> Result<()> {
+        if self.session_files(session).descriptors.is_none() {
+            let path = self.next_part(tables::DESCRIPTORS, session);
+            let f = DescriptorsFile::create(&path, session, codebook.len(), &codebook.id())?;
+            self.session_files(session).descriptors = Some(f);
+        }
+        self.session_files(session).descriptors.as_mut().expect("opened").push(row)
+    }
+
+    /// Marks a committed scan for removal at the next commit.
+    pub fn remove(&mut self, scan_id: &str) {
+        if self.committed.contains_key(scan_id) {
+            self.removals.insert(scan_id.to_string());
+        }
+    }
+
+    /// Commits `codebook` (and the effective pipeline `pipeline_toml`) with the next commit.
+    pub fn set_codebook(&mut self, codebook: Codebook, pipeline_toml: Option<String>) {
+        self.pending_codebook = Some((codebook, pipeline_toml));
+    }
+
+    /// Drops every committed descriptors file at the next commit (a new codebook's descriptors
+    /// replace them in the same commit).
+    pub fn drop_descriptors(&mut self) {
+        let files: Vec<String> =
+            self.manifest.files_of(tables::DESCRIPTORS).map(|f| f.path.clone()).collect();
+        self.dropped.extend(files);
+        self.committed.values_mut().for_each(|c| c.has_descriptor = false);
+    }
+
+    /// Merges each partition's part files of each table into one file, in one commit.
+    /// Returns how many files were merged into how many.
+    pub fn compact(&mut self) -> Result<(usize, usize)> {
+        let mut groups: BTreeMap<(String, String), Vec<FileEntry>> = BTreeMap::new();
+        for f in &self.manifest.files {
+            groups.entry((f.table.clone(), f.session.clone())).or_default().push(f.clone());
+        }
+        let (mut merged, mut into) = (0, 0);
+        for ((table, session), files) in groups.into_iter().filter(|(_, files)| files.len() > 1) {
+            let table = tables::ALL.into_iter().find(|t| *t == table).expect("a table name");
+            let target = self.next_part(table, &session);
+            let first = self.root.join(&files[0].path);
+            let schema = {
+                let file = std::fs::File::open(&first).at(&first)?;
+                parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
+                    .at(&first)?
+                    .schema()
+                    .clone()
+            };
+            let mut out = TableFile::with_schema(&target, schema)?;
+            for f in &files {
+                let path = self.root.join(&f.path);
+                let file = std::fs::File::open(&path).at(&path)?;
+                let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
+                    .at(&path)?
+                    .build()
+                    .at(&path)?;
+                for batch in reader {
+                    out.write_batch(&batch.at(&path)?)?;
                 }
-                std::fs::rename(part.path(), &target).at(&target)?;
+                self.dropped.insert(f.path.clone());
             }
+            let (file, rows) = out.finish()?;
+            self.compacted.push((table, session, file, rows));
+            merged += files.len();
+            into += 1;
         }
-        let manifest = self.manifest(codebook, counts);
-        let json =
-            |v: &serde_json::Value| serde_json::to_string_pretty(v).expect("JSON of plain values") + "\n";
-        let files = [
-            (CODEBOOK_FILE, json(&codebook.to_json())),
-            (PIPELINE_FILE, pipeline_toml.to_string()),
-            (MANIFEST_FILE, json(&manifest)),
-        ];
-        for (name, text) in files {
-            crate::fsutil::write_atomic(&self.root.join(name), text.as_bytes())?;
-        }
-        std::fs::remove_dir_all(&self.staging).ok();
-        Ok(self.root.clone())
+        self.commit()?;
+        Ok((merged, into))
     }
 
-    /// Deletes the staging folder (a run that fails before committing).
-    pub fn abandon(self) {
-        std::fs::remove_dir_all(&self.staging).ok();
+    /// Writes the effective pipeline (`pipeline.toml`) with the next commit.
+    pub fn set_pipeline(&mut self, text: String) {
+        self.pending_pipeline = Some(text);
     }
+
+    /// Commits the open chunk (see the module doc). A no-op when there is nothing to commit.
+    pub fn commit(&mut self) -> Result<()> {
+        if self.chunk.is_empty()
+            && self.compacted.is_empty()
+            && self.removals.is_empty()
+            && self.pending_codebook.is_none()
+            && self.dropped.is_empty()
+        {
+            return Ok(());
+        }
+        // 1. The chunk's files, complete under their temporary names.
+        let mut staged: Vec<(&'static str, String, StagedFile, u64)> = std::mem::take(&mut self.compacted);
+        for (session, files) in std::mem::take(&mut self.chunk) {
+            if let Some(f) = files.scans {
+                let (file, rows) = f.finish()?;
+                staged.push((tables::SCANS, session.clone(), file, rows));
+            }
+            if let Some(f) = files.diagrams {
+                let (file, rows) = f.finish()?;
+                staged.push((tables::DIAGRAMS, session.clone(), file, rows));
+            }
+            if let Some(f) = files.descriptors {
+                let (file, rows) = f.finish()?;
+                staged.push((tables::DESCRIPTORS, session.clone(), file, rows));
+            }
+        }
+        // 2. Committed files holding rows to remove: rewritten without them.
+        let removals = std::mem::take(&mut self.removals);
+        let mut superseded: Vec<String> = std::mem::take(&mut self.dropped).into_iter().collect();
+        if !removals.is_empty() {
+            let sessions: HashSet<&str> =
+                removals.iter().filter_map(|id| self.committed.get(id)).map(|c| c.session.as_str()).collect();
+            let affected: Vec<FileEntry> = self
+                .manifest
+                .files
+                .iter()
+                .filter(|f| sessions.contains(f.session.as_str()) && !superseded.contains(&f.path))
+                .cloned()
+                .collect();
+            for entry in affected {
+                let path = self.root.join(&entry.path);
+                let ids = scan_ids(&path)?;
+                if !ids.iter().any(|id| removals.contains(id)) {
+                    continue;
+                }
+                superseded.push(entry.path.clone());
+                let table = tables::ALL.into_iter().find(|t| *t == entry.table).expect("a table name");
+                let target = self.next_part(table, &entry.session);
+                if let Some((file, rows)) = rewrite_without(&path, &target, &removals)? {
+                    staged.push((table, entry.session.clone(), file, rows));
+                }
+            }
+        }
+        // 3. The new manifest.
+        let mut manifest = self.manifest.clone();
+        manifest.files.retain(|f| !superseded.contains(&f.path));
+        for (table, session, file, rows) in &staged {
+            let (bytes, xxh3) = file_checksum(file.temp())?;
+            let path = file.path().strip_prefix(&self.root).expect("inside the index");
+            manifest.files.push(FileEntry {
+                table: table.to_string(),
+                session: session.clone(),
+                path: path.to_string_lossy().replace('\\', "/"),
+                rows: *rows,
+                bytes,
+                xxh3,
+            });
+        }
+        let mut counts = manifest.counts;
+        for id in &removals {
+            if let Some(c) = self.committed.get(id) {
+                count(&mut counts, c.status, -1);
+            }
+        }
+        for (_, c) in &self.chunk_scans {
+            count(&mut counts, c.status, 1);
+        }
+        manifest.counts = counts;
+        manifest.generation += 1;
+        manifest.toporec_version = env!("CARGO_PKG_VERSION").into();
+        if let Some((codebook, _)) = &self.pending_codebook {
+            manifest.codebook_id = Some(codebook.id());
+            manifest.descriptor_length = Some(codebook.len());
+            manifest.codebook = Some(codebook.to_json());
+        }
+        // 4. Files in place; the codebook's and the pipeline's convenience copies.
+        let mut folders: HashSet<PathBuf> = HashSet::new();
+        for (_, _, file, _) in staged {
+            let path = file.publish_unsynced()?;
+            folders.insert(path.parent().expect("in a partition").to_owned());
+        }
+        for dir in &folders {
+            std::fs::File::open(dir).and_then(|d| d.sync_all()).at(dir)?;
+        }
+        if let Some((codebook, pipeline)) = &self.pending_codebook {
+            codebook.save(&self.root.join(CODEBOOK_FILE))?;
+            if let Some(text) = pipeline {
+                self.pending_pipeline = Some(text.clone());
+            }
+        }
+        if let Some(text) = self.pending_pipeline.take() {
+            crate::fsutil::write_atomic(&self.root.join(PIPELINE_FILE), text.as_bytes())?;
+        }
+        if let Some(pause) = self.pause {
+            std::thread::sleep(pause);
+        }
+        // 5. The commit point.
+        crate::fsutil::write_atomic(&self.root.join(MANIFEST_FILE), manifest.to_text().as_bytes())?;
+        // 6. What the manifest no longer names.
+        for path in &superseded {
+            let _ = std::fs::remove_file(self.root.join(path));
+        }
+        for id in &removals {
+            self.committed.remove(id);
+        }
+        self.committed.extend(std::mem::take(&mut self.chunk_scans));
+        self.manifest = manifest;
+        self.pending_codebook = None;
+        self.commits += 1;
+        self.chunk_rows = 0;
+        self.chunk_started = Instant::now();
+        Ok(())
+    }
+}
+
+fn count(c: &mut Counts, status: Status, delta: i64) {
+    let add = |x: &mut u64| *x = (*x as i64 + delta).max(0) as u64;
+    add(&mut c.scans);
+    match status {
+        Status::Ok => add(&mut c.ok),
+        Status::Skipped => add(&mut c.skipped),
+        Status::Error => add(&mut c.errors),
+    }
+}
+
+/// Takes the writer's lock, or explains who holds it.
+fn take_lock(root: &Path) -> Result<std::fs::File> {
+    use std::io::{Read, Seek, Write};
+    let path = root.join(LOCK_FILE);
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .at(&path)?;
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let mut holder = String::new();
+            let _ = file.read_to_string(&mut holder);
+            let holder = holder.trim();
+            let holder = if holder.is_empty() { "another process".to_string() } else { holder.to_string() };
+            return Err(Error::Locked { path: root.to_owned(), holder });
+        }
+        Err(std::fs::TryLockError::Error(e)) => return Err(e).at(&path),
+    }
+    let host = gethostname::gethostname().to_string_lossy().into_owned();
+    let since = chrono::Utc::now().format("%Y-%m-%dT%H:%M:%SZ");
+    file.set_len(0).at(&path)?;
+    file.rewind().at(&path)?;
+    writeln!(file, "pid {} (host {host}) since {since}", std::process::id()).at(&path)?;
+    file.flush().at(&path)?;
+    Ok(file)
+}
+
+/// Deletes what the manifest does not name: parts of uncommitted chunks, temporary files,
+/// staging folders of older writers, empty partitions.
+fn remove_uncommitted(root: &Path, manifest: &Manifest) -> Result<()> {
+    let named: HashSet<&str> = manifest.files.iter().map(|f| f.path.as_str()).collect();
+    for e in std::fs::read_dir(root).at(root)?.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.starts_with(".staging-") {
+            let _ = std::fs::remove_dir_all(e.path());
+        } else if is_temp_name(&name) {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+    for table in tables::ALL {
+        let dir = root.join(table);
+        let Ok(partitions) = std::fs::read_dir(&dir) else { continue };
+        for p in partitions.flatten() {
+            let Ok(files) = std::fs::read_dir(p.path()) else { continue };
+            for f in files.flatten() {
+                let rel = format!(
+                    "{table}/{}/{}",
+                    p.file_name().to_string_lossy(),
+                    f.file_name().to_string_lossy()
+                );
+                if !named.contains(rel.as_str()) {
+                    tracing::info!("{}: removing a file no commit names", f.path().display());
+                    let _ = std::fs::remove_file(f.path());
+                }
+            }
+            let _ = std::fs::remove_dir(p.path()); // only when empty
+        }
+    }
+    Ok(())
+}
+
+/// Every committed scan, by id, from the manifest's `scans` and `descriptors` files.
+fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
+    let mut out = HashMap::new();
+    for f in manifest.files_of(tables::SCANS) {
+        for r in read_scans(&root.join(&f.path), &f.session)? {
+            out.insert(
+                r.scan_id,
+                CommittedScan {
+                    session: r.session,
+                    fingerprint: r.fingerprint,
+                    settings_hash: r.settings_hash,
+                    status: r.status,
+                    error: r.error,
+                    has_descriptor: false,
+                    utime: r.utime,
+                    pose: r.pose,
+                },
+            );
+        }
+    }
+    for f in manifest.files_of(tables::DESCRIPTORS) {
+        for id in scan_ids(&root.join(&f.path))? {
+            if let Some(c) = out.get_mut(&id) {
+                c.has_descriptor = true;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Writes `target` as `path` without the rows of `removed` scans; `None` when no row is left.
+fn rewrite_without(
+    path: &Path,
+    target: &Path,
+    removed: &HashSet<String>,
+) -> Result<Option<(StagedFile, u64)>> {
+    use arrow::array::{AsArray, BooleanArray};
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+    let file = std::fs::File::open(path).at(path)?;
+    let builder = ParquetRecordBatchReaderBuilder::try_new(file).at(path)?;
+    let schema = builder.schema().clone();
+    let mut out = TableFile::with_schema(target, schema)?;
+    for batch in builder.build().at(path)? {
+        let batch = batch.at(path)?;
+        let ids = batch
+            .column_by_name(crate::sinks::schema::columns::SCAN_ID)
+            .ok_or_else(|| Error::table(path, "no column `scan_id`"))?
+            .as_string::<i32>()
+            .clone();
+        let keep: BooleanArray =
+            ids.iter().map(|id| Some(!id.is_some_and(|id| removed.contains(id)))).collect();
+        let kept = arrow::compute::filter_record_batch(&batch, &keep).at(path)?;
+        if kept.num_rows() > 0 {
+            out.write_batch(&kept)?;
+        }
+    }
+    let (file, rows) = out.finish()?;
+    Ok((rows > 0).then_some((file, rows)))
 }

@@ -1,0 +1,274 @@
+//! Keeping an index healthy: `toporec verify` (does it hold what its manifest says?),
+//! `toporec compact` (merge the small part files of chunked commits) and `toporec revectorize`
+//! (a new codebook for the stored diagrams, switched to atomically). `compact` and
+//! `revectorize` take the index's writer lock, like `run`.
+
+use crate::error::{Error, Result};
+use crate::offline::CodebookArgs;
+use crate::pipeline::config::{Pipeline, dims_needed};
+use crate::pipeline::{RunOptions, stored_descriptors};
+use crate::sinks::index::IndexWriter;
+use crate::sinks::index::manifest::{Manifest, file_checksum};
+use crate::sinks::index::reader::{diagrams, read_scans, scan_ids};
+use crate::sinks::index::{MANIFEST_FILE, reader};
+use crate::sinks::parquet::Status;
+use crate::sinks::schema::tables;
+use crate::vectorize::codebook::{Codebook, CodebookFitter};
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+
+/// Arguments of `toporec revectorize`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct RevectorizeArgs {
+    /// The index.
+    #[arg(long)]
+    pub index: PathBuf,
+    /// Use this saved codebook (else fit one on the stored diagrams with the settings below).
+    #[arg(long, conflicts_with_all = ["b", "dims", "contrast", "weighting", "kmeans", "sample_size", "seed"])]
+    pub codebook: Option<PathBuf>,
+    /// The settings of the codebook to fit.
+    #[command(flatten)]
+    pub fit: CodebookArgs,
+    /// Worker threads (default: all cores).
+    #[arg(long, short)]
+    pub threads: Option<usize>,
+}
+
+/// What `revectorize` did.
+#[derive(Clone, Debug)]
+pub struct Revectorized {
+    /// The codebook before.
+    pub old_codebook: Option<String>,
+    /// The codebook now.
+    pub codebook: Codebook,
+    /// Descriptors written.
+    pub descriptors: u64,
+    /// Seconds.
+    pub seconds: f64,
+}
+
+/// Rebuilds the descriptors table from the stored diagrams with a new codebook (loaded or
+/// fitted), and switches the index to it in one commit. Reads no source file and computes no
+/// persistence.
+pub fn revectorize(args: &RevectorizeArgs, threads: usize) -> Result<Revectorized> {
+    let start = std::time::Instant::now();
+    let pipeline = Pipeline::of_index(&args.index)?;
+    let mut writer = IndexWriter::open(&args.index, &pipeline.settings_hash(), false)?;
+    if writer.manifest().generation == 0 {
+        return Err(Error::index(&args.index, "empty: nothing to revectorize (run a pipeline first)"));
+    }
+    let old_codebook = writer.manifest().codebook_id.clone();
+    let squared = pipeline.persistence.squared;
+    let codebook = match &args.codebook {
+        Some(path) => Codebook::load(path)?,
+        None => fit_on_stored(&writer, &args.fit, squared)?,
+    };
+    if codebook.spec.squared_radii != squared {
+        return Err(Error::invalid(format!(
+            "the codebook is made for {}, the index stores {}",
+            if codebook.spec.squared_radii { "squared radii" } else { "radii" },
+            if squared { "squared radii" } else { "radii" }
+        )));
+    }
+    if let Some(d) = dims_needed(&codebook.spec.dims).iter().find(|d| !pipeline.persistence.dims.contains(d))
+    {
+        return Err(Error::invalid(format!("the codebook reads H{d}, which the index does not store")));
+    }
+    writer.drop_descriptors();
+    writer.set_codebook(codebook.clone(), None);
+    // One commit at the end: readers see the old codebook and descriptors, or the new ones.
+    let opts =
+        RunOptions { commit_every: u64::MAX, commit_seconds: f64::INFINITY, ..RunOptions::new(threads) };
+    let (_, _, descriptors) = stored_descriptors(&mut writer, &codebook, threads, &opts)?;
+    writer.commit()?;
+    Ok(Revectorized { old_codebook, codebook, descriptors, seconds: start.elapsed().as_secs_f64() })
+}
+
+/// Fits a codebook on the index's stored diagrams of ok scans.
+fn fit_on_stored(writer: &IndexWriter, args: &CodebookArgs, squared: bool) -> Result<Codebook> {
+    let mut fitter = CodebookFitter::new(args.spec(squared));
+    let ok: HashSet<&str> = writer
+        .committed()
+        .iter()
+        .filter(|(_, c)| c.status == Status::Ok)
+        .map(|(id, _)| id.as_str())
+        .collect();
+    for f in writer.manifest().files_of(tables::DIAGRAMS) {
+        for d in diagrams(&writer.root().join(&f.path))? {
+            let (id, diagram) = d?;
+            if ok.contains(id.as_str()) {
+                fitter.add(&diagram, &id);
+            }
+        }
+    }
+    fitter.finish().map_err(|e| Error::index(writer.root(), format!("no codebook could be fitted: {e}")))
+}
+
+/// Merges the part files of each partition (see [`IndexWriter::compact`]); returns how many
+/// files were merged into how many.
+pub fn compact(index: &Path) -> Result<(usize, usize)> {
+    let manifest = Manifest::load(&index.join(MANIFEST_FILE))?
+        .ok_or_else(|| Error::index(index, "no manifest.json: not an index toporec wrote"))?;
+    let mut writer = IndexWriter::open(index, &manifest.settings_hash, false)?;
+    writer.compact()
+}
+
+/// What `verify` found.
+#[derive(Clone, Debug, Default)]
+pub struct Verification {
+    /// Files checked.
+    pub files: usize,
+    /// Scans in the index.
+    pub scans: usize,
+    /// Problems, each naming its file or scan.
+    pub problems: Vec<String>,
+    /// Notes that are not problems (uncommitted files of a running or killed writer).
+    pub notes: Vec<String>,
+}
+
+impl std::fmt::Display for Verification {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for n in &self.notes {
+            writeln!(f, "note: {n}")?;
+        }
+        for p in &self.problems {
+            writeln!(f, "problem: {p}")?;
+        }
+        if self.problems.is_empty() {
+            write!(f, "ok: {} files, {} scans", self.files, self.scans)
+        } else {
+            write!(f, "{} problem(s) in {} files, {} scans", self.problems.len(), self.files, self.scans)
+        }
+    }
+}
+
+/// Checks an index against its manifest: every named file exists with its size, checksum and
+/// row count and reads as its table; the codebook ids agree; every ok scan has its diagram and
+/// descriptor rows; the counts add up.
+pub fn verify(index: &Path) -> Result<Verification> {
+    let manifest = Manifest::load(&index.join(MANIFEST_FILE))?
+        .ok_or_else(|| Error::index(index, "no manifest.json: not an index toporec wrote"))?;
+    let mut v = Verification { files: manifest.files.len(), ..Default::default() };
+    let named: HashSet<&str> = manifest.files.iter().map(|f| f.path.as_str()).collect();
+    // Files on disk that no commit names.
+    for table in tables::ALL {
+        let Ok(parts) = std::fs::read_dir(index.join(table)) else { continue };
+        for p in parts.flatten() {
+            for f in std::fs::read_dir(p.path()).into_iter().flatten().flatten() {
+                let rel = format!(
+                    "{table}/{}/{}",
+                    p.file_name().to_string_lossy(),
+                    f.file_name().to_string_lossy()
+                );
+                if !named.contains(rel.as_str()) {
+                    v.notes.push(format!(
+                        "{rel}: not committed (a writer running, or killed; the next writer removes it)"
+                    ));
+                }
+            }
+        }
+    }
+    // Each file: present, intact, readable as its table.
+    let codebook = match manifest.codebook(index) {
+        Ok(cb) => cb,
+        Err(e) => {
+            v.problems.push(e.to_string());
+            None
+        }
+    };
+    if let Some(cb) = &codebook
+        && manifest.codebook_id.as_deref() != Some(cb.id().as_str())
+    {
+        v.problems.push(format!(
+            "manifest.json: codebook_id {:?} is not its codebook's id {}",
+            manifest.codebook_id,
+            cb.id()
+        ));
+    }
+    let mut intact: Vec<&crate::sinks::index::manifest::FileEntry> = Vec::new();
+    for f in &manifest.files {
+        let path = index.join(&f.path);
+        if !path.is_file() {
+            v.problems.push(format!("{}: missing", f.path));
+            continue;
+        }
+        let (bytes, xxh3) = file_checksum(&path)?;
+        if bytes != f.bytes {
+            v.problems.push(format!("{}: {bytes} bytes, the manifest says {}", f.path, f.bytes));
+            continue;
+        }
+        if xxh3 != f.xxh3 {
+            v.problems.push(format!("{}: checksum {xxh3}, the manifest says {}", f.path, f.xxh3));
+            continue;
+        }
+        match reader::check_file(&path, &f.table, manifest.descriptor_length) {
+            Ok(info) => {
+                if info.rows != f.rows {
+                    v.problems.push(format!("{}: {} rows, the manifest says {}", f.path, info.rows, f.rows));
+                }
+                if f.table == tables::DESCRIPTORS && info.codebook_id != manifest.codebook_id {
+                    v.problems.push(format!(
+                        "{}: made with codebook {:?}, the index's is {:?}",
+                        f.path, info.codebook_id, manifest.codebook_id
+                    ));
+                }
+                intact.push(f);
+            }
+            Err(e) => v.problems.push(e.to_string()),
+        }
+    }
+    // Rows: every ok scan with its diagram and descriptor, counts as the manifest says.
+    let mut status: HashMap<String, Status> = HashMap::new();
+    let mut counts = crate::sinks::index::manifest::Counts::default();
+    for f in intact.iter().filter(|f| f.table == tables::SCANS) {
+        for r in read_scans(&index.join(&f.path), &f.session)? {
+            if status.insert(r.scan_id.clone(), r.status).is_some() {
+                v.problems.push(format!("scan {}: more than one row in scans", r.scan_id));
+            }
+            counts.scans += 1;
+            match r.status {
+                Status::Ok => counts.ok += 1,
+                Status::Skipped => counts.skipped += 1,
+                Status::Error => counts.errors += 1,
+            }
+        }
+    }
+    v.scans = status.len();
+    if counts != manifest.counts {
+        v.problems
+            .push(format!("manifest.json: counts {:?}, the scans table holds {counts:?}", manifest.counts));
+    }
+    let ids_of = |table: &str| -> Result<HashMap<String, usize>> {
+        let mut out: HashMap<String, usize> = HashMap::new();
+        for f in intact.iter().filter(|f| f.table == table) {
+            for id in scan_ids(&index.join(&f.path))? {
+                *out.entry(id).or_default() += 1;
+            }
+        }
+        Ok(out)
+    };
+    let stored_h0 = Pipeline::of_index(index).map(|p| p.persistence.dims.contains(&0)).unwrap_or(true);
+    let with_pairs = ids_of(tables::DIAGRAMS)?;
+    let with_descriptor = ids_of(tables::DESCRIPTORS)?;
+    let mut ok: Vec<&String> = status.iter().filter(|(_, s)| **s == Status::Ok).map(|(id, _)| id).collect();
+    ok.sort();
+    for id in ok {
+        // Every ok scan has H0 pairs (its points are born at 0), when H0 is stored.
+        if stored_h0 && !with_pairs.contains_key(id) {
+            v.problems.push(format!("scan {id}: ok, but no rows in diagrams"));
+        }
+        match (with_descriptor.get(id), &codebook) {
+            (None, Some(_)) => v.problems.push(format!("scan {id}: ok, but no row in descriptors")),
+            (Some(n), _) if *n > 1 => v.problems.push(format!("scan {id}: {n} rows in descriptors")),
+            _ => {}
+        }
+    }
+    for id in with_pairs.keys().chain(with_descriptor.keys()) {
+        if status.get(id) != Some(&Status::Ok) {
+            v.problems.push(format!("scan {id}: rows in diagrams or descriptors, but not an ok scan"));
+        }
+    }
+    v.problems.sort();
+    v.problems.dedup();
+    Ok(v)
+}
