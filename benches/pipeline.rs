@@ -22,8 +22,10 @@ struct Run {
     cpu: serde_json::Value,
 }
 
-fn run(bin: &str, pipeline: &Path, index: &Path, threads: usize) -> Run {
+fn run(bin: &str, pipeline: &Path, index: &Path, threads: usize, extra: &[&str]) -> Run {
     let summary = index.with_extension("summary.json");
+    // A fresh index each time: the bench measures whole runs.
+    let _ = std::fs::remove_dir_all(index);
     let out = Command::new("/usr/bin/time")
         .args(["-f", "RSS_KB %M"])
         .arg(bin)
@@ -38,6 +40,7 @@ fn run(bin: &str, pipeline: &Path, index: &Path, threads: usize) -> Run {
             "--summary-json",
             summary.to_str().unwrap(),
         ])
+        .args(extra)
         .output()
         .expect("/usr/bin/time");
     let err = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -88,7 +91,7 @@ fn main() {
         )
         .unwrap();
         for threads in [1, 2] {
-            let r = run(bin, &pipeline, &root.join(format!("index-{scans}-{threads}")), threads);
+            let r = run(bin, &pipeline, &root.join(format!("index-{scans}-{threads}")), threads, &[]);
             let cpu = |stage: &str| r.cpu[stage].as_f64().unwrap_or(0.0);
             let useful = cpu("persistence") + cpu("vectorize");
             let overhead = 1.0 - useful / (r.wall * threads as f64);
@@ -111,6 +114,24 @@ fn main() {
         }
     }
     let get = |s, t| &results.iter().find(|r| r.0 == s && r.1 == t).unwrap().2;
+    // The cost of chunked commits: the default (every 500 scans) against one commit at the end,
+    // alternated, 2,000 scans on 2 threads.
+    let pipeline = root.join("bench-2000.toml");
+    let mut walls = [Vec::new(), Vec::new()];
+    for _ in 0..2 {
+        for (i, extra) in
+            [&[][..], &["--commit-every", "1000000", "--commit-seconds", "1e9"][..]].iter().enumerate()
+        {
+            walls[i].push(run(bin, &pipeline, &root.join("index-commits"), 2, extra).wall);
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    println!(
+        "chunked commits (every 500 scans) vs one commit, 2,000 scans, 2 threads: {:.1} s vs {:.1} s wall ({:+.1} %, design goal < 5 %)",
+        mean(&walls[0]),
+        mean(&walls[1]),
+        100.0 * (mean(&walls[0]) / mean(&walls[1]) - 1.0)
+    );
     println!(
         "speed-up 2 vs 1 thread (2,000 scans): {:.2}x (design goal >= 1.7x)",
         get(2000, 2).scans_per_s / get(2000, 1).scans_per_s

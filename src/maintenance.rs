@@ -6,14 +6,14 @@
 use crate::error::{Error, Result};
 use crate::offline::CodebookArgs;
 use crate::pipeline::config::{Pipeline, dims_needed};
-use crate::pipeline::{RunOptions, stored_descriptors};
+use crate::pipeline::{RunOptions, fit_on_stored, stored_descriptors};
 use crate::sinks::index::IndexWriter;
 use crate::sinks::index::manifest::{Manifest, file_checksum};
-use crate::sinks::index::reader::{diagrams, read_scans, scan_ids};
+use crate::sinks::index::reader::{read_scans, scan_ids};
 use crate::sinks::index::{MANIFEST_FILE, reader};
 use crate::sinks::parquet::Status;
 use crate::sinks::schema::tables;
-use crate::vectorize::codebook::{Codebook, CodebookFitter};
+use crate::vectorize::codebook::Codebook;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
@@ -59,9 +59,14 @@ pub fn revectorize(args: &RevectorizeArgs, threads: usize) -> Result<Revectorize
     }
     let old_codebook = writer.manifest().codebook_id.clone();
     let squared = pipeline.persistence.squared;
-    let codebook = match &args.codebook {
-        Some(path) => Codebook::load(path)?,
-        None => fit_on_stored(&writer, &args.fit, squared)?,
+    let (codebook, cached) = match &args.codebook {
+        Some(path) => (Codebook::load(path)?, None),
+        None => {
+            let (codebook, cached) = fit_on_stored(&writer, &args.fit.spec(squared), threads, true)?;
+            let codebook = codebook
+                .map_err(|e| Error::index(&args.index, format!("no codebook could be fitted: {e}")))?;
+            (codebook, cached)
+        }
     };
     if codebook.spec.squared_radii != squared {
         return Err(Error::invalid(format!(
@@ -79,29 +84,9 @@ pub fn revectorize(args: &RevectorizeArgs, threads: usize) -> Result<Revectorize
     // One commit at the end: readers see the old codebook and descriptors, or the new ones.
     let opts =
         RunOptions { commit_every: u64::MAX, commit_seconds: f64::INFINITY, ..RunOptions::new(threads) };
-    let (_, _, descriptors) = stored_descriptors(&mut writer, &codebook, threads, &opts)?;
+    let (_, _, descriptors) = stored_descriptors(&mut writer, &codebook, threads, &opts, cached)?;
     writer.commit()?;
     Ok(Revectorized { old_codebook, codebook, descriptors, seconds: start.elapsed().as_secs_f64() })
-}
-
-/// Fits a codebook on the index's stored diagrams of ok scans.
-fn fit_on_stored(writer: &IndexWriter, args: &CodebookArgs, squared: bool) -> Result<Codebook> {
-    let mut fitter = CodebookFitter::new(args.spec(squared));
-    let ok: HashSet<&str> = writer
-        .committed()
-        .iter()
-        .filter(|(_, c)| c.status == Status::Ok)
-        .map(|(id, _)| id.as_str())
-        .collect();
-    for f in writer.manifest().files_of(tables::DIAGRAMS) {
-        for d in diagrams(&writer.root().join(&f.path))? {
-            let (id, diagram) = d?;
-            if ok.contains(id.as_str()) {
-                fitter.add(&diagram, &id);
-            }
-        }
-    }
-    fitter.finish().map_err(|e| Error::index(writer.root(), format!("no codebook could be fitted: {e}")))
 }
 
 /// Merges the part files of each partition (see [`IndexWriter::compact`]); returns how many

@@ -5,6 +5,7 @@ mod cli;
 mod codebook;
 mod eval;
 mod homology;
+mod incremental;
 mod index;
 mod pipeline;
 mod simulate;

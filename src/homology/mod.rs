@@ -37,11 +37,15 @@ pub struct Diagram {
 }
 
 impl Diagram {
-    /// Sorts `pairs` into a diagram.
+    /// Sorts `pairs` into a diagram (pairs read back from an index come sorted: checked, not
+    /// sorted again).
     pub fn new(mut pairs: Vec<Pair>) -> Self {
-        pairs.sort_unstable_by(|a, b| {
+        let order = |a: &Pair, b: &Pair| {
             a.dim.cmp(&b.dim).then(a.birth.total_cmp(&b.birth)).then(a.death.total_cmp(&b.death))
-        });
+        };
+        if !pairs.is_sorted_by(|a, b| order(a, b).is_le()) {
+            pairs.sort_unstable_by(order);
+        }
         Diagram { pairs }
     }
 

@@ -20,22 +20,22 @@
 
 pub mod config;
 mod progress;
+mod stored;
+
+pub use stored::{fit_on_stored, stored_descriptors};
 
 use crate::describe::{DescribeError, Describer, StageTimes};
 use crate::error::{Error, Result};
 use crate::homology::Diagram;
 use crate::sinks::index::IndexWriter;
-use crate::sinks::index::reader::diagrams;
 use crate::sinks::index::writer::CommittedScan;
 use crate::sinks::parquet::{DescriptorRow, ScanRow, Status};
-use crate::sinks::schema::tables;
 use crate::sources::{Scan, ScanFailure};
-use crate::vectorize::codebook::{Codebook, CodebookFitter, Descriptor};
+use crate::vectorize::codebook::{Codebook, Descriptor};
 use config::{Pipeline, Vectorize};
 use cpu_time::ThreadTime;
 use crossbeam_channel::{Receiver, Sender, bounded};
 use progress::Progress;
-use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -258,17 +258,17 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
 
     // The codebook: frozen in the index, or fitted now on every committed diagram.
     let t = ThreadTime::now();
-    let codebook = match codebook {
-        Some(cb) => cb,
+    let (codebook, cached) = match codebook {
+        Some(cb) => (cb, None),
         None => {
-            let cb = fit_codebook(&writer, p, &index)?;
+            let (cb, cached) = fit_codebook(&writer, p, &index, threads)?;
             writer.set_codebook(cb.clone(), Some(pipeline_toml));
             writer.commit()?;
-            cb
+            (cb, cached)
         }
     };
     let fit_secs = t.elapsed().as_secs_f64();
-    let (vectorize, read_back, made) = stored_descriptors(&mut writer, &codebook, threads, opts)?;
+    let (vectorize, read_back, made) = stored_descriptors(&mut writer, &codebook, threads, opts, cached)?;
     stages.vectorize += vectorize;
     summary.descriptors_from_stored = made;
     summary.commits = writer.commits();
@@ -620,33 +620,18 @@ impl<'a> OrderedWriter<'a> {
     }
 }
 
-/// Fits the pipeline's codebook on every committed ok scan's diagram. The sample depends only
-/// on which diagrams the index holds, so a run resumed after a crash fits the same codebook.
-fn fit_codebook(writer: &IndexWriter, p: &Pipeline, index: &std::path::Path) -> Result<Codebook> {
+/// Fits the pipeline's codebook on every committed ok scan's diagram; the diagrams read come
+/// back too when they fit in memory.
+fn fit_codebook(
+    writer: &IndexWriter,
+    p: &Pipeline,
+    index: &std::path::Path,
+    threads: usize,
+) -> Result<(Codebook, Option<stored::Cached>)> {
     let Vectorize::Fit(spec) = &p.vectorize else { unreachable!("a loaded codebook is never fitted") };
-    let mut fitter = CodebookFitter::new(spec.clone());
-    let ok: HashSet<&str> = writer
-        .committed()
-        .iter()
-        .filter(|(_, c)| c.status == Status::Ok)
-        .map(|(id, _)| id.as_str())
-        .collect();
-    let mut with_pairs: HashSet<String> = HashSet::new();
-    for f in writer.manifest().files_of(tables::DIAGRAMS) {
-        for d in diagrams(&index.join(&f.path))? {
-            let (id, diagram) = d?;
-            if ok.contains(id.as_str()) {
-                fitter.add(&diagram, &id);
-                with_pairs.insert(id);
-            }
-        }
-    }
-    // Ok scans whose stored dimensions hold no pair: empty diagrams.
-    for id in ok.iter().filter(|id| !with_pairs.contains(**id)) {
-        fitter.add(&Diagram::default(), id);
-    }
     let counts = writer.manifest().counts;
-    fitter.finish().map_err(|e| {
+    let (codebook, cached) = fit_on_stored(writer, spec, threads, true)?;
+    let codebook = codebook.map_err(|e| {
         Error::index(
             index,
             format!(
@@ -654,85 +639,6 @@ fn fit_codebook(writer: &IndexWriter, p: &Pipeline, index: &std::path::Path) -> 
                 counts.scans, counts.ok
             ),
         )
-    })
-}
-
-/// Descriptors for the committed ok scans that have none (after a codebook fit, a run killed
-/// before its descriptors were committed, a new codebook), made from their stored diagrams and
-/// committed in chunks of `opts.commit_every` scans. Returns the CPU seconds spent vectorizing and reading back, and the
-/// number made.
-pub fn stored_descriptors(
-    writer: &mut IndexWriter,
-    codebook: &Codebook,
-    threads: usize,
-    opts: &RunOptions,
-) -> Result<(f64, f64, u64)> {
-    let missing: HashMap<String, (String, Option<i64>, Option<crate::types::Pose>)> = writer
-        .committed()
-        .iter()
-        .filter(|(_, c)| c.status == Status::Ok && !c.has_descriptor)
-        .map(|(id, c)| (id.clone(), (c.session.clone(), c.utime, c.pose)))
-        .collect();
-    if missing.is_empty() {
-        return Ok((0.0, 0.0, 0));
-    }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| Error::invalid(format!("starting {threads} threads: {e}")))?;
-    let t = ThreadTime::now();
-    let mut vectorize_secs = 0.0;
-    let mut made = 0u64;
-    let files: Vec<PathBuf> =
-        writer.manifest().files_of(tables::DIAGRAMS).map(|f| writer.root().join(&f.path)).collect();
-    let mut done: HashSet<String> = HashSet::new();
-    let mut batch: Vec<(String, Diagram)> = Vec::new();
-    let mut flush = |batch: &mut Vec<(String, Diagram)>, writer: &mut IndexWriter| -> Result<()> {
-        let rows: Vec<(String, DescriptorRow, f64)> = pool.install(|| {
-            batch
-                .par_iter()
-                .map(|(id, diagram)| {
-                    let (session, utime, pose) = &missing[id];
-                    let t = ThreadTime::now();
-                    let d = codebook.vectorize(diagram);
-                    let secs = t.elapsed().as_secs_f64();
-                    (session.clone(), DescriptorRow::new(id.clone(), *utime, *pose, &d), secs)
-                })
-                .collect()
-        });
-        for (session, row, secs) in rows {
-            vectorize_secs += secs;
-            made += 1;
-            writer.write_descriptor(&session, row, codebook)?;
-        }
-        batch.clear();
-        if writer.chunk_len() >= opts.commit_every || writer.chunk_age().as_secs_f64() >= opts.commit_seconds
-        {
-            writer.commit()?;
-        }
-        Ok(())
-    };
-    for path in files {
-        for d in diagrams(&path)? {
-            let (id, diagram) = d?;
-            if missing.contains_key(&id) && done.insert(id.clone()) {
-                batch.push((id, diagram));
-                if batch.len() == 64 {
-                    flush(&mut batch, writer)?;
-                }
-            }
-        }
-    }
-    // Ok scans whose stored dimensions hold no pair.
-    let mut rest: Vec<&String> = missing.keys().filter(|id| !done.contains(*id)).collect();
-    rest.sort();
-    for id in rest {
-        batch.push((id.clone(), Diagram::default()));
-        if batch.len() == 64 {
-            flush(&mut batch, writer)?;
-        }
-    }
-    flush(&mut batch, writer)?;
-    writer.commit()?;
-    Ok((vectorize_secs, t.elapsed().as_secs_f64(), made))
+    })?;
+    Ok((codebook, cached))
 }

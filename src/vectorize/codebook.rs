@@ -224,6 +224,14 @@ impl CodebookFitter {
         }
     }
 
+    /// Adds a fitter of the same spec fed with other diagrams: as if this one had seen them
+    /// too (the sample is order-independent, so fitters can run in parallel).
+    pub fn merge(&mut self, other: CodebookFitter) {
+        for ((_, mine), (_, theirs)) in self.fitters.iter_mut().zip(other.fitters) {
+            mine.merge(theirs);
+        }
+    }
+
     /// Fits every part.
     pub fn finish(self) -> Result<Codebook, AtolError> {
         let parts = self

@@ -54,6 +54,14 @@ impl Reservoir {
         }
     }
 
+    /// Adds another sample of the same capacity and seed (drawn from other diagrams): the
+    /// result is the sample of both streams.
+    pub fn merge(&mut self, other: Reservoir) {
+        self.seen += other.seen;
+        self.items.extend(other.items);
+        self.trim();
+    }
+
     /// Items offered so far.
     pub fn seen(&self) -> u64 {
         self.seen

@@ -189,7 +189,7 @@ impl CheckedTable {
         names: &[&'static str],
         length: Option<usize>,
     ) -> Result<Self> {
-        Self::open_any(path, table, Some(table.name), names, length)
+        Self::open_any(path, table, Some(table.name), names, length, false, None)
     }
 
     /// Opens `path`, reading `names` as `table` declares them; `table_name`: the table it must
@@ -200,6 +200,8 @@ impl CheckedTable {
         table_name: Option<&str>,
         names: &[&'static str],
         length: Option<usize>,
+        dictionary_ids: bool,
+        only_dims: Option<Vec<u8>>,
     ) -> Result<Self> {
         let file = std::fs::File::open(path).at(path)?;
         let builder = ParquetRecordBatchReaderBuilder::try_new(file).at(path)?;
@@ -245,8 +247,51 @@ impl CheckedTable {
             wanted.push(Wanted { name, data_type, nullable: column.nullable });
             roots.push(i);
         }
+        // Scan ids as a dictionary: decoded once per batch, not once per row (a diagrams file
+        // holds thousands of rows per scan).
+        let scan_id = arrow_schema.column_with_name(C::SCAN_ID);
+        let builder = match scan_id {
+            Some((i, f)) if dictionary_ids && f.data_type() == &DataType::Utf8 => {
+                let dictionary = DataType::Dictionary(Box::new(DataType::Int32), Box::new(DataType::Utf8));
+                let mut fields: Vec<Field> = arrow_schema.fields().iter().map(|f| (**f).clone()).collect();
+                fields[i] = fields[i].clone().with_data_type(dictionary.clone());
+                let hint = Arc::new(arrow::datatypes::Schema::new_with_metadata(
+                    fields,
+                    arrow_schema.metadata().clone(),
+                ));
+                if let Some(w) = wanted.iter_mut().find(|w| w.name == C::SCAN_ID) {
+                    w.data_type = dictionary;
+                }
+                let file = std::fs::File::open(path).at(path)?;
+                let options = parquet::arrow::arrow_reader::ArrowReaderOptions::new()
+                    .with_schema(hint)
+                    .with_page_index_policy(parquet::file::metadata::PageIndexPolicy::Optional);
+                ParquetRecordBatchReaderBuilder::try_new_with_options(file, options).at(path)?
+            }
+            _ => builder,
+        };
         let mask = ProjectionMask::roots(builder.parquet_schema(), roots);
-        let batches = builder.with_projection(mask).with_batch_size(8192).build().at(path)?;
+        let mut builder = builder.with_projection(mask).with_batch_size(32 * 1024);
+        // Only the rows of some dimensions: the other columns are decoded for those rows only.
+        if let (Some(dims), Some((i, _))) = (only_dims, arrow_schema.column_with_name(C::DIM)) {
+            let projection = ProjectionMask::roots(builder.parquet_schema(), [i]);
+            let predicate =
+                parquet::arrow::arrow_reader::ArrowPredicateFn::new(projection, move |batch: RecordBatch| {
+                    let dim = arrow::compute::cast(batch.column(0), &DataType::UInt8)?;
+                    let dim = dim.as_primitive::<UInt8Type>();
+                    // A mask of the wanted dimensions, tested by bit (nulls are caught later).
+                    let mask = dims.iter().fold(0u8, |m, &d| m | (1 << d.min(7)));
+                    let values = dim.values();
+                    let keep = arrow::buffer::BooleanBuffer::collect_bool(values.len(), |i| {
+                        let d = values[i];
+                        d < 8 && mask & (1 << d) != 0
+                    });
+                    Ok(arrow::array::BooleanArray::new(keep, None))
+                });
+            builder = builder
+                .with_row_filter(parquet::arrow::arrow_reader::RowFilter::new(vec![Box::new(predicate)]));
+        }
+        let batches = builder.build().at(path)?;
         Ok(CheckedTable { path: path.to_owned(), wanted, batches })
     }
 
@@ -366,12 +411,37 @@ pub fn check_file(path: &Path, table: &str, descriptor_length: Option<usize>) ->
     Ok(info)
 }
 
+/// The scan ids of any table file, once per run of equal ids (one per scan in toporec's
+/// files, whose rows of a scan are contiguous).
+pub fn distinct_scan_ids(path: &Path) -> Result<Vec<String>> {
+    read_scan_ids(path, true)
+}
+
 /// The `scan_id` column of any table file (one entry per row).
 pub fn scan_ids(path: &Path) -> Result<Vec<String>> {
-    let mut table = CheckedTable::open_any(path, &schema::diagrams(), None, &[C::SCAN_ID], None)?;
+    read_scan_ids(path, false)
+}
+
+fn read_scan_ids(path: &Path, distinct: bool) -> Result<Vec<String>> {
+    let mut table = CheckedTable::open_any(path, &schema::diagrams(), None, &[C::SCAN_ID], None, true, None)?;
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
-        out.extend(columns?[0].as_string::<i32>().iter().map(|s| s.unwrap_or_default().to_string()));
+        let columns = columns?;
+        let ids = ScanIds::of(&columns[0]);
+        let mut last_key = -1;
+        for i in 0..ids.len() {
+            let (key, id) = ids.get(i);
+            let same = key >= 0 && key == last_key || out.last().is_some_and(|s: &String| s == id);
+            last_key = key;
+            if !(distinct && same) {
+                if same {
+                    let s = out.last().expect("same as the last").clone();
+                    out.push(s);
+                } else {
+                    out.push(id.to_string());
+                }
+            }
+        }
     }
     Ok(out)
 }
@@ -443,8 +513,16 @@ pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
 /// Streams the diagrams of one `diagrams` file, one scan at a time, in file order (a
 /// scan's pairs are contiguous).
 pub fn diagrams(path: &Path) -> Result<DiagramStream> {
+    diagrams_in(path, None)
+}
+
+/// As [`diagrams`], with only the pairs of `dims` (all of them when `None`): a scan with no
+/// pair in `dims` is left out.
+pub fn diagrams_in(path: &Path, dims: Option<&[u8]>) -> Result<DiagramStream> {
+    let names = [C::SCAN_ID, C::DIM, C::BIRTH, C::DEATH];
+    let dims = dims.map(<[u8]>::to_vec);
     let table =
-        CheckedTable::open(path, &schema::diagrams(), &[C::SCAN_ID, C::DIM, C::BIRTH, C::DEATH], None)?;
+        CheckedTable::open_any(path, &schema::diagrams(), Some(tables::DIAGRAMS), &names, None, true, dims)?;
     Ok(DiagramStream { table, current: None, ready: VecDeque::new(), done: false })
 }
 
@@ -456,20 +534,59 @@ pub struct DiagramStream {
     done: bool,
 }
 
+/// A scan-id column, plain or dictionary-encoded.
+enum ScanIds<'a> {
+    Plain(&'a arrow::array::StringArray),
+    Dictionary(&'a arrow::array::Int32Array, &'a arrow::array::StringArray),
+}
+
+impl<'a> ScanIds<'a> {
+    fn of(column: &'a ArrayRef) -> Self {
+        match column.data_type() {
+            DataType::Dictionary(..) => {
+                let d = column.as_dictionary::<arrow::datatypes::Int32Type>();
+                ScanIds::Dictionary(d.keys(), d.values().as_string::<i32>())
+            }
+            _ => ScanIds::Plain(column.as_string::<i32>()),
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            ScanIds::Plain(a) => a.len(),
+            ScanIds::Dictionary(k, _) => k.len(),
+        }
+    }
+
+    /// The row's dictionary key (-1 for plain strings) and id.
+    fn get(&self, i: usize) -> (i32, &'a str) {
+        match self {
+            ScanIds::Plain(a) => (-1, a.value(i)),
+            ScanIds::Dictionary(k, v) => {
+                let key = k.value(i);
+                (key, v.value(key as usize))
+            }
+        }
+    }
+}
+
 impl DiagramStream {
     fn add(&mut self, c: &[ArrayRef]) -> Result<()> {
-        let ids = c[0].as_string::<i32>();
+        let ids = ScanIds::of(&c[0]);
         let dims = c[1].as_primitive::<UInt8Type>();
         let births = c[2].as_primitive::<Float64Type>();
         let deaths = c[3].as_primitive::<Float64Type>();
+        // With dictionary ids, the id is compared only where the key changes.
+        let mut last_key = -1;
         for i in 0..ids.len() {
-            let id = ids.value(i);
-            if self.current.as_ref().is_none_or(|c| c.0 != id) {
+            let (key, id) = ids.get(i);
+            if (key < 0 || key != last_key) && self.current.as_ref().is_none_or(|c| c.0 != id) {
                 if let Some((id, pairs)) = self.current.take() {
                     self.ready.push_back((id, Diagram::new(pairs)));
                 }
                 self.current = Some((id.to_string(), Vec::new()));
             }
+            last_key = key;
             let dim = dims.value(i);
             if dim > 2 {
                 return Err(Error::table(&self.table.path, format!("row {i}: dim {dim} is not 0, 1 or 2")));

@@ -212,6 +212,7 @@ impl IndexWriter {
             utime: row.utime,
             pose: row.pose,
         };
+        tracing::debug!(scan = %row.scan_id, "row added to the open chunk");
         self.chunk_scans.push((row.scan_id.clone(), record));
         self.chunk_rows += 1;
         self.session_files(&session).scans.as_mut().expect("opened").push(row)
@@ -388,6 +389,7 @@ impl IndexWriter {
             manifest.codebook = Some(codebook.to_json());
         }
         // 4. Files in place; the codebook's and the pipeline's convenience copies.
+        tracing::info!(generation = manifest.generation, files = staged.len(), "publishing a chunk");
         let mut folders: HashSet<PathBuf> = HashSet::new();
         for (_, _, file, _) in staged {
             let path = file.publish_unsynced()?;
