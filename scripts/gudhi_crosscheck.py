@@ -22,6 +22,9 @@ try:
 except ImportError as e:
     sys.exit(f"gudhi/numpy not installed ({e}); pip install gudhi numpy")
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from gudhi_crosscheck_lib import TOL, match, toporec_diagram  # noqa: E402
+
 ap = argparse.ArgumentParser()
 ap.add_argument("--toporec", required=True, help="the toporec binary")
 ap.add_argument("--clouds", type=int, default=40, help="clouds in all (split over the four kinds)")
@@ -53,49 +56,7 @@ def gudhi_exact(pts):
 
 def toporec(path):
     out = subprocess.run([args.toporec, "diagram", path], capture_output=True, text=True, check=True).stdout
-    dims = [[], [], []]
-    for line in out.splitlines()[1:]:
-        d, b, e = line.split(",")
-        dims[int(d)].append((float(b), float(e)))
-    return [sorted(x) for x in dims]
-
-
-TOL = 1e-12
-
-
-def rel(a, b):
-    if a == b:
-        return 0.0
-    if not (np.isfinite(a) and np.isfinite(b)):
-        return float("inf")
-    return abs(a - b) / max(abs(a), abs(b))
-
-
-def match(ours, ref):
-    """The largest relative difference of a one-to-one matching (None when there is none)."""
-    worst = 0.0
-    for d in range(3):
-        if len(ours[d]) != len(ref[d]):
-            return None
-        used = [False] * len(ref[d])
-        for i, p in enumerate(ours[d]):
-            # Sorted alike, pairs mostly sit at the same rank.
-            e = max(rel(p[0], ref[d][i][0]), rel(p[1], ref[d][i][1]))
-            if not used[i] and e <= TOL:
-                used[i] = True
-                worst = max(worst, e)
-                continue
-            best = None
-            for j in range(max(0, i - 64), min(len(ref[d]), i + 65)):
-                if not used[j]:
-                    e = max(rel(p[0], ref[d][j][0]), rel(p[1], ref[d][j][1]))
-                    if e <= TOL and (best is None or e < best[0]):
-                        best = (e, j)
-            if best is None:
-                return None
-            used[best[1]] = True
-            worst = max(worst, best[0])
-    return worst
+    return toporec_diagram(out)
 
 
 kinds = ["generic", "quantized", "lattice", "near_planar"]

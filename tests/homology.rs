@@ -394,3 +394,82 @@ fn random_clouds_match_gudhi_exact() {
     assert!(o.status.success(), "{out}{}", text(&o.stderr));
     assert!(out.contains("40 of 40 clouds match GUDHI exact"), "{out}");
 }
+
+/// `x · 2^k` (exact for results in the normal range).
+fn times_pow2(x: f64, k: i32) -> f64 {
+    let (a, b) = (k / 2, k - k / 2);
+    x * 2f64.powi(a) * 2f64.powi(b)
+}
+
+#[test]
+fn scaled_clouds_give_exactly_scaled_diagrams() {
+    // Scaling by 2^k is exact in floating point, so the diagram of 2^k · P must be exactly
+    // 4^k times that of P (squared radii), for every k that keeps those values normal.
+    let mut clouds = vec![(
+        "unit_cube_300_rng1",
+        read_cloud(&root().join("tests/fixtures/clouds/unit_cube_300_rng1.csv")),
+    )];
+    match shared_data("scaled KITTI scan") {
+        Some(data) => {
+            let kitti = read_cloud(&data.join("kitti/sequences/00/velodyne/000000.bin"));
+            clouds.push(("kitti_00_000000 (every 60th point)", kitti.into_iter().step_by(60).collect()));
+        }
+        None => {}
+    }
+    for (name, cloud) in clouds {
+        let reference = alpha_persistence(&cloud).unwrap();
+        for k in (-400..=400).step_by(7) {
+            let scaled: Vec<Point> = cloud.iter().map(|p| p.map(|c| times_pow2(c, k))).collect();
+            let d = alpha_persistence(&scaled).unwrap_or_else(|e| panic!("{name}, k = {k}: {e}"));
+            assert_eq!(d.len(), reference.len(), "{name}, k = {k}: pair count");
+            for (a, b) in d.pairs().iter().zip(reference.pairs()) {
+                let (birth, death) = (times_pow2(b.birth, 2 * k), times_pow2(b.death, 2 * k));
+                assert!(
+                    a.dim == b.dim && a.birth == birth && a.death == death,
+                    "{name}, k = {k}: {a:?} vs {b:?}"
+                );
+            }
+        }
+        // Beyond: exactly scaled, or refused with the range named; never a panic.
+        for k in (-1000..=1000).step_by(37).filter(|k: &i32| k.abs() > 400) {
+            let scaled: Vec<Point> = cloud.iter().map(|p| p.map(|c| times_pow2(c, k))).collect();
+            match std::panic::catch_unwind(|| alpha_persistence(&scaled)) {
+                Ok(Ok(d)) => assert_eq!(d.len(), reference.len(), "{name}, k = {k}"),
+                Ok(Err(e)) => {
+                    assert!(e.to_string().contains("range of doubles") || e.to_string().contains("2^"), "{e}")
+                }
+                Err(_) => panic!("{name}, k = {k}: panicked"),
+            }
+        }
+    }
+}
+
+#[test]
+fn scaled_clouds_beyond_the_band_match_gudhi_exact_or_are_refused() {
+    // Outside |k| <= 400, each 2^k-scaled cloud gives GUDHI `exact`'s diagram of the same input,
+    // or a one-line refusal naming the supported range: scripts/gudhi_scale_check.py.
+    if !python_with("scaled_clouds_beyond_the_band", &["gudhi", "numpy"]) {
+        return;
+    }
+    let mut clouds = vec![root().join("tests/fixtures/clouds/unit_cube_300_rng1.csv")];
+    if let Some(data) = shared_data("scaled KITTI scan beyond the band") {
+        let kitti = read_cloud(&data.join("kitti/sequences/00/velodyne/000000.bin"));
+        let dir = scratch_dir("homology_scale_check");
+        let path = dir.join("kitti_00_000000_every_60th.csv");
+        let mut text = String::from("x,y,z\n");
+        for p in kitti.iter().step_by(60) {
+            text += &format!("{:?},{:?},{:?}\n", p[0], p[1], p[2]);
+        }
+        std::fs::write(&path, text).unwrap();
+        clouds.push(path);
+    }
+    let o = std::process::Command::new("python3")
+        .arg(root().join("scripts/gudhi_scale_check.py"))
+        .args(["--toporec", env!("CARGO_BIN_EXE_toporec")])
+        .args(&clouds)
+        .output()
+        .unwrap();
+    let out = text(&o.stdout);
+    println!("{out}");
+    assert!(o.status.success(), "{out}{}", text(&o.stderr));
+}

@@ -30,6 +30,28 @@ pub enum ComplexError {
         /// Its coordinates.
         z: f64,
     },
+    /// Distinct points closer than the engine resolves exactly, relative to the cloud's extent.
+    #[error(
+        "distinct points closer than 2^{min_exponent} of the cloud's extent (here 2^{found}): \
+         outside the scales the engine computes exactly"
+    )]
+    TooClose {
+        /// The smallest supported ratio, as a power of two.
+        min_exponent: i32,
+        /// The ratio found (a lower bound on it), as a power of two.
+        found: i32,
+    },
+    /// Squared radii that a double cannot hold.
+    #[error(
+        "squared radii from 2^{lo} to 2^{hi}: outside the range of doubles (2^-1022 to 2^1023); \
+         scale the cloud into that range"
+    )]
+    OutOfRange {
+        /// log2 of the smallest positive squared radius.
+        lo: i32,
+        /// log2 of the largest squared radius.
+        hi: i32,
+    },
     /// More simplices than the 32-bit indices allow.
     #[error("cloud too large: {points} points exceed the 32-bit simplex numbering")]
     TooLarge {

@@ -93,7 +93,36 @@ impl Diagram {
     }
 }
 
+/// Distinct points must be at least this far apart, relative to the cloud's extent, as a
+/// power of two: beyond, the filtered predicates could underflow.
+pub const MIN_SPACING_EXPONENT: i32 = -100;
+
+/// The binary exponent `e` with `x = m · 2^e`, `m` in [1/2, 1) (`x` > 0, subnormals included).
+fn exponent(x: f64) -> i32 {
+    if x < f64::MIN_POSITIVE {
+        return exponent(x * 2f64.powi(64)) - 64;
+    }
+    ((x.to_bits() >> 52) & 0x7ff) as i32 - 1022
+}
+
+/// `x · 2^k`, exact whenever the result is a normal double (in steps that stay normal).
+fn scale_pow2(mut x: f64, mut k: i32) -> f64 {
+    while k != 0 {
+        let step = k.clamp(-1000, 1000);
+        x *= f64::from_bits(((step + 1023) as u64) << 52);
+        k -= step;
+    }
+    x
+}
+
 /// The persistence diagram (squared radii) of the alpha complex of `points`.
+///
+/// The cloud is first scaled by a power of two so that its largest |coordinate| lies in
+/// [1/2, 1) — exact in floating point — computed there, and its squared radii scaled back by
+/// the square of that power (exact too): so the engine's filters never overflow or underflow,
+/// whatever the cloud's magnitude. Clouds it cannot compute exactly are refused, never answered
+/// wrongly: distinct points closer than 2^[`MIN_SPACING_EXPONENT`] of the extent, or squared
+/// radii outside the range of doubles.
 ///
 /// ```
 /// // The regular octahedron: 7 loops born at 1/2, one void from 2/3 to 1.
@@ -103,6 +132,46 @@ impl Diagram {
 /// assert_eq!(d.dimension(2)[0].death, 1.0);
 /// ```
 pub fn alpha_persistence(points: &[Point]) -> Result<Diagram, ComplexError> {
+    if let Some((index, p)) = points.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
+        return Err(ComplexError::NonFinite { index, x: p[0], y: p[1], z: p[2] });
+    }
+    let extent = points.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
+    if extent == 0.0 {
+        return raw_persistence(points);
+    }
+    let e = exponent(extent);
+    let scaled: Vec<Point> = points.iter().map(|p| p.map(|c| scale_pow2(c, -e))).collect();
+    // Distinct points differ in some axis by at least that axis's smallest gap.
+    let mut smallest = f64::INFINITY;
+    for axis in 0..3 {
+        let mut v: Vec<f64> = scaled.iter().map(|p| p[axis]).collect();
+        v.sort_unstable_by(f64::total_cmp);
+        let gap = v.windows(2).map(|w| w[1] - w[0]).filter(|g| *g > 0.0).fold(f64::INFINITY, f64::min);
+        smallest = smallest.min(gap);
+    }
+    if smallest < scale_pow2(1.0, MIN_SPACING_EXPONENT) {
+        return Err(ComplexError::TooClose { min_exponent: MIN_SPACING_EXPONENT, found: exponent(smallest) });
+    }
+    let mut diagram = raw_persistence(&scaled)?;
+    if e == 0 {
+        return Ok(diagram);
+    }
+    let values = diagram.pairs.iter().flat_map(|p| [p.birth, p.death]).filter(|v| v.is_finite() && *v > 0.0);
+    let (lo, hi) =
+        values.fold((i32::MAX, i32::MIN), |(lo, hi), v| (lo.min(exponent(v)), hi.max(exponent(v))));
+    // v = m · 2^x scales to m · 2^(x + 2e): normal while x + 2e - 1 lies in [-1022, 1023].
+    if lo != i32::MAX && (lo - 1 + 2 * e < -1022 || hi - 1 + 2 * e > 1023) {
+        return Err(ComplexError::OutOfRange { lo: lo - 1 + 2 * e, hi: hi - 1 + 2 * e });
+    }
+    for p in &mut diagram.pairs {
+        p.birth = scale_pow2(p.birth, 2 * e);
+        p.death = scale_pow2(p.death, 2 * e);
+    }
+    Ok(diagram)
+}
+
+/// The engine on points as given.
+fn raw_persistence(points: &[Point]) -> Result<Diagram, ComplexError> {
     let complex = DelaunayComplex::new(points)?;
     let filtration = Filtration::new(&complex);
     Ok(persistence::persistence(&filtration))
