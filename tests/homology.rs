@@ -409,12 +409,9 @@ fn scaled_clouds_give_exactly_scaled_diagrams() {
         "unit_cube_300_rng1",
         read_cloud(&root().join("tests/fixtures/clouds/unit_cube_300_rng1.csv")),
     )];
-    match shared_data("scaled KITTI scan") {
-        Some(data) => {
-            let kitti = read_cloud(&data.join("kitti/sequences/00/velodyne/000000.bin"));
-            clouds.push(("kitti_00_000000 (every 60th point)", kitti.into_iter().step_by(60).collect()));
-        }
-        None => {}
+    if let Some(data) = shared_data("scaled KITTI scan") {
+        let kitti = read_cloud(&data.join("kitti/sequences/00/velodyne/000000.bin"));
+        clouds.push(("kitti_00_000000 (every 60th point)", kitti.into_iter().step_by(60).collect()));
     }
     for (name, cloud) in clouds {
         let reference = alpha_persistence(&cloud).unwrap();
