@@ -85,8 +85,8 @@ struct RunArgs {
     /// The pipeline file (TOML).
     #[arg(default_value = "pipelines/sample.toml")]
     pipeline: PathBuf,
-    /// Worker threads (default: all cores).
-    #[arg(long, short)]
+    /// Worker threads, [1, ∞) (default: all cores).
+    #[arg(long, short, value_parser = toporec::ranges::count)]
     threads: Option<usize>,
     /// Write the index here instead of the file's `output.index`.
     #[arg(long)]
@@ -104,11 +104,11 @@ struct RunArgs {
     /// reported).
     #[arg(long)]
     prune: bool,
-    /// Commit after this many scans.
+    /// Commit after this many scans: [1, ∞).
     #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
     commit_every: u64,
-    /// Commit after this many seconds.
-    #[arg(long, default_value_t = 60.0)]
+    /// Commit after this many seconds: (0, ∞).
+    #[arg(long, default_value_t = 60.0, value_parser = toporec::ranges::positive)]
     commit_seconds: f64,
 }
 
@@ -195,7 +195,10 @@ enum Done {
 
 /// Entry point of the binary.
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => return usage_error(e),
+    };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&cli.log_level));
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
@@ -236,6 +239,22 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// A command-line error (an unknown flag, a value out of range) as one line naming the flag, the
+/// value and the range, exit 2; help and version print as usual.
+fn usage_error(e: clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    if matches!(
+        e.kind(),
+        ErrorKind::DisplayHelp | ErrorKind::DisplayVersion | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+    ) {
+        e.exit();
+    }
+    let text = e.render().to_string();
+    let first: Vec<&str> = text.lines().map(str::trim).take_while(|l| !l.is_empty()).collect();
+    eprintln!("{}", first.join(" "));
+    ExitCode::from(2)
+}
+
 /// Prints to stdout (a closed pipe surfaces as an error that ends the command quietly).
 fn print(text: &str) -> Result<()> {
     let mut out = std::io::stdout().lock();
@@ -273,9 +292,6 @@ fn threads(requested: Option<usize>) -> usize {
 
 fn run(args: RunArgs) -> Result<Done> {
     let pipeline = Pipeline::load(&args.pipeline)?;
-    if args.commit_seconds.is_nan() || args.commit_seconds <= 0.0 {
-        bail!("--commit-seconds: {} is not a positive number of seconds", args.commit_seconds);
-    }
     let opts = RunOptions {
         index: args.index,
         progress: !args.no_progress,

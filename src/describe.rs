@@ -46,6 +46,12 @@ pub enum DescribeError {
         /// The engine's error.
         source: ComplexError,
     },
+    /// The descriptor holds a NaN or infinite value (never stored).
+    #[error("{label}: the descriptor has non-finite values")]
+    NonFinite {
+        /// `<file>: scan <id>`.
+        label: String,
+    },
     /// A stage panicked (a bug, caught so the run goes on).
     #[error("{label}: internal error: {message}")]
     Internal {
@@ -119,6 +125,9 @@ impl Describer {
             let t = ThreadTime::now();
             let descriptor = self.vectorize(&diagram);
             times.vectorize = cpu_seconds(t);
+            if descriptor.as_ref().is_some_and(|d| !d.values.iter().all(|v| v.is_finite())) {
+                return Err(DescribeError::NonFinite { label: label.into() });
+            }
             Ok(Described { diagram, descriptor })
         });
         Description { kept_points: points.len(), times, outcome }

@@ -32,30 +32,35 @@ pub fn read(path: &Path) -> Result<Diagram> {
     parse(&text).map_err(|e| Error::Diagram { path: path.to_owned(), message: e.to_string() })
 }
 
-/// Parses the text of a diagram CSV.
+/// Parses the text of a diagram CSV (with the `csv` crate: a byte-order mark, Windows line ends
+/// and quoted fields are fine).
 pub fn parse(text: &str) -> Result<Diagram, ParseError> {
-    let mut lines = text.lines().enumerate();
-    match lines.next() {
-        Some((_, header)) if header.trim() == "dim,birth,death" => {}
-        Some((_, header)) => {
-            let message = format!("expected header `dim,birth,death`, found `{header}`");
-            return Err(ParseError { line: 1, message });
-        }
-        None => {
-            let message = "empty file (expected header `dim,birth,death`)".into();
-            return Err(ParseError { line: 1, message });
-        }
+    let mut reader = csv::ReaderBuilder::new().flexible(true).trim(csv::Trim::All).from_reader(text.as_bytes());
+    let header = reader.headers().map_err(|e| ParseError { line: 1, message: format!("not CSV: {e}") })?.clone();
+    let names: Vec<&str> = header.iter().collect();
+    if names.iter().all(|n| n.is_empty()) {
+        let message = "empty file (expected header `dim,birth,death`)".into();
+        return Err(ParseError { line: 1, message });
+    }
+    if names != ["dim", "birth", "death"] {
+        let message = format!("expected header `dim,birth,death`, found `{}`", names.join(","));
+        return Err(ParseError { line: 1, message });
     }
     let mut pairs = Vec::new();
-    for (i, line) in lines {
-        if line.trim().is_empty() {
+    let mut record = csv::StringRecord::new();
+    loop {
+        let line = reader.position().line() as usize;
+        match reader.read_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => return Err(ParseError { line, message: format!("not CSV: {e}") }),
+        }
+        if record.iter().all(str::is_empty) {
             continue;
         }
-        let bad = |what: &str| ParseError { line: i + 1, message: format!("{what}: `{line}`") };
-        let mut fields = line.split(',').map(str::trim);
-        let (Some(dim), Some(birth), Some(death), None) =
-            (fields.next(), fields.next(), fields.next(), fields.next())
-        else {
+        let text: Vec<&str> = record.iter().collect();
+        let bad = |what: &str| ParseError { line, message: format!("{what}: `{}`", text.join(",")) };
+        let [dim, birth, death] = text[..] else {
             return Err(bad("expected 3 fields"));
         };
         let dim: u8 = dim.parse().ok().filter(|d| *d <= 2).ok_or_else(|| bad("dim must be 0, 1 or 2"))?;

@@ -102,14 +102,26 @@ pub enum Error {
     Invalid(String),
 }
 
-/// All errors of a file, one per line.
+/// All errors of a file: one on one line, several one per line.
 #[derive(Debug, thiserror::Error)]
-#[error("{path}: {} error(s):\n{}", errors.len(), errors.iter().map(|e| format!("  {e}")).collect::<Vec<_>>().join("\n"))]
+#[error("{}", render_config_errors(path, errors))]
 pub struct ConfigErrors {
     /// The file.
     pub path: PathBuf,
     /// Each error, starting with its key path.
     pub errors: Vec<String>,
+}
+
+fn render_config_errors(path: &Path, errors: &[String]) -> String {
+    match errors {
+        [one] => format!("{}: {one}", path.display()),
+        many => format!(
+            "{}: {} errors:\n{}",
+            path.display(),
+            many.len(),
+            many.iter().map(|e| format!("  {e}")).collect::<Vec<_>>().join("\n")
+        ),
+    }
 }
 
 /// An error reading a source, naming the file.

@@ -34,7 +34,7 @@ impl AtomicFile {
     pub fn create(path: &Path) -> Result<Self> {
         create_parent(path)?;
         let temp = temp_path(path);
-        let file = File::create(&temp).at(&temp)?;
+        let file = File::create(&temp).at(path)?;
         Ok(AtomicFile { path: path.to_owned(), temp, out: Some(BufWriter::new(file)) })
     }
 
@@ -47,8 +47,12 @@ impl AtomicFile {
     /// [`StagedFile::publish`] puts it in place.
     pub fn finish(mut self) -> Result<StagedFile> {
         let out = self.out.take().expect("not yet finished");
-        let file = out.into_inner().map_err(|e| e.into_error()).at(&self.temp)?;
-        file.sync_all().at(&self.temp)?;
+        let synced = out.into_inner().map_err(|e| e.into_error()).and_then(|file| file.sync_all());
+        if let Err(e) = synced {
+            // A failed flush (a full disk, a file-size limit) leaves nothing behind.
+            let _ = std::fs::remove_file(&self.temp);
+            return Err(e).at(&self.path);
+        }
         Ok(StagedFile {
             path: std::mem::take(&mut self.path),
             temp: std::mem::take(&mut self.temp),
@@ -138,7 +142,7 @@ impl std::fmt::Debug for AtomicFile {
 /// Writes `bytes` to `path` atomically.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let mut f = AtomicFile::create(path)?;
-    f.write_all(bytes).at(&f.temp)?;
+    f.write_all(bytes).at(path)?;
     f.commit().map(drop)
 }
 

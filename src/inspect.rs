@@ -64,11 +64,15 @@ fn scans_report(stream: ScanStream, out: &mut String) {
     let mut sessions: BTreeMap<String, usize> = BTreeMap::new();
     let (mut kept, mut raw, mut errors) = (Vec::new(), Vec::new(), Vec::new());
     let (mut first, mut last, mut posed) = (None::<i64>, None::<i64>, 0);
+    let mut no_pose: BTreeMap<String, usize> = BTreeMap::new();
     let mut max_r = 0.0f64;
     let mut rings = (u16::MAX, 0u16);
     for item in stream {
         match item {
-            Ok(Scan { session, points, raw_points, utime, pose, ring, .. }) => {
+            Ok(Scan { session, points, raw_points, utime, pose, ring, no_pose: why, .. }) => {
+                if let Some(why) = why {
+                    *no_pose.entry(why.to_string()).or_default() += 1;
+                }
                 *sessions.entry(session).or_default() += 1;
                 kept.push(points.len());
                 raw.push(raw_points);
@@ -96,6 +100,9 @@ fn scans_report(stream: ScanStream, out: &mut String) {
     line!(out, "max range: {max_r:.2} m");
     line!(out, "time span: {}", time_span(first, last));
     line!(out, "poses joined: {posed} of {n}");
+    for (why, count) in &no_pose {
+        line!(out, "  without a pose ({why}): {count}");
+    }
     for e in errors.iter().take(20) {
         line!(out, "error: {e}");
     }

@@ -47,6 +47,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod preprocess;
 pub mod query;
+pub mod ranges;
 pub mod rng;
 pub mod search;
 pub mod simulate;

@@ -29,8 +29,8 @@ pub struct RevectorizeArgs {
     /// The settings of the codebook to fit.
     #[command(flatten)]
     pub fit: CodebookArgs,
-    /// Worker threads (default: all cores).
-    #[arg(long, short)]
+    /// Worker threads, [1, ∞) (default: all cores).
+    #[arg(long, short, value_parser = crate::ranges::count)]
     pub threads: Option<usize>,
 }
 

@@ -37,8 +37,8 @@ pub struct FitArgs {
 /// How to fit a codebook (`toporec fit`, `toporec revectorize`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct CodebookArgs {
-    /// Centres per codebook (the descriptor length per part).
-    #[arg(long, short, default_value_t = 50)]
+    /// Centres per codebook (the descriptor length per part): [1, 100000].
+    #[arg(long, short, default_value_t = 50, value_parser = crate::ranges::centres)]
     pub b: usize,
     /// `paper` (H2, else H1, else H0) or a list like `0,1,2` (one codebook per dimension).
     #[arg(long, default_value = "paper", value_parser = DimSelection::parse)]
@@ -52,8 +52,8 @@ pub struct CodebookArgs {
     /// The quantiser.
     #[arg(long, value_enum, default_value = "minibatch")]
     pub kmeans: Algorithm,
-    /// Points kept (uniform reservoir sample) per codebook for fitting.
-    #[arg(long, default_value_t = 100_000)]
+    /// Points kept (uniform sample) per codebook for fitting: [1, ∞).
+    #[arg(long, default_value_t = 100_000, value_parser = crate::ranges::count)]
     pub sample_size: usize,
     /// Seed of sampling and k-means.
     #[arg(long, default_value_t = 0)]

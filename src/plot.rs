@@ -188,7 +188,10 @@ impl Figure for Trajectory<'_> {
     where
         DB::ErrorType: 'static,
     {
-        let all = self.database.iter().chain(self.queries.iter().map(|q| &q.0));
+        // Only finite positions are drawn (and set the axes): a non-finite one would make the
+        // span infinite, and the axis ticks endless.
+        let finite = |p: &&[f64; 2]| p.iter().all(|c| c.is_finite());
+        let all = self.database.iter().chain(self.queries.iter().map(|q| &q.0)).filter(finite);
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in all {
             for k in 0..2 {
@@ -199,8 +202,8 @@ impl Figure for Trajectory<'_> {
         if !lo[0].is_finite() {
             (lo, hi) = ([0.0; 2], [1.0; 2]);
         }
-        // Equal scales on both axes.
-        let span = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) * 1.1;
+        // Equal scales on both axes (a span too large for the axes' arithmetic is capped).
+        let span = ((hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) * 1.1).min(1e12);
         let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, ("sans-serif", 20))
@@ -212,7 +215,7 @@ impl Figure for Trajectory<'_> {
         chart.configure_mesh().x_desc("x (m)").y_desc("y (m)").draw().map_err(e)?;
         let grey = RGBColor(170, 170, 170);
         chart
-            .draw_series(self.database.iter().map(|p| Circle::new((p[0], p[1]), 3, grey.filled())))
+            .draw_series(self.database.iter().filter(finite).map(|p| Circle::new((p[0], p[1]), 3, grey.filled())))
             .map_err(e)?
             .label("database")
             .legend(move |(x, y)| Circle::new((x + 10, y), 4, grey.filled()));
@@ -224,7 +227,7 @@ impl Figure for Trajectory<'_> {
                 .draw_series(
                     self.queries
                         .iter()
-                        .filter(|q| q.1 == ok)
+                        .filter(|q| q.1 == ok && finite(&&q.0))
                         .map(|q| Circle::new((q.0[0], q.0[1]), 2, color.filled())),
                 )
                 .map_err(e)?

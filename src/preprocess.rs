@@ -94,14 +94,17 @@ impl Preprocess {
         if let Some(g) = &self.ground {
             out.extend(g.problems());
         }
-        if self.voxel.is_some_and(|v| v.is_nan() || v <= 0.0) {
-            out.push("preprocess.voxel: the cell size must be > 0".into());
+        if let Some(v) = self.voxel.filter(|v| !(v.is_finite() && *v > 0.0)) {
+            out.push(format!("preprocess.voxel: the cell size must be > 0 (m, finite); found {v}"));
         }
-        if self.subsample.is_some_and(|n| n < 4) {
-            out.push("preprocess.subsample: must be at least 4 points".into());
+        if let Some(n) = self.subsample.filter(|n| !(4..=100_000_000).contains(n)) {
+            out.push(format!("preprocess.subsample: must be in [4, 100000000] points; found {n}"));
         }
-        if self.min_points < 4 {
-            out.push("preprocess.min_points: must be at least 4 (a tetrahedron)".into());
+        if !(4..=100_000_000).contains(&self.min_points) {
+            out.push(format!(
+                "preprocess.min_points: must be in [4, 100000000] (at least a tetrahedron); found {}",
+                self.min_points
+            ));
         }
         out
     }
@@ -110,10 +113,10 @@ impl Preprocess {
 impl RangeCrop {
     /// Problems of `preprocess.range`.
     pub fn problems(&self) -> Vec<String> {
-        if self.min >= 0.0 && self.min < self.max {
+        if self.min.is_finite() && self.min >= 0.0 && self.min < self.max {
             Vec::new()
         } else {
-            vec![format!("preprocess.range: need 0 <= min < max (min {}, max {})", self.min, self.max)]
+            vec![format!("preprocess.range: need 0 <= min < max, min finite (m; min {}, max {})", self.min, self.max)]
         }
     }
 }
@@ -123,9 +126,14 @@ impl Ground {
     pub fn problems(&self) -> Vec<String> {
         match *self {
             Ground::Plane { threshold, iterations }
-                if threshold.is_nan() || threshold <= 0.0 || iterations == 0 =>
+                if !(threshold.is_finite() && threshold > 0.0) || !(1..=1_000_000).contains(&iterations) =>
             {
-                vec!["preprocess.ground: need threshold > 0 and iterations >= 1".into()]
+                vec![format!(
+                    "preprocess.ground: need threshold in (0, inf) m and iterations in [1, 1000000] (threshold {threshold}, iterations {iterations})"
+                )]
+            }
+            Ground::Height { below } if !below.is_finite() => {
+                vec![format!("preprocess.ground: `below` must be a finite height (m); found {below}")]
             }
             _ => Vec::new(),
         }

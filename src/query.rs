@@ -22,8 +22,8 @@ pub struct QueryArgs {
     /// Query inputs: cloud files, MCAPs, NCLT sessions, KITTI sequences.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
-    /// Neighbours per query.
-    #[arg(short, default_value_t = 25)]
+    /// Neighbours per query: [1, ∞), clamped to the database size.
+    #[arg(short, default_value_t = 25, value_parser = crate::ranges::count)]
     pub k: usize,
     /// Database sessions (default: all).
     #[arg(long = "session")]
@@ -100,7 +100,20 @@ impl Engine {
 pub fn load_descriptors(index: &Path, sessions: &[String]) -> Result<(Codebook, Vec<IndexedScan>)> {
     let reader = IndexReader::open(index)?;
     let codebook = reader.codebook()?;
-    let scans = reader.descriptors(sessions, Some(codebook.len()))?;
+    let mut scans = reader.descriptors(sessions, Some(codebook.len()))?;
+    // A descriptor with a NaN or infinite value (a foreign or damaged table) is never ranked.
+    scans.retain(|s| {
+        let finite = s.descriptor.iter().all(|v| v.is_finite());
+        if !finite {
+            tracing::warn!(
+                "{}: descriptors of session {}: scan {} has non-finite values; left out",
+                index.display(),
+                s.session,
+                s.scan_id
+            );
+        }
+        finite
+    });
     if scans.is_empty() {
         let which = if sessions.is_empty() { String::new() } else { format!(" in sessions {sessions:?}") };
         return Err(Error::index(index, format!("no descriptors{which}")));
@@ -151,6 +164,7 @@ pub fn open_path(path: &Path, topic: Option<&str>) -> Result<ScanStream> {
             intensity: None,
             ring: None,
             pose: None,
+            no_pose: Some(crate::sources::NoPose::NoGroundTruth),
         }),
         Err(e) => Err(ScanFailure::of_file(id, "query", path, None, e.to_string())),
     };
@@ -201,6 +215,9 @@ pub fn run(
     output_name: &Path,
 ) -> Result<QueryReport> {
     let mut report = QueryReport { database: engine.scans.len(), ..Default::default() };
+    if args.k > engine.scans.len() {
+        tracing::warn!("-k {}: the database holds {} scans; returning that many", args.k, engine.scans.len());
+    }
     writeln!(out, "{CSV_HEADER}").at(output_name)?;
     for input in &args.inputs {
         let mut stream = open_path(input, args.topic.as_deref())?.peekable();

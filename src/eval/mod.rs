@@ -44,21 +44,21 @@ pub struct PlacesArgs {
     /// Query sessions (repeatable; default all).
     #[arg(long = "query-session")]
     pub query_sessions: Vec<String>,
-    /// Revisit thresholds R (m).
-    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50")]
+    /// Revisit thresholds R (m), each in (0, ∞).
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50", value_parser = crate::ranges::positive)]
     pub thresholds: Vec<f64>,
-    /// Largest N of Recall@N.
-    #[arg(long, default_value_t = 25)]
+    /// Largest N of Recall@N: [1, ∞), clamped to the database size.
+    #[arg(long, default_value_t = 25, value_parser = crate::ranges::count)]
     pub max_n: usize,
-    /// Keep a map scan only if farther than this (m) from the last kept (RING).
-    #[arg(long)]
+    /// Keep a map scan only if farther than this (m, in (0, ∞)) from the last kept (RING).
+    #[arg(long, value_parser = crate::ranges::positive)]
     pub map_every: Option<f64>,
     /// Same for query scans.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::ranges::positive)]
     pub query_every: Option<f64>,
-    /// Ignore database scans of the query's session closer in time than this (s); a query
-    /// never retrieves itself.
-    #[arg(long, default_value_t = 0.0)]
+    /// Ignore database scans of the query's session closer in time than this (s, [0, ∞)); a
+    /// query never retrieves itself.
+    #[arg(long, default_value_t = 0.0, value_parser = crate::ranges::non_negative)]
     pub min_time_gap: f64,
     /// Output folder for report.json, report.txt and the plots.
     #[arg(long, short)]
@@ -104,8 +104,9 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
             ),
         ));
     }
-    let unposed = db_all.iter().filter(|s| s.pose.is_none()).count()
-        + queries.iter().filter(|s| s.pose.is_none()).count();
+    let (db_unposed, query_unposed) =
+        (db_all.iter().filter(|s| s.pose.is_none()).count(), queries.iter().filter(|s| s.pose.is_none()).count());
+    let unposed = db_unposed + query_unposed;
     let db_scans = subsample(db_all.into_iter().filter(|s| s.pose.is_some()).collect(), a.map_every);
     let queries = subsample(queries.into_iter().filter(|s| s.pose.is_some()).collect(), a.query_every);
     if db_scans.is_empty() || queries.is_empty() {
@@ -125,7 +126,8 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
             || (q.session == d.session
                 && q.utime.zip(d.utime).is_some_and(|(x, y)| ((x - y).abs() as f64) < gap_us))
     };
-    let want = a.max_n.max(k1).min(n_db);
+    let max_n = clamp_max_n(a.max_n, n_db);
+    let want = max_n.max(k1).min(n_db);
     let skips: Vec<usize> =
         queries.par_iter().map(|q| db_scans.iter().filter(|d| is_excluded(q, d)).count()).collect();
     let k = (want + skips.iter().copied().max().unwrap_or(0)).min(n_db);
@@ -155,17 +157,21 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         queries.len(),
         queries_index.display()
     );
+    if unposed > 0 {
+        line!(table, "left out, without a pose: {db_unposed} database and {query_unposed} query scans");
+    }
+    let (n5, n25) = (5.min(max_n), 25.min(max_n));
     line!(
         table,
         "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} | {:>9} {:>9} {:>10}",
         "R (m)",
         "w/ match",
         "R@1",
-        "R@5",
-        "R@25",
+        format!("R@{n5}"),
+        format!("R@{n25}"),
         "R@1%",
         "all: R@1",
-        "R@5",
+        format!("R@{n5}"),
         "R@1%"
     );
     let mut curves = Vec::new();
@@ -195,19 +201,19 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         if success_first.is_empty() {
             success_first = hits.iter().map(|h| *h == Some(0)).collect();
         }
-        let with = recall(&hits, &has, a.max_n, n_db, Denominator::WithMatch);
-        let all = recall(&hits, &has, a.max_n, n_db, Denominator::All);
-        let at = |rc: &Recall, n: usize| rc.at_n.get(n - 1).copied().unwrap_or(f64::NAN);
+        let with = recall(&hits, &has, max_n, n_db, Denominator::WithMatch);
+        let all = recall(&hits, &has, max_n, n_db, Denominator::All);
+        let at = |rc: &Recall, n: usize| rc.at_n[n - 1];
         line!(
             table,
             "{r:>7} {:>10} {:>9.2} {:>9.2} {:>9.2} {:>10.2} | {:>9.2} {:>9.2} {:>10.2}",
             with.evaluated,
             at(&with, 1),
-            at(&with, 5),
-            at(&with, a.max_n.min(25)),
+            at(&with, n5),
+            at(&with, n25),
             with.at_one_percent,
             at(&all, 1),
-            at(&all, 5),
+            at(&all, n5),
             all.at_one_percent
         );
         curves.push((format!("R = {r} m"), with.at_n.clone()));
@@ -231,19 +237,27 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
     let report = json!({
         "protocol": "places",
         "toporec_version": env!("CARGO_PKG_VERSION"),
-        "database": {"index": a.db, "sessions": a.db_sessions, "scans": n_db, "map_every_m": a.map_every},
-        "queries": {"index": queries_index, "sessions": a.query_sessions, "scans": queries.len(), "query_every_m": a.query_every},
+        "database": {"index": a.db, "sessions": a.db_sessions, "scans": n_db, "map_every_m": a.map_every, "without_pose": db_unposed},
+        "queries": {"index": queries_index, "sessions": a.query_sessions, "scans": queries.len(), "query_every_m": a.query_every, "without_pose": query_unposed},
         "codebook_id": codebook.id(),
         "descriptor_length": codebook.len(),
         "min_time_gap_s": a.min_time_gap,
         "one_percent_k": k1,
-        "max_n": a.max_n,
+        "max_n": max_n,
         "results": results,
         "timing": {"search_mean_ms": mean, "search_p95_ms": p95, "threads": rayon::current_num_threads()},
         "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
     });
     write_report(&a.out, &report, &table)?;
     Ok(table)
+}
+
+/// `--max-n` clamped to the database size, with a warning.
+fn clamp_max_n(max_n: usize, n_db: usize) -> usize {
+    if max_n > n_db {
+        tracing::warn!("--max-n {max_n}: the database holds {n_db} scans; Recall@N is reported up to N = {n_db}");
+    }
+    max_n.min(n_db).max(1)
 }
 
 fn write_report(out: &Path, report: &serde_json::Value, table: &str) -> Result<()> {
@@ -330,14 +344,14 @@ pub struct PerturbationArgs {
     /// The index.
     #[arg(long)]
     pub index: PathBuf,
-    /// Share of the scans used as queries.
-    #[arg(long, default_value_t = 0.2)]
+    /// Share of the scans used as queries: (0, 1].
+    #[arg(long, default_value_t = 0.2, value_parser = crate::ranges::fraction)]
     pub fraction: f64,
     /// Seed of the choice and of the jitter.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Largest N of Recall@N.
-    #[arg(long, default_value_t = 25)]
+    /// Largest N of Recall@N: [1, ∞), clamped to the database size.
+    #[arg(long, default_value_t = 25, value_parser = crate::ranges::count)]
     pub max_n: usize,
     /// Output folder.
     #[arg(long, short)]
@@ -386,7 +400,8 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         ));
     }
     let k1 = one_percent_k(n);
-    let want = a.max_n.max(k1).min(n);
+    let max_n = clamp_max_n(a.max_n, n);
+    let want = max_n.max(k1).min(n);
     let kinds = Perturbation::paper();
     let mut table = String::new();
     line!(
@@ -395,7 +410,8 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         clouds.len(),
         a.index.display()
     );
-    line!(table, "{:<24} {:>9} {:>9} {:>10}", "perturbation", "R@1", "R@5", "R@1%");
+    let n5 = 5.min(max_n);
+    line!(table, "{:<24} {:>9} {:>9} {:>10}", "perturbation", "R@1", format!("R@{n5}"), "R@1%");
     let mut results = Vec::new();
     let mut curves = Vec::new();
     let mut times: Vec<StepTimes> = Vec::new();
@@ -418,13 +434,13 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
             hits.push(h);
             times.push(t);
         }
-        let rc = recall(&hits, &vec![true; hits.len()], a.max_n, n, Denominator::All);
+        let rc = recall(&hits, &vec![true; hits.len()], max_n, n, Denominator::All);
         line!(
             table,
             "{:<24} {:>9.2} {:>9.2} {:>10.2}",
             kind.name(),
             rc.at_n[0],
-            rc.at_n.get(4).copied().unwrap_or(f64::NAN),
+            rc.at_n[n5 - 1],
             rc.at_one_percent
         );
         curves.push((kind.name(), rc.at_n.clone()));

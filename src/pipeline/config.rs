@@ -158,6 +158,9 @@ impl Pipeline {
         let persistence = p.persistence(&mut root);
         let vectorize = p.vectorize(&mut root, &persistence);
         root.finish(&mut p.errors);
+        if check_inputs && p.errors.is_empty() {
+            check_unique_sessions(&sources, &mut p.errors);
+        }
         if !p.errors.is_empty() {
             return Err(fail(p.errors));
         }
@@ -276,6 +279,7 @@ impl Parser {
                         Ok(mut s) => {
                             s.resolve_paths(&self.base);
                             s.clean_paths(clean);
+                            check_source_numbers(&s, i, &mut self.errors);
                             if self.check_inputs {
                                 check_source_paths(&s, i, &mut self.errors);
                             }
@@ -398,11 +402,11 @@ impl Parser {
             sample_size: s.get("sample_size", errors).unwrap_or(d.sample_size),
             squared_radii,
         };
-        if spec.b == 0 {
-            errors.push("vectorize.b: must be at least 1".into());
+        if !(1..=100_000).contains(&spec.b) {
+            errors.push(format!("vectorize.b: must be in [1, 100000]; found {}", spec.b));
         }
         if spec.sample_size == 0 {
-            errors.push("vectorize.sample_size: must be at least 1".into());
+            errors.push("vectorize.sample_size: must be in [1, inf); found 0".into());
         }
         spec
     }
@@ -470,6 +474,50 @@ fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
             k.sequences.iter().for_each(|p| check("sequences", p));
             if k.sequences.is_empty() {
                 errors.push(format!("sources[{i}].sequences: empty"));
+            }
+        }
+    }
+}
+
+/// The numeric keys of a source, in their ranges.
+fn check_source_numbers(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
+    let tolerance = match s {
+        SourceSpec::Nclt(n) => {
+            if let Some(p) = n.hits_period_ms.filter(|p| !(p.is_finite() && *p > 0.0)) {
+                errors.push(format!("sources[{i}].hits_period_ms: must be in (0, inf) ms; found {p}"));
+            }
+            Some(n.tolerance_ms)
+        }
+        SourceSpec::Mcap(m) => Some(m.tolerance_ms),
+        SourceSpec::Kitti(_) => None,
+    };
+    if let Some(t) = tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {
+        errors.push(format!("sources[{i}].tolerance_ms: must be in [0, inf) ms; found {t}"));
+    }
+}
+
+/// Every session comes from one place: a session reached twice (a folder of sessions and one
+/// of them), or two of one name from different folders, would give scans the same ids.
+fn check_unique_sessions(sources: &[SourceSpec], errors: &mut Vec<String>) {
+    let mut seen: std::collections::HashMap<String, (usize, PathBuf)> = std::collections::HashMap::new();
+    for (i, s) in sources.iter().enumerate() {
+        let sessions = match s.sessions() {
+            Ok(s) => s,
+            Err(e) => {
+                errors.push(format!("sources[{i}]: {e}"));
+                continue;
+            }
+        };
+        for (name, path) in sessions {
+            match seen.get(&name) {
+                Some((j, first)) => errors.push(format!(
+                    "sources[{i}]: session `{name}` comes twice, from {} (sources[{j}]) and {}; its scans would share ids",
+                    first.display(),
+                    path.display()
+                )),
+                None => {
+                    seen.insert(name, (i, path));
+                }
             }
         }
     }

@@ -102,6 +102,8 @@ pub struct RunSummary {
     pub not_in_sources: u64,
     /// Scans the sources yielded twice under one id (the later ones are left out).
     pub duplicates: u64,
+    /// Scans read without a pose, by reason.
+    pub no_pose: BTreeMap<String, u64>,
     /// Scans that went through preprocessing and persistence.
     pub computed: u64,
     /// Descriptors made from stored diagrams (after a codebook fit, or a resumed run).
@@ -142,6 +144,7 @@ impl RunSummary {
                 "pruned": self.pruned,
                 "not_in_sources": self.not_in_sources,
                 "duplicates": self.duplicates,
+                "without_pose": self.no_pose,
                 "computed": self.computed,
                 "descriptors_from_stored": self.descriptors_from_stored,
             },
@@ -190,6 +193,9 @@ impl std::fmt::Display for RunSummary {
         }
         for e in &self.first_errors {
             writeln!(f, "  error: {e}")?;
+        }
+        for (reason, n) in &self.no_pose {
+            writeln!(f, "  without a pose ({reason}): {n}")?;
         }
         writeln!(
             f,
@@ -356,6 +362,7 @@ struct SourceReport {
     added: u64,
     replaced: u64,
     duplicates: u64,
+    no_pose: BTreeMap<String, u64>,
     secs: f64,
 }
 
@@ -428,6 +435,7 @@ fn index_scans(
     summary.added = report.added;
     summary.replaced = report.replaced;
     summary.duplicates = report.duplicates;
+    summary.no_pose = report.no_pose;
     Ok(IndexedPass { seen: report.seen, stages, read_secs: report.secs, write_secs })
 }
 
@@ -448,6 +456,9 @@ fn read_sources(
             Ok(s) => (s.id.clone(), Some(s.fingerprint), None),
             Err(f) => (f.id.clone(), f.fingerprint, Some(f.error.clone())),
         };
+        if let Ok(Scan { no_pose: Some(why), .. }) = &item {
+            *report.no_pose.entry(why.to_string()).or_default() += 1;
+        }
         position += 1;
         if !report.seen.insert(id.clone()) {
             tracing::warn!("scan {id} came twice; the later one is left out");

@@ -343,6 +343,12 @@ impl DescriptorsFile {
                 format!("descriptor of length {} in a table of length {}", row.values.len(), self.b),
             ));
         }
+        if !row.values.iter().all(|v| v.is_finite()) {
+            return Err(Error::table(
+                &self.file.path,
+                format!("scan {}: a descriptor with non-finite values is never stored", row.scan_id),
+            ));
+        }
         self.rows.push(row);
         if self.rows.len() >= BATCH_ROWS / 4 { self.flush() } else { Ok(()) }
     }

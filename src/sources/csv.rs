@@ -1,5 +1,6 @@
 //! Point clouds as CSV: a header row naming `x`, `y`, `z` (any order, extra columns ignored),
-//! then one point per line.
+//! then one point per line. Read with the `csv` crate: a byte-order mark (Excel's "CSV
+//! UTF-8"), Windows line ends and quoted fields are fine.
 
 use super::SourceError;
 use crate::types::Point;
@@ -8,24 +9,33 @@ use std::path::Path;
 /// Parses a CSV cloud.
 pub fn parse_xyz(bytes: &[u8], path: &Path) -> Result<Vec<Point>, SourceError> {
     let err = |line: usize, message: String| SourceError::Parse { path: path.to_owned(), line, message };
-    let text = std::str::from_utf8(bytes).map_err(|e| err(0, format!("not UTF-8 text: {e}")))?;
-    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
-    let Some((_, header)) = lines.next() else {
+    let mut reader = csv::ReaderBuilder::new().flexible(true).trim(csv::Trim::All).from_reader(bytes);
+    let header = reader.headers().map_err(|e| err(1, format!("not CSV: {e}")))?.clone();
+    if header.iter().all(str::is_empty) {
         return Err(err(1, "empty file: expected a header `x,y,z`".into()));
-    };
-    let names: Vec<&str> = header.split(',').map(str::trim).collect();
-    let col = |n: &str| names.iter().position(|&c| c == n);
+    }
+    let col = |n: &str| header.iter().position(|c| c == n);
     let (Some(ix), Some(iy), Some(iz)) = (col("x"), col("y"), col("z")) else {
-        return Err(err(1, format!("header `{header}` lacks one of the columns x, y, z")));
+        let names: Vec<&str> = header.iter().collect();
+        return Err(err(1, format!("header `{}` lacks one of the columns x, y, z", names.join(","))));
     };
     let mut points = Vec::new();
-    for (i, line) in lines {
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+    let mut record = csv::StringRecord::new();
+    loop {
+        let line = reader.position().line() as usize;
+        match reader.read_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => return Err(err(line, format!("not CSV: {e}"))),
+        }
+        if record.iter().all(str::is_empty) {
+            continue;
+        }
         let get = |k: usize| -> Result<f64, SourceError> {
-            let f = fields.get(k).ok_or_else(|| {
-                err(i + 1, format!("expected {} fields, found {}", names.len(), fields.len()))
+            let f = record.get(k).ok_or_else(|| {
+                err(line, format!("expected {} fields, found {}", header.len(), record.len()))
             })?;
-            f.parse::<f64>().map_err(|_| err(i + 1, format!("`{f}` is not a number")))
+            f.parse::<f64>().map_err(|_| err(line, format!("`{f}` is not a number")))
         };
         points.push([get(ix)?, get(iy)?, get(iz)?]);
     }

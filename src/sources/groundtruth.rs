@@ -1,10 +1,12 @@
-//! Pose CSVs in NCLT's `groundtruth_<date>.csv` layout (NCLT's `read_ground_truth.py`): no header, columns
-//! `utime (µs), x, y, z, roll, pitch, heading`, x north, y east, z down. Rows with NaN are
-//! skipped (NCLT has some); unparsable lines are reported with their line number and skipped.
-//! Poses are exposed z up like the clouds: `(x, −y, −z)` and yaw = −heading.
-//! Scans are joined to the row with the nearest utime within a tolerance.
+//! Pose CSVs in NCLT's `groundtruth_<date>.csv` layout (NCLT's `read_ground_truth.py`): no
+//! header, columns `utime (µs), x, y, z, roll, pitch, heading`, x north, y east, z down (extra
+//! columns are ignored). Read with the `csv` crate, so a byte-order mark, Windows line ends and
+//! quoted fields are fine. Rows with a NaN or infinite value are kept as non-finite poses (NCLT
+//! has some): a scan joined to one gets no pose, with that reason. Unparsable lines are reported
+//! with their line number and skipped. Poses are exposed z up like the clouds: `(x, −y, −z)` and
+//! yaw = −heading. Scans are joined to the row with the nearest utime within a tolerance.
 
-use super::{Pose, SourceError};
+use super::{NoPose, Pose, SourceError};
 use std::path::{Path, PathBuf};
 
 /// A parsed pose file.
@@ -12,10 +14,10 @@ use std::path::{Path, PathBuf};
 pub struct GroundTruth {
     /// The file.
     pub path: PathBuf,
-    /// (utime, pose), sorted by utime.
-    pub rows: Vec<(i64, Pose)>,
-    /// Rows skipped because a value was NaN.
-    pub nan_rows: usize,
+    /// (utime, pose), sorted by utime; `None` for a row with a non-finite value.
+    pub rows: Vec<(i64, Option<Pose>)>,
+    /// Rows with a NaN or infinite value.
+    pub non_finite_rows: usize,
     /// Lines that could not be parsed (each also logged as a warning).
     pub bad_lines: Vec<String>,
 }
@@ -23,60 +25,76 @@ pub struct GroundTruth {
 impl GroundTruth {
     /// Reads and parses `path`.
     pub fn read(path: &Path) -> Result<Self, SourceError> {
-        let text = std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
-        Ok(Self::parse(&String::from_utf8_lossy(&text), path))
+        let bytes = std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+        Ok(Self::parse_bytes(&bytes, path))
     }
 
     /// Parses the text of a pose file.
     pub fn parse(text: &str, path: &Path) -> Self {
+        Self::parse_bytes(text.as_bytes(), path)
+    }
+
+    /// Parses the bytes of a pose file.
+    pub fn parse_bytes(bytes: &[u8], path: &Path) -> Self {
         let mut gt = GroundTruth { path: path.to_owned(), ..Default::default() };
-        for (i, line) in text.lines().enumerate() {
-            if line.trim().is_empty() {
+        let mut reader = csv::ReaderBuilder::new()
+            .has_headers(false)
+            .flexible(true)
+            .trim(csv::Trim::All)
+            .from_reader(bytes);
+        let mut record = csv::StringRecord::new();
+        loop {
+            let line = reader.position().line() as usize;
+            match reader.read_record(&mut record) {
+                Ok(false) => break,
+                Ok(true) => {}
+                Err(e) => {
+                    gt.bad(path, line, &format!("not CSV: {e}"));
+                    continue;
+                }
+            }
+            if record.iter().all(str::is_empty) {
                 continue;
             }
-            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-            let parsed = (fields.len() == 7)
-                .then(|| {
-                    let utime = fields[0].parse::<f64>().ok()?;
-                    let v: Option<Vec<f64>> = fields[1..].iter().map(|f| f.parse::<f64>().ok()).collect();
-                    Some((utime, v?))
-                })
-                .flatten();
-            match parsed {
-                Some((utime, v)) if utime.is_finite() => {
-                    if v.iter().any(|x| x.is_nan()) {
-                        gt.nan_rows += 1;
-                        continue;
-                    }
-                    let pose = Pose { x: v[0], y: -v[1], z: -v[2], yaw: -v[5] };
-                    gt.rows.push((utime as i64, pose));
-                }
-                _ => {
-                    let e = SourceError::Parse {
-                        path: path.to_owned(),
-                        line: i + 1,
-                        message: "expected 7 numbers: utime,x,y,z,roll,pitch,heading".into(),
+            let numbers: Option<Vec<f64>> = record.iter().take(7).map(|f| f.parse::<f64>().ok()).collect();
+            match numbers.filter(|v| v.len() == 7) {
+                Some(v) if v[0].is_finite() && v[0].abs() < 9.2e18 => {
+                    let pose = if v.iter().all(|x| x.is_finite()) {
+                        Some(Pose { x: v[1], y: -v[2], z: -v[3], yaw: -v[6] })
+                    } else {
+                        gt.non_finite_rows += 1;
+                        None
                     };
-                    tracing::warn!("{e}");
-                    gt.bad_lines.push(e.to_string());
+                    gt.rows.push((v[0] as i64, pose));
                 }
+                _ => gt.bad(path, line, "expected 7 numbers: utime,x,y,z,roll,pitch,heading"),
             }
         }
         gt.rows.sort_by_key(|r| r.0);
         gt
     }
 
-    /// The pose nearest in time to `utime`, if within `tolerance_us`.
-    pub fn pose_at(&self, utime: i64, tolerance_us: i64) -> Option<Pose> {
+    fn bad(&mut self, path: &Path, line: usize, message: &str) {
+        let e = SourceError::Parse { path: path.to_owned(), line, message: message.into() };
+        tracing::warn!("{e}");
+        self.bad_lines.push(e.to_string());
+    }
+
+    /// The pose of the row nearest in time to `utime`, if within `tolerance_us` and finite.
+    pub fn pose_at(&self, utime: i64, tolerance_us: i64) -> Result<Pose, NoPose> {
         let i = self.rows.partition_point(|r| r.0 < utime);
         let candidates = [i.checked_sub(1), Some(i)];
-        candidates
+        let nearest = candidates
             .into_iter()
             .flatten()
             .filter_map(|j| self.rows.get(j))
-            .min_by_key(|r| (r.0 - utime).abs())
-            .filter(|r| (r.0 - utime).abs() <= tolerance_us)
-            .map(|r| r.1)
+            .min_by_key(|r| r.0.abs_diff(utime))
+            .filter(|r| r.0.abs_diff(utime) <= tolerance_us.unsigned_abs());
+        match nearest {
+            None => Err(NoPose::NoRowNear),
+            Some((_, None)) => Err(NoPose::NonFinite),
+            Some((_, Some(p))) => Ok(*p),
+        }
     }
 }
 

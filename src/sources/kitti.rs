@@ -43,13 +43,14 @@ pub struct KittiSpec {
     pub sequences: Vec<PathBuf>,
 }
 
-/// A KITTI sequence's side files: per-frame times (s) and poses.
+/// A KITTI sequence's side files: per-frame times (s) and poses. A NaN or infinite value
+/// leaves that frame without a time (its frame number stands in) or without a pose.
 #[derive(Clone, Debug, Default)]
 pub struct Sequence {
-    /// `times.txt`, seconds per frame.
-    pub times: Vec<f64>,
-    /// `poses.txt` translations as poses (z up), per frame.
-    pub poses: Vec<Pose>,
+    /// `times.txt`, seconds per frame (`None`: not finite).
+    pub times: Vec<Option<f64>>,
+    /// `poses.txt` translations as poses (z up), per frame (`None`: not finite).
+    pub poses: Vec<Option<Pose>>,
 }
 
 impl Sequence {
@@ -63,6 +64,8 @@ impl Sequence {
             }
             let text =
                 std::fs::read_to_string(&p).map_err(|source| SourceError::Io { path: p.clone(), source })?;
+            // A byte-order mark, as editors on Windows write it.
+            let text = text.strip_prefix('\u{feff}').map(str::to_string).unwrap_or(text);
             Ok(Some((p, text)))
         };
         let mut seq = Sequence::default();
@@ -73,7 +76,7 @@ impl Sequence {
                     line: i + 1,
                     message: "expected a time in seconds".into(),
                 })?;
-                seq.times.push(t);
+                seq.times.push(t.is_finite().then_some(t));
             }
         }
         if let Some((path, text)) = lines("poses.txt")? {
@@ -88,7 +91,8 @@ impl Sequence {
                 // the camera's forward axis (third column) in that frame.
                 let (tx, ty, tz) = (v[3], v[7], v[11]);
                 let yaw = (-v[2]).atan2(v[10]);
-                seq.poses.push(Pose { x: tz, y: -tx, z: -ty, yaw });
+                let finite = [tx, ty, tz, yaw].iter().all(|x| x.is_finite());
+                seq.poses.push(finite.then_some(Pose { x: tz, y: -tx, z: -ty, yaw }));
             }
         }
         Ok(seq)
@@ -118,7 +122,7 @@ impl KittiSpec {
 fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFailure> {
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let frame: Option<usize> = name.parse().ok();
-    let utime = frame.and_then(|f| seq.times.get(f)).map(|t| (t * 1e6).round() as i64);
+    let utime = frame.and_then(|f| seq.times.get(f).copied().flatten()).map(|t| (t * 1e6).round() as i64);
     let fail = |error: String| ScanFailure::of_file(format!("{session}/{name}"), session, path, utime, error);
     let Some(frame) = frame else {
         return Err(fail(format!("{}: file name is not a frame number", path.display())));
@@ -142,6 +146,11 @@ fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFa
         intensity,
         ring,
         raw_points,
-        pose: seq.poses.get(frame).copied(),
+        pose: seq.poses.get(frame).copied().flatten(),
+        no_pose: match seq.poses.get(frame) {
+            Some(Some(_)) => None,
+            Some(None) => Some(super::NoPose::NonFinite),
+            None => Some(super::NoPose::NoGroundTruth),
+        },
     })
 }

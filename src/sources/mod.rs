@@ -52,6 +52,37 @@ pub struct Scan {
     pub raw_points: usize,
     /// Ground-truth pose, when joined.
     pub pose: Option<Pose>,
+    /// Why there is no pose (when `pose` is `None`).
+    pub no_pose: Option<NoPose>,
+}
+
+/// Why a scan has no pose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum NoPose {
+    /// No ground-truth file for its session (or none given).
+    NoGroundTruth,
+    /// No ground-truth row within the join tolerance.
+    NoRowNear,
+    /// The nearest ground-truth row holds a NaN or infinite value.
+    NonFinite,
+}
+
+impl std::fmt::Display for NoPose {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            NoPose::NoGroundTruth => "no ground-truth file",
+            NoPose::NoRowNear => "no ground-truth row within the tolerance",
+            NoPose::NonFinite => "a non-finite ground-truth pose",
+        })
+    }
+}
+
+/// A joined pose as the scan carries it: the pose, or why there is none.
+pub fn split_pose(pose: Result<Pose, NoPose>) -> (Option<Pose>, Option<NoPose>) {
+    match pose {
+        Ok(p) => (Some(p), None),
+        Err(why) => (None, Some(why)),
+    }
 }
 
 /// A scan that could not be read: where it was, and why. The stream goes on after it.
@@ -136,6 +167,23 @@ impl SourceSpec {
             SourceSpec::Kitti(s) => s.sequences.iter().map(|d| count(&d.join("velodyne"))).sum(),
             _ => None,
         }
+    }
+
+    /// The sessions this source yields, with the folder or file each comes from.
+    pub fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError> {
+        let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        Ok(match self {
+            SourceSpec::Nclt(s) => s.session_dirs()?.into_iter().map(|d| (name(&d), d)).collect(),
+            SourceSpec::Kitti(s) => s.sequences.iter().map(|d| (name(d), d.clone())).collect(),
+            SourceSpec::Mcap(s) => s
+                .files
+                .iter()
+                .map(|f| {
+                    let stem = f.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                    (s.session.clone().unwrap_or(stem), f.clone())
+                })
+                .collect(),
+        })
     }
 
     /// Makes relative paths relative to `base` (the pipeline file's folder).

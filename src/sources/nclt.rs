@@ -204,7 +204,7 @@ fn sync_scan(
         session,
         path,
         (utime, fingerprint),
-        gt.and_then(|g| g.pose_at(utime, tolerance)),
+        gt.map_or(Err(super::NoPose::NoGroundTruth), |g| g.pose_at(utime, tolerance)),
     ))
 }
 
@@ -214,8 +214,9 @@ fn to_scan(
     session: &str,
     path: &Path,
     (utime, fingerprint): (i64, u64),
-    pose: Option<super::Pose>,
+    pose: Result<super::Pose, super::NoPose>,
 ) -> Scan {
+    let (pose, no_pose) = super::split_pose(pose);
     Scan {
         id,
         fingerprint,
@@ -228,6 +229,7 @@ fn to_scan(
         intensity: Some(scan.intensity.iter().map(|&i| i as f32).collect()),
         ring: Some(scan.laser.iter().map(|&l| l as u16).collect()),
         pose,
+        no_pose,
     }
 }
 
@@ -310,7 +312,7 @@ impl<R: std::io::Read> HitsScans<R> {
             && !self.current.points.is_empty()
         {
             let scan = std::mem::take(&mut self.current);
-            let pose = self.gt.as_ref().and_then(|g| g.pose_at(utime, self.tolerance));
+            let pose = self.gt.as_ref().map_or(Err(super::NoPose::NoGroundTruth), |g| g.pose_at(utime, self.tolerance));
             let id = format!("{}/{utime}", self.session);
             let fingerprint = self.hash.take();
             self.pending.push_back(Ok(to_scan(

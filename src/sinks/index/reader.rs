@@ -363,7 +363,11 @@ pub fn read_descriptors(path: &Path, session: &str, length: Option<usize>) -> Re
                 scan_id: ids.value(i).to_string(),
                 session: session.to_string(),
                 utime: utime.is_valid(i).then(|| utime.value(i)),
-                pose: x.is_valid(i).then(|| [x.value(i), y.value(i), z.value(i)]),
+                // A pose with a null or non-finite coordinate (a foreign table's) is no pose.
+                pose: [x, y, z]
+                    .iter()
+                    .all(|c| c.is_valid(i) && c.value(i).is_finite())
+                    .then(|| [x.value(i), y.value(i), z.value(i)]),
                 descriptor: values.values()[start..start + b].to_vec(),
                 codebook_id: codebook.value(i).to_string(),
             });

@@ -390,10 +390,46 @@ impl IndexWriter {
         }
         // 4. Files in place; the codebook's and the pipeline's convenience copies.
         tracing::info!(generation = manifest.generation, files = staged.len(), "publishing a chunk");
+        let mut published: Vec<PathBuf> = Vec::new();
+        let outcome = self.publish_and_commit(staged, &manifest, &mut published);
+        if let Err(e) = outcome {
+            // Not committed: nothing the manifest does not name stays behind.
+            for path in published {
+                let _ = std::fs::remove_file(path);
+            }
+            return Err(e);
+        }
+        // 6. What the manifest no longer names.
+        for path in &superseded {
+            let _ = std::fs::remove_file(self.root.join(path));
+        }
+        for id in &removals {
+            self.committed.remove(id);
+        }
+        self.committed.extend(std::mem::take(&mut self.chunk_scans));
+        self.manifest = manifest;
+        self.pending_codebook = None;
+        self.commits += 1;
+        self.chunk_rows = 0;
+        self.chunk_started = Instant::now();
+        Ok(())
+    }
+}
+
+impl IndexWriter {
+    /// Steps 4 and 5 of a commit: the files in place (listed in `published` as they go), the
+    /// codebook's and pipeline's copies, then the manifest.
+    fn publish_and_commit(
+        &mut self,
+        staged: Vec<(&'static str, String, StagedFile, u64)>,
+        manifest: &Manifest,
+        published: &mut Vec<PathBuf>,
+    ) -> Result<()> {
         let mut folders: HashSet<PathBuf> = HashSet::new();
         for (_, _, file, _) in staged {
             let path = file.publish_unsynced()?;
             folders.insert(path.parent().expect("in a partition").to_owned());
+            published.push(path);
         }
         for dir in &folders {
             std::fs::File::open(dir).and_then(|d| d.sync_all()).at(dir)?;
@@ -411,21 +447,7 @@ impl IndexWriter {
             std::thread::sleep(pause);
         }
         // 5. The commit point.
-        crate::fsutil::write_atomic(&self.root.join(MANIFEST_FILE), manifest.to_text().as_bytes())?;
-        // 6. What the manifest no longer names.
-        for path in &superseded {
-            let _ = std::fs::remove_file(self.root.join(path));
-        }
-        for id in &removals {
-            self.committed.remove(id);
-        }
-        self.committed.extend(std::mem::take(&mut self.chunk_scans));
-        self.manifest = manifest;
-        self.pending_codebook = None;
-        self.commits += 1;
-        self.chunk_rows = 0;
-        self.chunk_started = Instant::now();
-        Ok(())
+        crate::fsutil::write_atomic(&self.root.join(MANIFEST_FILE), manifest.to_text().as_bytes())
     }
 }
 
