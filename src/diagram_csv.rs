@@ -35,8 +35,10 @@ pub fn read(path: &Path) -> Result<Diagram> {
 /// Parses the text of a diagram CSV (with the `csv` crate: a byte-order mark, Windows line ends
 /// and quoted fields are fine).
 pub fn parse(text: &str) -> Result<Diagram, ParseError> {
-    let mut reader = csv::ReaderBuilder::new().flexible(true).trim(csv::Trim::All).from_reader(text.as_bytes());
-    let header = reader.headers().map_err(|e| ParseError { line: 1, message: format!("not CSV: {e}") })?.clone();
+    let mut reader =
+        csv::ReaderBuilder::new().flexible(true).trim(csv::Trim::All).from_reader(text.as_bytes());
+    let header =
+        reader.headers().map_err(|e| ParseError { line: 1, message: format!("not CSV: {e}") })?.clone();
     let names: Vec<&str> = header.iter().collect();
     if names.iter().all(|n| n.is_empty()) {
         let message = "empty file (expected header `dim,birth,death`)".into();

@@ -215,7 +215,9 @@ impl Figure for Trajectory<'_> {
         chart.configure_mesh().x_desc("x (m)").y_desc("y (m)").draw().map_err(e)?;
         let grey = RGBColor(170, 170, 170);
         chart
-            .draw_series(self.database.iter().filter(finite).map(|p| Circle::new((p[0], p[1]), 3, grey.filled())))
+            .draw_series(
+                self.database.iter().filter(finite).map(|p| Circle::new((p[0], p[1]), 3, grey.filled())),
+            )
             .map_err(e)?
             .label("database")
             .legend(move |(x, y)| Circle::new((x + 10, y), 4, grey.filled()));

@@ -116,7 +116,10 @@ impl RangeCrop {
         if self.min.is_finite() && self.min >= 0.0 && self.min < self.max {
             Vec::new()
         } else {
-            vec![format!("preprocess.range: need 0 <= min < max, min finite (m; min {}, max {})", self.min, self.max)]
+            vec![format!(
+                "preprocess.range: need 0 <= min < max, min finite (m; min {}, max {})",
+                self.min, self.max
+            )]
         }
     }
 }
@@ -126,7 +129,7 @@ impl Ground {
     pub fn problems(&self) -> Vec<String> {
         match *self {
             Ground::Plane { threshold, iterations }
-                if !(threshold.is_finite() && threshold > 0.0) || !(1..=1_000_000).contains(&iterations) =>
+                if !(threshold.is_finite() && threshold > 0.0 && (1..=1_000_000).contains(&iterations)) =>
             {
                 vec![format!(
                     "preprocess.ground: need threshold in (0, inf) m and iterations in [1, 1000000] (threshold {threshold}, iterations {iterations})"

@@ -102,7 +102,7 @@ fn real_nclt_session_joins_ground_truth() {
     for s in &scans {
         let pose = s.pose.unwrap_or_else(|| panic!("{} has no pose", s.id));
         let row = gt.rows.iter().find(|r| r.0 == s.utime).expect("an exact ground-truth row");
-        assert_eq!(pose, row.1);
+        assert_eq!(Some(pose), row.1);
     }
     // z up: the ground (2 m below the sensor) has negative z.
     let zs: Vec<f64> = scans[0].points.iter().map(|p| p[2]).collect();
@@ -540,7 +540,7 @@ fn nclt_session_with_bad_files_and_garbage_ground_truth() {
     )
     .unwrap();
     let gt = GroundTruth::read(&dir.join("groundtruth_2020-01-01.csv")).unwrap();
-    assert_eq!((gt.rows.len(), gt.nan_rows, gt.bad_lines.len()), (2, 1, 2));
+    assert_eq!((gt.rows.len(), gt.non_finite_rows, gt.bad_lines.len()), (3, 1, 2));
     assert!(gt.bad_lines[0].contains("groundtruth_2020-01-01.csv:2:"), "{}", gt.bad_lines[0]);
     assert!(gt.bad_lines[1].contains(":5:"), "short row");
     let spec = NcltSpec { tolerance_ms: 150.0, ..NcltSpec::sessions(vec![session.clone()]) };
@@ -552,7 +552,9 @@ fn nclt_session_with_bad_files_and_garbage_ground_truth() {
     // Poses: nearest row within 150 ms, exposed z up: (x, −y, −z), yaw = −heading.
     let p0 = scans[0].pose.unwrap();
     assert_eq!((p0.x, p0.y, p0.z, p0.yaw), (1.0, -2.0, -3.0, -0.5));
-    assert_eq!(scans[1].pose.unwrap().x, 4.0, "100 ms away: joined");
+    // The nearest row (at the same utime) is NaN: no pose, and the reason, though a finite
+    // row is 100 ms away.
+    assert_eq!((scans[1].pose, scans[1].no_pose), (None, Some(toporec::sources::NoPose::NonFinite)));
     assert!(scans[2].pose.is_none(), "the 3 s row was garbage: no pose within 150 ms");
     // Points round-trip the 5 mm quantization, z up.
     assert_eq!(scans[0].points[3], [3.0, 2.0, -1.5]);
@@ -786,5 +788,67 @@ fn foxglove_pointcloud_protobuf_in_mcap() {
     for cut in [1, 5, 17, msg.len() - 3] {
         let r = pointcloud2::parse(&msg[..cut], Encoding::FoxgloveProtobuf).and_then(|c| c.decode());
         assert!(r.is_err(), "cut at {cut}");
+    }
+}
+
+/// A ground-truth line: a real row, or one of the things users' files hold.
+fn gt_line() -> impl Strategy<Value = String> {
+    let number = prop_oneof![
+        (-1e6f64..1e6).prop_map(|x| x.to_string()),
+        Just("NaN".to_string()),
+        Just("inf".to_string()),
+        Just("-inf".to_string()),
+        Just("".to_string()),
+        Just("\"1.5\"".to_string()),
+        Just("x".to_string()),
+    ];
+    (proptest::collection::vec(number, 0..10), 0i64..10_000_000).prop_map(|(fields, utime)| {
+        let mut row = vec![utime.to_string()];
+        row.extend(fields);
+        row.join(",")
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(400))]
+
+    /// Ground-truth and pose files as they come: a byte-order mark, CRLF, empty lines, NaN and
+    /// inf, extra or missing columns. Parsing never panics; every kept pose is finite; and a
+    /// scan joined to a row gets a finite pose or none, with the reason.
+    #[test]
+    fn fuzz_ground_truth_files(lines in proptest::collection::vec(gt_line(), 0..40), bom: bool, crlf: bool, utime in 0i64..10_000_000) {
+        let end = if crlf { "\r\n" } else { "\n" };
+        let mut text = if bom { "\u{feff}".to_string() } else { String::new() };
+        text += &lines.join(end);
+        let gt = GroundTruth::parse(&text, Path::new("groundtruth_fuzz.csv"));
+        for (_, pose) in &gt.rows {
+            if let Some(p) = pose {
+                prop_assert!([p.x, p.y, p.z, p.yaw].iter().all(|v| v.is_finite()));
+            }
+        }
+        prop_assert!(gt.rows.len() + gt.bad_lines.len() <= lines.len());
+        if let Ok(p) = gt.pose_at(utime, 100_000) {
+            prop_assert!([p.x, p.y, p.z, p.yaw].iter().all(|v| v.is_finite()));
+        }
+    }
+
+    /// KITTI side files with the same oddities: never a panic, never a non-finite pose.
+    #[test]
+    fn fuzz_kitti_side_files(times in proptest::collection::vec(prop_oneof![Just("0.1".to_string()), Just("nan".to_string()), Just("inf".to_string()), Just("".to_string()), Just("x".to_string())], 0..8),
+                             poses in proptest::collection::vec(proptest::collection::vec(prop_oneof![Just("1".to_string()), Just("0".to_string()), Just("nan".to_string()), Just("inf".to_string())], 11..13), 0..8),
+                             bom: bool, crlf: bool) {
+        let dir = std::env::temp_dir().join(format!("toporec-fuzz-kitti-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("velodyne")).unwrap();
+        let end = if crlf { "\r\n" } else { "\n" };
+        let prefix = if bom { "\u{feff}" } else { "" };
+        std::fs::write(dir.join("times.txt"), format!("{prefix}{}", times.join(end))).unwrap();
+        let rows: Vec<String> = poses.iter().map(|r| r.join(" ")).collect();
+        std::fs::write(dir.join("poses.txt"), format!("{prefix}{}", rows.join(end))).unwrap();
+        if let Ok(seq) = toporec::sources::kitti::Sequence::read(&dir) {
+            for p in seq.poses.iter().flatten() {
+                prop_assert!([p.x, p.y, p.z, p.yaw].iter().all(|v| v.is_finite()));
+            }
+            prop_assert!(seq.times.iter().flatten().all(|t| t.is_finite()));
+        }
     }
 }

@@ -1,6 +1,7 @@
 //! One integration-test binary (fast to link); a module per area.
 
 mod atol;
+mod bad_input;
 mod cli;
 mod codebook;
 mod eval;

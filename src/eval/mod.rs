@@ -104,8 +104,10 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
             ),
         ));
     }
-    let (db_unposed, query_unposed) =
-        (db_all.iter().filter(|s| s.pose.is_none()).count(), queries.iter().filter(|s| s.pose.is_none()).count());
+    let (db_unposed, query_unposed) = (
+        db_all.iter().filter(|s| s.pose.is_none()).count(),
+        queries.iter().filter(|s| s.pose.is_none()).count(),
+    );
     let unposed = db_unposed + query_unposed;
     let db_scans = subsample(db_all.into_iter().filter(|s| s.pose.is_some()).collect(), a.map_every);
     let queries = subsample(queries.into_iter().filter(|s| s.pose.is_some()).collect(), a.query_every);
@@ -255,7 +257,9 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
 /// `--max-n` clamped to the database size, with a warning.
 fn clamp_max_n(max_n: usize, n_db: usize) -> usize {
     if max_n > n_db {
-        tracing::warn!("--max-n {max_n}: the database holds {n_db} scans; Recall@N is reported up to N = {n_db}");
+        tracing::warn!(
+            "--max-n {max_n}: the database holds {n_db} scans; Recall@N is reported up to N = {n_db}"
+        );
     }
     max_n.min(n_db).max(1)
 }

@@ -25,7 +25,8 @@ pub struct GroundTruth {
 impl GroundTruth {
     /// Reads and parses `path`.
     pub fn read(path: &Path) -> Result<Self, SourceError> {
-        let bytes = std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+        let bytes =
+            std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
         Ok(Self::parse_bytes(&bytes, path))
     }
 

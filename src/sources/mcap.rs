@@ -168,7 +168,10 @@ impl Iterator for McapScans {
             };
             let utime =
                 if stamp_ns != 0 { stamp_ns.div_euclid(1000) } else { (message.log_time / 1000) as i64 };
-            let pose = self.poses.as_ref().map_or(Err(super::NoPose::NoGroundTruth), |g| g.pose_at(utime, self.tolerance));
+            let pose = self
+                .poses
+                .as_ref()
+                .map_or(Err(super::NoPose::NoGroundTruth), |g| g.pose_at(utime, self.tolerance));
             let (pose, no_pose) = super::split_pose(pose);
             return Some(Ok(Scan {
                 id,

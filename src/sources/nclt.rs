@@ -312,7 +312,10 @@ impl<R: std::io::Read> HitsScans<R> {
             && !self.current.points.is_empty()
         {
             let scan = std::mem::take(&mut self.current);
-            let pose = self.gt.as_ref().map_or(Err(super::NoPose::NoGroundTruth), |g| g.pose_at(utime, self.tolerance));
+            let pose = self
+                .gt
+                .as_ref()
+                .map_or(Err(super::NoPose::NoGroundTruth), |g| g.pose_at(utime, self.tolerance));
             let id = format!("{}/{utime}", self.session);
             let fingerprint = self.hash.take();
             self.pending.push_back(Ok(to_scan(
