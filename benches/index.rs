@@ -54,7 +54,7 @@ fn build(bin: &str, dir: &Path) {
             status: Status::Ok,
             error: None,
         };
-        writer.write_scan(row, Some(d), &[0, 1, 2], None).unwrap();
+        writer.write_scan(row, Some(d), &[0, 1, 2], Vec::new()).unwrap();
         if writer.chunk_len() >= 5_000 {
             writer.commit().unwrap();
         }

@@ -1,11 +1,14 @@
-//! The one path from a scan to its descriptor: preprocess → alpha persistence → (radii) →
-//! ATOL. `toporec run`'s workers, `query` and `eval` all go through a [`Describer`], so a scan
-//! gets the same diagram and descriptor whichever command computes it.
+//! The one path from a scan to its descriptors: preprocess → alpha persistence → (radii) →
+//! ATOL for the TopoRec descriptor, and the raw scan (sensor frame) → each computed baseline
+//! (ScanContext, M2DP) with its own preprocessing. `toporec run`'s workers, `query` and `eval`
+//! all go through a [`Describer`], so a scan gets the same diagram and descriptors whichever
+//! command computes it. The persistence stage runs only when the TopoRec descriptor is wanted.
 //!
 //! A [`Describer`] never panics on a scan: a panic inside a stage is caught and becomes that
 //! scan's [`DescribeError::Internal`]. Stage times are the calling thread's CPU time, so they
 //! add up to the work done whatever the thread count and machine load.
 
+use crate::baselines::Method;
 use crate::homology::{ComplexError, Diagram, alpha_persistence};
 use crate::preprocess::{Preprocess, Skip, preprocess};
 use crate::sources::Scan;
@@ -22,6 +25,8 @@ pub struct StageTimes {
     pub persistence: f64,
     /// ATOL.
     pub vectorize: f64,
+    /// The computed baselines (ScanContext, M2DP), all together.
+    pub baselines: f64,
 }
 
 impl std::ops::AddAssign for StageTimes {
@@ -29,6 +34,7 @@ impl std::ops::AddAssign for StageTimes {
         self.preprocess += o.preprocess;
         self.persistence += o.persistence;
         self.vectorize += o.vectorize;
+        self.baselines += o.baselines;
     }
 }
 
@@ -62,13 +68,16 @@ pub enum DescribeError {
     },
 }
 
-/// A scan's diagram and, with a codebook, its descriptor.
+/// A scan's diagram and, with a codebook, its descriptor; and its baseline descriptors.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Described {
-    /// The persistence diagram (squared radii or radii, as configured).
-    pub diagram: Diagram,
+    /// The persistence diagram (squared radii or radii, as configured), when the TopoRec
+    /// descriptor is wanted.
+    pub diagram: Option<Diagram>,
     /// The ATOL descriptor, when the describer has a codebook.
     pub descriptor: Option<Descriptor>,
+    /// One descriptor per computed method of the describer, in its order.
+    pub baselines: Vec<Vec<f32>>,
 }
 
 /// What became of one scan.
@@ -82,16 +91,20 @@ pub struct Description {
     pub outcome: Result<Described, DescribeError>,
 }
 
-/// Preprocess settings, persistence units and (optionally) a codebook: everything that turns
-/// a scan into a descriptor.
+/// Preprocess settings, persistence units, (optionally) a codebook and the computed
+/// baselines: everything that turns a scan into its descriptors.
 #[derive(Clone, Debug)]
 pub struct Describer {
-    /// The preprocess stage's settings.
+    /// The preprocess stage's settings (TopoRec).
     pub preprocess: Preprocess,
     /// Squared radii (GUDHI's default) or radii.
     pub squared: bool,
     /// The codebook; without one, scans get diagrams only.
     pub codebook: Option<Codebook>,
+    /// Whether the TopoRec descriptor is wanted (else no preprocess, no persistence).
+    pub topological: bool,
+    /// The baselines computed from the raw scan.
+    pub computed: Vec<Method>,
 }
 
 fn cpu_seconds(since: ThreadTime) -> f64 {
@@ -114,6 +127,26 @@ impl Describer {
         self.codebook.as_ref().map(|cb| cb.vectorize(diagram))
     }
 
+    /// A TopoRec-only describer.
+    pub fn toporec(preprocess: Preprocess, squared: bool, codebook: Option<Codebook>) -> Self {
+        Describer { preprocess, squared, codebook, topological: true, computed: Vec::new() }
+    }
+
+    /// The baseline descriptors of a raw scan (sensor frame), one per computed method.
+    pub fn describe_raw(&self, points: &[Point], label: &str) -> Result<Vec<Vec<f32>>, DescribeError> {
+        catch(label, || {
+            let mut out = Vec::with_capacity(self.computed.len());
+            for m in &self.computed {
+                let d = m.describe_raw(points).unwrap_or_default();
+                if !d.iter().all(|v| v.is_finite()) {
+                    return Err(DescribeError::NonFinite { label: format!("{label} ({})", m.name) });
+                }
+                out.push(d);
+            }
+            Ok(out)
+        })
+    }
+
     /// The diagram and descriptor of preprocessed points; `label` names the scan in errors.
     pub fn describe_points(&self, points: &[Point], label: &str) -> Description {
         let mut times = StageTimes::default();
@@ -128,14 +161,23 @@ impl Describer {
             if descriptor.as_ref().is_some_and(|d| !d.values.iter().all(|v| v.is_finite())) {
                 return Err(DescribeError::NonFinite { label: label.into() });
             }
-            Ok(Described { diagram, descriptor })
+            Ok(Described { diagram: Some(diagram), descriptor, baselines: Vec::new() })
         });
         Description { kept_points: points.len(), times, outcome }
     }
 
-    /// A scan's diagram and descriptor, through every stage.
+    /// A scan's diagram and descriptors, through every stage.
     pub fn describe(&self, scan: Scan) -> Description {
         let label = format!("{}: scan {}", scan.path.display(), scan.id);
+        let t = ThreadTime::now();
+        let baselines = self.describe_raw(&scan.points, &label);
+        let baselines_secs = cpu_seconds(t);
+        if !self.topological {
+            let kept_points = scan.points.len();
+            let outcome = baselines.map(|b| Described { diagram: None, descriptor: None, baselines: b });
+            let times = StageTimes { baselines: baselines_secs, ..StageTimes::default() };
+            return Description { kept_points, times, outcome };
+        }
         let t = ThreadTime::now();
         let points =
             catch(&label, || self.preprocess(scan).map_err(|Skip(reason)| DescribeError::Skipped(reason)));
@@ -145,6 +187,14 @@ impl Describer {
             Err(e) => Description { kept_points: 0, times: StageTimes::default(), outcome: Err(e) },
         };
         d.times.preprocess = preprocess;
+        d.times.baselines = baselines_secs;
+        d.outcome = match (d.outcome, baselines) {
+            (Ok(mut x), Ok(b)) => {
+                x.baselines = b;
+                Ok(x)
+            }
+            (Err(e), _) | (Ok(_), Err(e)) => Err(e),
+        };
         d
     }
 }

@@ -18,8 +18,9 @@
 //! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs,
 //!   equal to GUDHI's `AlphaComplex` in its `exact` precision.
 //! * [`vectorize`] turns diagrams into ATOL descriptors with a saved codebook.
-//! * [`describe`] is the one path from a scan to its descriptor through those three stages;
-//!   `run`, `query` and `eval` all use it.
+//! * [`describe`] is the one path from a scan to its descriptors through those three stages;
+//!   `run`, `query` and `eval` all use it. Beside the TopoRec descriptor it computes the
+//!   [`baselines`] (ScanContext, M2DP) from the raw scan, when a pipeline asks for them.
 //! * [`sinks`] write and read the index: Hive-partitioned Parquet tables whose schemas are
 //!   declared once ([`sinks::schema`]), committed atomically.
 //! * [`pipeline`] connects the stages with bounded channels (`toporec run`), as a pipeline
@@ -33,6 +34,7 @@
 //! library.
 #![deny(missing_docs)]
 
+pub mod baselines;
 pub mod describe;
 pub mod diagram_csv;
 pub mod error;

@@ -3,6 +3,7 @@
 //! (a new codebook for the stored diagrams, switched to atomically). `compact` and
 //! `revectorize` take the index's writer lock, like `run`.
 
+use crate::baselines::TOPOREC;
 use crate::error::{Error, Result};
 use crate::offline::CodebookArgs;
 use crate::pipeline::config::{Pipeline, dims_needed};
@@ -136,21 +137,11 @@ pub fn verify(index: &Path) -> Result<Verification> {
     let mut v = Verification { files: manifest.files.len(), ..Default::default() };
     let named: HashSet<&str> = manifest.files.iter().map(|f| f.path.as_str()).collect();
     // Files on disk that no commit names.
-    for table in tables::ALL {
-        let Ok(parts) = std::fs::read_dir(index.join(table)) else { continue };
-        for p in parts.flatten() {
-            for f in std::fs::read_dir(p.path()).into_iter().flatten().flatten() {
-                let rel = format!(
-                    "{table}/{}/{}",
-                    p.file_name().to_string_lossy(),
-                    f.file_name().to_string_lossy()
-                );
-                if !named.contains(rel.as_str()) {
-                    v.notes.push(format!(
-                        "{rel}: not committed (a writer running, or killed; the next writer removes it)"
-                    ));
-                }
-            }
+    for (_, rel) in crate::sinks::index::files_on_disk(index) {
+        if !named.contains(rel.as_str()) {
+            v.notes.push(format!(
+                "{rel}: not committed (a writer running, or killed; the next writer removes it)"
+            ));
         }
     }
     // Each file: present, intact, readable as its table.
@@ -186,15 +177,28 @@ pub fn verify(index: &Path) -> Result<Verification> {
             v.problems.push(format!("{}: checksum {xxh3}, the manifest says {}", f.path, f.xxh3));
             continue;
         }
-        match reader::check_file(&path, &f.table, manifest.descriptor_length) {
+        // A descriptors file: its method's length and id (the codebook's, for TopoRec).
+        let method = f.method_name();
+        let (length, id, what) = if f.table != tables::DESCRIPTORS || method == TOPOREC {
+            (manifest.descriptor_length, manifest.codebook_id.clone(), "codebook")
+        } else if let Some(e) = manifest.methods.get(method) {
+            (Some(e.length), Some(e.id.clone()), "method id")
+        } else {
+            v.problems.push(format!(
+                "{}: descriptors of method `{method}`, which the manifest does not list",
+                f.path
+            ));
+            continue;
+        };
+        match reader::check_file(&path, &f.table, length) {
             Ok(info) => {
                 if info.rows != f.rows {
                     v.problems.push(format!("{}: {} rows, the manifest says {}", f.path, info.rows, f.rows));
                 }
-                if f.table == tables::DESCRIPTORS && info.codebook_id != manifest.codebook_id {
+                if f.table == tables::DESCRIPTORS && info.codebook_id != id && info.rows > 0 {
                     v.problems.push(format!(
-                        "{}: made with codebook {:?}, the index's is {:?}",
-                        f.path, info.codebook_id, manifest.codebook_id
+                        "{}: made with {what} {:?}, the index's is {:?}",
+                        f.path, info.codebook_id, id
                     ));
                 }
                 intact.push(f);
@@ -223,32 +227,50 @@ pub fn verify(index: &Path) -> Result<Verification> {
         v.problems
             .push(format!("manifest.json: counts {:?}, the scans table holds {counts:?}", manifest.counts));
     }
-    let ids_of = |table: &str| -> Result<HashMap<String, usize>> {
+    let ids_of = |table: &str, method: Option<&str>| -> Result<HashMap<String, usize>> {
         let mut out: HashMap<String, usize> = HashMap::new();
-        for f in intact.iter().filter(|f| f.table == table) {
+        let files = intact.iter().filter(|f| f.table == table && method.is_none_or(|m| f.method_name() == m));
+        for f in files {
             for id in scan_ids(&index.join(&f.path))? {
                 *out.entry(id).or_default() += 1;
             }
         }
         Ok(out)
     };
-    let stored_h0 = Pipeline::of_index(index).map(|p| p.persistence.dims.contains(&0)).unwrap_or(true);
-    let with_pairs = ids_of(tables::DIAGRAMS)?;
-    let with_descriptor = ids_of(tables::DESCRIPTORS)?;
+    let stored_h0 = Pipeline::of_index(index)
+        .map(|p| p.methods.toporec && p.persistence.dims.contains(&0))
+        .unwrap_or(true);
+    let with_pairs = ids_of(tables::DIAGRAMS, None)?;
     let mut ok: Vec<&String> = status.iter().filter(|(_, s)| **s == Status::Ok).map(|(id, _)| id).collect();
     ok.sort();
-    for id in ok {
+    for id in &ok {
         // Every ok scan has H0 pairs (its points are born at 0), when H0 is stored.
-        if stored_h0 && !with_pairs.contains_key(id) {
+        if stored_h0 && !with_pairs.contains_key(*id) {
             v.problems.push(format!("scan {id}: ok, but no rows in diagrams"));
         }
-        match (with_descriptor.get(id), &codebook) {
-            (None, Some(_)) => v.problems.push(format!("scan {id}: ok, but no row in descriptors")),
-            (Some(n), _) if *n > 1 => v.problems.push(format!("scan {id}: {n} rows in descriptors")),
-            _ => {}
+    }
+    // Each method: one row per ok scan (TopoRec once it has a codebook; computed methods
+    // always; imported ones may cover some scans only), never a row of another scan.
+    let mut methods: Vec<(String, bool)> = vec![(TOPOREC.to_string(), codebook.is_some())];
+    methods.extend(manifest.methods.iter().map(|(m, e)| (m.clone(), e.kind != crate::baselines::IMPORTED)));
+    for (method, complete) in &methods {
+        let with_descriptor = ids_of(tables::DESCRIPTORS, Some(method))?;
+        let what =
+            if method == TOPOREC { "descriptors".to_string() } else { format!("{method} descriptors") };
+        for id in &ok {
+            match with_descriptor.get(*id) {
+                None if *complete => v.problems.push(format!("scan {id}: ok, but no row in {what}")),
+                Some(n) if *n > 1 => v.problems.push(format!("scan {id}: {n} rows in {what}")),
+                _ => {}
+            }
+        }
+        for id in with_descriptor.keys() {
+            if status.get(id) != Some(&Status::Ok) {
+                v.problems.push(format!("scan {id}: rows in {what}, but not an ok scan"));
+            }
         }
     }
-    for id in with_pairs.keys().chain(with_descriptor.keys()) {
+    for id in with_pairs.keys() {
         if status.get(id) != Some(&Status::Ok) {
             v.problems.push(format!("scan {id}: rows in diagrams or descriptors, but not an ok scan"));
         }

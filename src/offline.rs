@@ -141,7 +141,8 @@ pub fn vectorize(args: &VectorizeArgs, stdout: &mut dyn Write) -> Result<(Codebo
 
 /// A descriptors table with the index's schema (id = scan id or CSV path; utime and pose null).
 fn to_parquet(args: &VectorizeArgs, codebook: &Codebook, out: &Path) -> Result<u64> {
-    let mut file = DescriptorsFile::create(out, "", codebook.len(), &codebook.id())?;
+    let mut file =
+        DescriptorsFile::create(out, "", crate::baselines::TOPOREC, codebook.len(), &codebook.id())?;
     let mut rows = 0;
     for item in diagram_inputs(&args.diagrams) {
         let (id, diagram) = item?;

@@ -1,7 +1,14 @@
 //! `toporec query`: the k nearest database descriptors of new scans, made with the index's own
-//! preprocessing and codebook (read from the index, never re-specified), many queries per
-//! call, in parallel. Also the engine `eval` uses.
+//! preprocessing and codebook (or the method's parameters), read from the index, never
+//! re-specified; many queries per call, in parallel. Also the engine `eval` uses.
+//!
+//! Every descriptor method of an index can answer (`--method`): TopoRec and M2DP by exact
+//! Euclidean k-NN, ScanContext by ring-key candidates re-ranked with its column-shift
+//! distance, whose best shift is the query's yaw relative to the hit. Imported methods have no
+//! way to describe a new scan here; `eval` compares them on stored descriptors.
 
+use crate::baselines::scancontext::{self, Searcher};
+use crate::baselines::{Method, MethodKind, TOPOREC};
 use crate::describe::{DescribeError, Describer};
 use crate::error::{Error, Result, ResultExt};
 use crate::search::{Database, Hit};
@@ -25,6 +32,9 @@ pub struct QueryArgs {
     /// Neighbours per query: [1, ∞), clamped to the database size.
     #[arg(short, default_value_t = 25, value_parser = crate::ranges::count)]
     pub k: usize,
+    /// The descriptor method to search with (one the index holds; `toporec info` lists them).
+    #[arg(long, default_value = TOPOREC)]
+    pub method: String,
     /// Database sessions (default: all).
     #[arg(long = "session")]
     pub sessions: Vec<String>,
@@ -36,77 +46,297 @@ pub struct QueryArgs {
     pub out: Option<PathBuf>,
 }
 
-/// An opened index, ready to answer queries.
-pub struct Engine {
-    /// The index's preprocessing, persistence units and codebook.
-    pub describer: Describer,
-    /// Database rows (descriptor, id, session, pose).
+/// One method's stored descriptors, checked: all of one length, made by one codebook (or one
+/// parameter set), finite.
+pub struct Loaded {
+    /// The method.
+    pub method: Method,
+    /// What made them: the codebook id, or the method's id.
+    pub id: String,
+    /// Descriptor length.
+    pub length: usize,
+    /// The codebook (TopoRec).
+    pub codebook: Option<Codebook>,
+    /// The rows.
     pub scans: Vec<IndexedScan>,
-    /// The search structure over `scans`.
-    pub db: Database,
 }
 
-/// Per-query seconds of each step.
+/// The search structure of one method.
+enum Search {
+    Vectors(Database),
+    ScanContext(Searcher),
+}
+
+/// An opened index, ready to answer queries with one method.
+pub struct Engine {
+    /// How a scan becomes this method's descriptor (the index's preprocessing, persistence
+    /// units and codebook for TopoRec; the method alone for the others).
+    pub describer: Describer,
+    /// The method.
+    pub method: Method,
+    /// What made the descriptors (codebook or method id).
+    pub id: String,
+    /// Database rows (descriptor, id, session, pose).
+    pub scans: Vec<IndexedScan>,
+    search: Search,
+}
+
+/// Per-query seconds of each step (those a method does not have stay 0).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StepTimes {
-    /// Preprocess + alpha persistence.
+    /// TopoRec: preprocess + alpha persistence.
     pub persistence: f64,
-    /// ATOL.
+    /// TopoRec: ATOL.
     pub vectorize: f64,
-    /// Nearest-neighbour search.
+    /// ScanContext, M2DP: the descriptor (with the method's preprocessing).
+    pub describe: f64,
+    /// Nearest-neighbour search (ScanContext: the ring-key candidates).
     pub search: f64,
+    /// ScanContext: the re-rank of the candidates.
+    pub rerank: f64,
+}
+
+impl StepTimes {
+    /// The search steps a method has, with their times (of a stored descriptor).
+    pub fn search_steps(&self, method: &Method) -> Vec<(&'static str, f64)> {
+        match method.kind {
+            MethodKind::ScanContext(_) => vec![("candidates", self.search), ("rerank", self.rerank)],
+            _ => vec![("search", self.search)],
+        }
+    }
+
+    /// The steps a method has, with their times.
+    pub fn steps(&self, method: &Method) -> Vec<(&'static str, f64)> {
+        match method.kind {
+            MethodKind::Toporec => {
+                vec![
+                    ("persistence", self.persistence),
+                    ("vectorize", self.vectorize),
+                    ("search", self.search),
+                ]
+            }
+            MethodKind::ScanContext(_) => {
+                vec![("describe", self.describe), ("candidates", self.search), ("rerank", self.rerank)]
+            }
+            MethodKind::M2dp(_) => vec![("describe", self.describe), ("search", self.search)],
+            MethodKind::Imported { .. } => vec![("search", self.search)],
+        }
+    }
+}
+
+/// A search result: database row, distance, and for ScanContext the yaw of the query
+/// relative to the hit (degrees, [0, 360)).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Found {
+    /// Database row.
+    pub row: usize,
+    /// Distance (Euclidean; ScanContext: its cosine distance in [0, 1]).
+    pub distance: f64,
+    /// ScanContext: the yaw its best column shift stands for.
+    pub yaw_degrees: Option<f64>,
 }
 
 impl Engine {
-    /// Opens `index` (only `sessions` as the database, when not empty).
-    pub fn open(index: &Path, sessions: &[String]) -> Result<Self> {
-        let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
-        let (codebook, scans) = load_descriptors(index, sessions)?;
-        let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
-        let db = Database::new(vectors, codebook.len());
-        let describer = Describer {
-            preprocess: pipeline.preprocess,
-            squared: pipeline.persistence.squared,
-            codebook: Some(codebook),
+    /// Opens `index` to search with `method` (only `sessions` as the database, when not
+    /// empty).
+    pub fn open(index: &Path, sessions: &[String], method: &str) -> Result<Self> {
+        let loaded = load_method(index, method, sessions)?;
+        Self::from_loaded(index, loaded)
+    }
+
+    /// An engine over descriptors already loaded from `index`.
+    pub fn from_loaded(index: &Path, loaded: Loaded) -> Result<Self> {
+        let Loaded { method, id, length, codebook, scans } = loaded;
+        let describer = match &method.kind {
+            MethodKind::Toporec => {
+                let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
+                Describer::toporec(pipeline.preprocess, pipeline.persistence.squared, codebook)
+            }
+            _ => Describer {
+                topological: false,
+                computed: if method.is_computed() { vec![method.clone()] } else { Vec::new() },
+                ..Describer::toporec(Default::default(), true, None)
+            },
         };
-        Ok(Engine { describer, scans, db })
+        let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
+        let search = match &method.kind {
+            MethodKind::ScanContext(p) => Search::ScanContext(Searcher::new(vectors, p.clone())),
+            _ => Search::Vectors(Database::new(vectors, length)),
+        };
+        Ok(Engine { describer, method, id, scans, search })
     }
 
-    /// The index's codebook.
-    pub fn codebook(&self) -> &Codebook {
-        self.describer.codebook.as_ref().expect("an engine has a codebook")
+    /// An engine that searches `loaded` but describes nothing (`eval places`, whose queries
+    /// are stored descriptors).
+    pub fn search_only(loaded: Loaded) -> Self {
+        let Loaded { method, id, length, scans, .. } = loaded;
+        let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
+        let search = match &method.kind {
+            MethodKind::ScanContext(p) => Search::ScanContext(Searcher::new(vectors, p.clone())),
+            _ => Search::Vectors(Database::new(vectors, length)),
+        };
+        let describer =
+            Describer { topological: false, ..Describer::toporec(Default::default(), true, None) };
+        Engine { describer, method, id, scans, search }
     }
 
-    /// The descriptor of preprocessed points, with the time of each step.
+    /// The index's codebook (TopoRec engines).
+    pub fn codebook(&self) -> Option<&Codebook> {
+        self.describer.codebook.as_ref()
+    }
+
+    /// The descriptor of points — preprocessed ones for TopoRec, a raw scan (sensor frame)
+    /// for the others — with the time of each step.
     pub fn describe_points(
         &self,
         points: &[[f64; 3]],
         label: &str,
     ) -> Result<(Vec<f32>, StepTimes), DescribeError> {
-        let d = self.describer.describe_points(points, label);
-        let described = d.outcome?;
-        let times = StepTimes { persistence: d.times.persistence, vectorize: d.times.vectorize, search: 0.0 };
-        Ok((described.descriptor.expect("an engine has a codebook").to_f32(), times))
+        if self.describer.topological {
+            let d = self.describer.describe_points(points, label);
+            let described = d.outcome?;
+            let times = StepTimes {
+                persistence: d.times.persistence,
+                vectorize: d.times.vectorize,
+                ..Default::default()
+            };
+            return Ok((described.descriptor.expect("a TopoRec engine has a codebook").to_f32(), times));
+        }
+        self.describe_raw(points, label)
+    }
+
+    /// The descriptor of a raw scan with a computed method (not TopoRec).
+    fn describe_raw(&self, points: &[[f64; 3]], label: &str) -> Result<(Vec<f32>, StepTimes), DescribeError> {
+        let t = cpu_time::ThreadTime::now();
+        let mut d = self.describer.describe_raw(points, label)?;
+        let times = StepTimes { describe: t.elapsed().as_secs_f64(), ..Default::default() };
+        match d.pop() {
+            Some(v) => Ok((v, times)),
+            None => Err(DescribeError::Internal {
+                label: label.into(),
+                message: format!(
+                    "method `{}` has its vectors imported: new scans cannot be described",
+                    self.method.name
+                ),
+            }),
+        }
+    }
+
+    /// A scan's descriptor through every step of the method.
+    pub fn describe_scan(&self, scan: Scan) -> Result<(Vec<f32>, StepTimes), DescribeError> {
+        if !self.describer.topological {
+            let label = format!("{}: scan {}", scan.path.display(), scan.id);
+            return self.describe_raw(&scan.points, &label);
+        }
+        let d = self.describer.describe(scan);
+        let times = StepTimes {
+            persistence: d.times.preprocess + d.times.persistence,
+            vectorize: d.times.vectorize,
+            ..Default::default()
+        };
+        let x = d.outcome?;
+        Ok((x.descriptor.expect("a TopoRec engine has a codebook").to_f32(), times))
     }
 
     /// The `k` nearest database rows.
     pub fn search(&self, descriptor: &[f32], k: usize) -> Vec<Hit> {
-        self.db.search(descriptor, k)
+        self.find(descriptor, k).0.into_iter().map(|f| (f.row, f.distance)).collect()
+    }
+
+    /// The `k` best database rows, with the time of each search step.
+    pub fn find(&self, descriptor: &[f32], k: usize) -> (Vec<Found>, StepTimes) {
+        self.find_many(descriptor, k).pop().unwrap_or_default()
+    }
+
+    /// The `k` best database rows of each query (`queries` is `m × length`, row-major), each
+    /// charged its share of the search time.
+    pub fn find_many(&self, queries: &[f32], k: usize) -> Vec<(Vec<Found>, StepTimes)> {
+        match &self.search {
+            Search::Vectors(db) => {
+                let m = queries.len() / db.dim().max(1);
+                let t = Instant::now();
+                let hits = db.search_many(queries, k);
+                let search = t.elapsed().as_secs_f64() / m.max(1) as f64;
+                hits.into_iter()
+                    .map(|h| {
+                        let found =
+                            h.into_iter().map(|(row, distance)| Found { row, distance, yaw_degrees: None });
+                        (found.collect(), StepTimes { search, ..Default::default() })
+                    })
+                    .collect()
+            }
+            Search::ScanContext(sc) => queries
+                .par_chunks(sc.params().len())
+                .map(|q| {
+                    let (hits, t) = sc.search(q, k);
+                    let found = hits.into_iter().map(|(row, distance, shift)| Found {
+                        row,
+                        distance,
+                        yaw_degrees: Some(scancontext::yaw_degrees(shift, sc.params())),
+                    });
+                    (
+                        found.collect(),
+                        StepTimes { search: t.candidates, rerank: t.rerank, ..Default::default() },
+                    )
+                })
+                .collect(),
+        }
     }
 }
 
-/// An index's codebook and its descriptors (only `sessions`, when not empty), checked to have
-/// been made with that codebook.
-pub fn load_descriptors(index: &Path, sessions: &[String]) -> Result<(Codebook, Vec<IndexedScan>)> {
+/// The methods of an index, as its manifest records them (TopoRec first, when present).
+pub fn index_methods(index: &Path) -> Result<Vec<Method>> {
     let reader = IndexReader::open(index)?;
-    let codebook = reader.codebook()?;
-    let mut scans = reader.descriptors(sessions, Some(codebook.len()))?;
+    let mut out = Vec::new();
+    for name in reader.methods()? {
+        if name == TOPOREC {
+            out.insert(0, Method { name, kind: MethodKind::Toporec });
+            continue;
+        }
+        let entry = reader.manifest().and_then(|m| m.methods.get(&name)).expect("listed by the manifest");
+        match Method::from_entry(&name, entry) {
+            Some(m) => out.push(m),
+            None => tracing::warn!(
+                "{}: method `{name}` is of kind `{}`, unknown to this toporec; left out",
+                index.display(),
+                entry.kind
+            ),
+        }
+    }
+    Ok(out)
+}
+
+/// One method's descriptors of an index (only `sessions`, when not empty), checked to have
+/// been made by one codebook or parameter set, of one length; rows with non-finite values are
+/// left out with a warning.
+pub fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Loaded> {
+    let reader = IndexReader::open(index)?;
+    let methods = index_methods(index)?;
+    let Some(m) = methods.iter().find(|m| m.name == method).cloned() else {
+        let names: Vec<&str> = methods.iter().map(|m| m.name.as_str()).collect();
+        return Err(Error::index(
+            index,
+            format!("holds no descriptors of method `{method}` (it holds: {})", names.join(", ")),
+        ));
+    };
+    let (codebook, id, length) = match &m.kind {
+        MethodKind::Toporec => {
+            let cb = reader.codebook()?;
+            let (id, len) = (cb.id(), cb.len());
+            (Some(cb), id, len)
+        }
+        _ => {
+            let e = reader.manifest().and_then(|x| x.methods.get(method)).expect("listed by the manifest");
+            (None, e.id.clone(), e.length)
+        }
+    };
+    let mut scans = reader.descriptors_of(method, sessions, Some(length))?;
     // A descriptor with a NaN or infinite value (a foreign or damaged table) is never ranked.
     scans.retain(|s| {
         let finite = s.descriptor.iter().all(|v| v.is_finite());
         if !finite {
             tracing::warn!(
-                "{}: descriptors of session {}: scan {} has non-finite values; left out",
+                "{}: {method} descriptors of session {}: scan {} has non-finite values; left out",
                 index.display(),
                 s.session,
                 s.scan_id
@@ -116,30 +346,32 @@ pub fn load_descriptors(index: &Path, sessions: &[String]) -> Result<(Codebook, 
     });
     if scans.is_empty() {
         let which = if sessions.is_empty() { String::new() } else { format!(" in sessions {sessions:?}") };
-        return Err(Error::index(index, format!("no descriptors{which}")));
+        return Err(Error::index(index, format!("no {method} descriptors{which}")));
     }
-    let id = codebook.id();
+    let what = if codebook.is_some() { "codebook" } else { "method id" };
     if let Some(s) = scans.iter().find(|s| s.codebook_id != id) {
         return Err(Error::index(
             index,
-            format!(
-                "scan {} was made with codebook {}, the index's codebook.json is {id}",
-                s.scan_id, s.codebook_id
-            ),
+            format!("scan {} was made with {what} {}, the index's is {id}", s.scan_id, s.codebook_id),
         ));
     }
-    if let Some(s) = scans.iter().find(|s| s.descriptor.len() != codebook.len()) {
+    if let Some(s) = scans.iter().find(|s| s.descriptor.len() != length) {
         return Err(Error::index(
             index,
             format!(
-                "scan {} has a descriptor of length {}, the codebook's is {}",
+                "scan {} has a {method} descriptor of length {}, the index's is {length}",
                 s.scan_id,
-                s.descriptor.len(),
-                codebook.len()
+                s.descriptor.len()
             ),
         ));
     }
-    Ok((codebook, scans))
+    Ok(Loaded { method: m, id, length, codebook, scans })
+}
+
+/// An index's codebook and its TopoRec descriptors (only `sessions`, when not empty).
+pub fn load_descriptors(index: &Path, sessions: &[String]) -> Result<(Codebook, Vec<IndexedScan>)> {
+    let loaded = load_method(index, TOPOREC, sessions)?;
+    Ok((loaded.codebook.expect("TopoRec has a codebook"), loaded.scans))
 }
 
 /// A scan stream for a path given on the command line: an MCAP, an NCLT session (or folder of
@@ -174,6 +406,8 @@ pub fn open_path(path: &Path, topic: Option<&str>) -> Result<ScanStream> {
 /// What a query run did.
 #[derive(Clone, Debug, Default)]
 pub struct QueryReport {
+    /// The method.
+    pub method: Option<Method>,
     /// Queries answered.
     pub answered: usize,
     /// Queries that failed (each printed on stderr).
@@ -186,19 +420,42 @@ pub struct QueryReport {
 
 impl std::fmt::Display for QueryReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let stat = |g: fn(&StepTimes) -> f64| mean_p95_ms(&self.times.iter().map(g).collect::<Vec<_>>());
-        let ((pm, pp), (vm, vp), (sm, sp)) =
-            (stat(|t| t.persistence), stat(|t| t.vectorize), stat(|t| t.search));
+        let Some(method) = &self.method else { return write!(f, "no queries") };
+        let steps = step_summary(method, &self.times, false);
         write!(
             f,
-            "{} queries against {} scans; per query (mean / p95 ms): persistence {pm:.2} / {pp:.2}, vectorize {vm:.3} / {vp:.3}, search {sm:.3} / {sp:.3}",
-            self.answered, self.database
+            "{} queries against {} scans ({}); per query (mean / p95 ms): {steps}",
+            self.answered, self.database, method.name
         )
     }
 }
 
-/// The CSV header of query results.
-pub const CSV_HEADER: &str = "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z";
+/// Mean and p95 (ms) of each step of a method's per-query times: every step, or (`search_only`)
+/// those of the search.
+pub fn step_stats(method: &Method, times: &[StepTimes], search_only: bool) -> Vec<(&'static str, f64, f64)> {
+    let steps = |t: &StepTimes| if search_only { t.search_steps(method) } else { t.steps(method) };
+    let names: Vec<&'static str> = steps(&StepTimes::default()).into_iter().map(|s| s.0).collect();
+    names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let (mean, p95) = mean_p95_ms(&times.iter().map(|t| steps(t)[i].1).collect::<Vec<_>>());
+            (*name, mean, p95)
+        })
+        .collect()
+}
+
+/// `step mean / p95, …` of a method's per-query times (see [`step_stats`]).
+pub fn step_summary(method: &Method, times: &[StepTimes], search_only: bool) -> String {
+    step_stats(method, times, search_only)
+        .iter()
+        .map(|(name, mean, p95)| format!("{name} {mean:.3} / {p95:.3}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The CSV header of query results (`yaw_deg`: ScanContext's yaw estimate, empty otherwise).
+pub const CSV_HEADER: &str = "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z,yaw_deg";
 
 /// A described query: its id, descriptor and step times.
 type Answerable = (String, Vec<f32>, StepTimes);
@@ -214,9 +471,19 @@ pub fn run(
     out: &mut dyn Write,
     output_name: &Path,
 ) -> Result<QueryReport> {
-    let mut report = QueryReport { database: engine.scans.len(), ..Default::default() };
+    let mut report = QueryReport {
+        method: Some(engine.method.clone()),
+        database: engine.scans.len(),
+        ..Default::default()
+    };
     if args.k > engine.scans.len() {
         tracing::warn!("-k {}: the database holds {} scans; returning that many", args.k, engine.scans.len());
+    }
+    if !engine.describer.topological && !engine.method.is_computed() {
+        return Err(Error::invalid(format!(
+            "method `{}` has its vectors imported: `query` cannot describe new scans with it (`eval` compares stored ones)",
+            engine.method.name
+        )));
     }
     writeln!(out, "{CSV_HEADER}").at(output_name)?;
     for input in &args.inputs {
@@ -228,25 +495,16 @@ pub fn run(
                 .map(|item| {
                     let scan = item.map_err(|f| f.error)?;
                     let id = scan.id.clone();
-                    let d = engine.describer.describe(scan);
-                    let times = StepTimes {
-                        persistence: d.times.preprocess + d.times.persistence,
-                        vectorize: d.times.vectorize,
-                        search: 0.0,
-                    };
-                    match d.outcome {
-                        Ok(x) => Ok((id, x.descriptor.expect("an engine has a codebook").to_f32(), times)),
+                    match engine.describe_scan(scan) {
+                        Ok((v, times)) => Ok((id, v, times)),
                         Err(DescribeError::Skipped(reason)) => Err(format!("{id}: skipped: {reason}")),
                         Err(e) => Err(e.to_string()),
                     }
                 })
                 .collect();
-            let ok: Vec<&Answerable> = described.iter().filter_map(|r| r.as_ref().ok()).collect();
-            let start = Instant::now();
-            let flat: Vec<f32> = ok.iter().flat_map(|r| r.1.iter().copied()).collect();
-            let hits = engine.db.search_many(&flat, args.k);
-            let per_query = start.elapsed().as_secs_f64() / ok.len().max(1) as f64;
-            let mut hits = hits.into_iter();
+            let flat: Vec<f32> =
+                described.iter().filter_map(|r| r.as_ref().ok()).flat_map(|r| r.1.iter().copied()).collect();
+            let mut found = engine.find_many(&flat, args.k).into_iter();
             for r in &described {
                 let (id, _, t) = match r {
                     Ok(x) => x,
@@ -256,18 +514,21 @@ pub fn run(
                         continue;
                     }
                 };
+                let (hits, search) = found.next().expect("one result per query");
                 report.answered += 1;
-                report.times.push(StepTimes { search: per_query, ..*t });
-                for (rank, (row, dist)) in hits.next().expect("one result per query").iter().enumerate() {
-                    let s = &engine.scans[*row];
+                report.times.push(StepTimes { search: search.search, rerank: search.rerank, ..*t });
+                for (rank, f) in hits.iter().enumerate() {
+                    let s = &engine.scans[f.row];
                     let p = s.pose.map(|p| p.map(|x| format!("{x:?}"))).unwrap_or_default();
+                    let yaw = f.yaw_degrees.map(|y| format!("{y:?}")).unwrap_or_default();
                     writeln!(
                         out,
-                        "{},{},{},{},{dist:?},{},{},{}",
+                        "{},{},{},{},{:?},{},{},{},{yaw}",
                         csv_field(id),
                         rank + 1,
                         csv_field(&s.scan_id),
                         csv_field(&s.session),
+                        f.distance,
                         p[0],
                         p[1],
                         p[2]

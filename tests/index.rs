@@ -75,7 +75,7 @@ for f in glob.glob(f"{idx}/*/*/*.parquet"):
     assert!(o.status.success(), "{}", text(&o.stderr));
 
     // Not compatible: each a clean error naming the file and what is wrong.
-    let descriptors = "descriptors/session=2026-01-01/";
+    let descriptors = "descriptors/method=toporec/session=2026-01-01/";
     let diagrams = "diagrams/session=2026-01-01/";
     let cases: [(&str, &str, &str, &[&str]); 4] = [
         ("no_column", descriptors, "t = t.drop(['codebook_id'])", &["no column `codebook_id`"]),

@@ -12,7 +12,9 @@ use toporec::sinks::parquet::Status;
 /// The parquet files of one table, sorted.
 fn parts(index: &Path, table: &str) -> Vec<PathBuf> {
     let mut out = Vec::new();
-    for session in std::fs::read_dir(index.join(table)).unwrap().flatten() {
+    let dir =
+        if table == "descriptors" { index.join(table).join("method=toporec") } else { index.join(table) };
+    for session in std::fs::read_dir(dir).unwrap().flatten() {
         for f in std::fs::read_dir(session.path()).unwrap().flatten() {
             out.push(f.path());
         }

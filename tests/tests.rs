@@ -2,6 +2,7 @@
 
 mod atol;
 mod bad_input;
+mod baselines;
 mod cli;
 mod codebook;
 mod eval;

@@ -8,6 +8,10 @@
 //! * [`perturbation`]: the paper's object protocol: a seeded fraction of the index's scans are
 //!   re-read, preprocessed as the index did, perturbed (jitter, scaling, translation,
 //!   rotation about z), and must retrieve themselves.
+//!
+//! Both evaluate every descriptor method of the index side by side (`--method` picks some):
+//! one report, one table with a block per method, one Recall@N plot with a line per method
+//! (and threshold), and each method's time per query split into its steps.
 
 pub mod metrics;
 
@@ -19,8 +23,9 @@ macro_rules! line {
     }};
 }
 
+use crate::baselines::{MethodKind, TOPOREC};
 use crate::error::{Error, Result, ResultExt};
-use crate::query::{Engine, StepTimes, load_descriptors, mean_p95_ms};
+use crate::query::{Engine, Found, StepTimes, index_methods, load_method, step_stats, step_summary};
 use crate::rng::SplitMix64;
 use crate::sinks::index::IndexedScan;
 use metrics::{Denominator, Recall, first_hit, one_percent_k, recall};
@@ -60,9 +65,47 @@ pub struct PlacesArgs {
     /// query never retrieves itself.
     #[arg(long, default_value_t = 0.0, value_parser = crate::ranges::non_negative)]
     pub min_time_gap: f64,
+    /// Descriptor methods to compare (repeatable; default: every method both indexes hold).
+    #[arg(long = "method")]
+    pub methods: Vec<String>,
     /// Output folder for report.json, report.txt and the plots.
     #[arg(long, short)]
     pub out: PathBuf,
+}
+
+/// The methods to evaluate: those asked for, or every method all `indexes` hold (TopoRec
+/// first).
+fn chosen_methods(indexes: &[&Path], asked: &[String]) -> Result<Vec<String>> {
+    let mut held: Option<Vec<String>> = None;
+    for index in indexes {
+        let names: Vec<String> = index_methods(index)?.into_iter().map(|m| m.name).collect();
+        held = Some(match held {
+            None => names,
+            Some(h) => h.into_iter().filter(|m| names.contains(m)).collect(),
+        });
+    }
+    let held = held.unwrap_or_default();
+    if asked.is_empty() {
+        if held.is_empty() {
+            return Err(Error::invalid("the indexes hold no descriptor method in common"));
+        }
+        return Ok(held);
+    }
+    let mut out = Vec::new();
+    for m in asked {
+        if out.contains(m) {
+            continue;
+        }
+        if !held.contains(m) {
+            return Err(Error::invalid(format!(
+                "--method {m}: not held by {} (common methods: {})",
+                indexes.iter().map(|i| i.display().to_string()).collect::<Vec<_>>().join(" and "),
+                held.join(", ")
+            )));
+        }
+        out.push(m.clone());
+    }
+    Ok(out)
 }
 
 fn xy(s: &IndexedScan) -> [f64; 2] {
@@ -88,22 +131,89 @@ fn subsample(scans: Vec<IndexedScan>, every: Option<f64>) -> Vec<IndexedScan> {
 
 /// Runs the places protocol; returns the report text (also written beside the JSON).
 pub fn places(a: &PlacesArgs) -> Result<String> {
-    // Descriptors only: the search structure is built once, over the scans kept below.
-    let (codebook, db_all) = load_descriptors(&a.db, &a.db_sessions)?;
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
-    let (query_codebook, queries) = load_descriptors(&queries_index, &a.query_sessions)?;
-    if query_codebook.id() != codebook.id() {
-        return Err(Error::index(
-            &queries_index,
+    let methods = chosen_methods(&[&a.db, &queries_index], &a.methods)?;
+    let mut table = String::new();
+    line!(
+        table,
+        "places: database {}, queries {}; methods: {}",
+        a.db.display(),
+        queries_index.display(),
+        methods.join(", ")
+    );
+    let mut entries = Vec::new();
+    let mut curves = Vec::new();
+    let mut plots = Vec::new();
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
+    for method in &methods {
+        let m = places_of(a, &queries_index, method, methods.len() > 1, &mut table)?;
+        let prefix = if methods.len() > 1 { format!("{method}, ") } else { String::new() };
+        curves.extend(m.curves.into_iter().map(|(name, v)| (format!("{prefix}{name}"), v)));
+        plots.extend(m.plots);
+        entries.push(m.json);
+    }
+    plots.extend(crate::plot::recall_curves(
+        &a.out.join("recall_at_n"),
+        "Recall@N (queries with a match)",
+        &curves,
+    )?);
+    let report = json!({
+        "protocol": "places",
+        "toporec_version": env!("CARGO_PKG_VERSION"),
+        "database": {"index": a.db, "sessions": a.db_sessions, "map_every_m": a.map_every},
+        "queries": {"index": queries_index, "sessions": a.query_sessions, "query_every_m": a.query_every},
+        "min_time_gap_s": a.min_time_gap,
+        "threads": rayon::current_num_threads(),
+        "methods": entries,
+        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
+    });
+    write_report(&a.out, &report, &table)?;
+    Ok(table)
+}
+
+/// A named Recall@N curve.
+type Curve = (String, Vec<f64>);
+
+/// One method's part of a places report.
+struct MethodPlaces {
+    json: serde_json::Value,
+    curves: Vec<Curve>,
+    plots: Vec<PathBuf>,
+}
+
+/// The places protocol with one method; appends its block to `table`.
+fn places_of(
+    a: &PlacesArgs,
+    queries_index: &Path,
+    method: &str,
+    several: bool,
+    table: &mut String,
+) -> Result<MethodPlaces> {
+    // Descriptors only: the search structure is built once, over the scans kept below.
+    let db_loaded = load_method(&a.db, method, &a.db_sessions)?;
+    let q_loaded = load_method(queries_index, method, &a.query_sessions)?;
+    if q_loaded.id != db_loaded.id {
+        let hint = if method == TOPOREC {
             format!(
-                "uses codebook {} but {} uses {}: index the queries with `vectorize.codebook = \"{}\"`",
-                query_codebook.id(),
-                a.db.display(),
-                codebook.id(),
+                ": index the queries with `vectorize.codebook = \"{}\"`",
                 a.db.join("codebook.json").display()
+            )
+        } else {
+            format!(": index both with the same [{method}] parameters")
+        };
+        let what = if method == TOPOREC { "codebook" } else { "method id" };
+        return Err(Error::index(
+            queries_index,
+            format!(
+                "{method}: uses {what} {} but {} uses {}{hint}",
+                q_loaded.id,
+                a.db.display(),
+                db_loaded.id
             ),
         ));
     }
+    let (id, length, method_def) = (db_loaded.id.clone(), db_loaded.length, db_loaded.method.clone());
+    let (db_all, queries) = (db_loaded.scans, q_loaded.scans);
     let (db_unposed, query_unposed) = (
         db_all.iter().filter(|s| s.pose.is_none()).count(),
         queries.iter().filter(|s| s.pose.is_none()).count(),
@@ -118,8 +228,6 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
             queries.len()
         )));
     }
-    let vectors: Vec<f32> = db_scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
-    let db = crate::search::Database::new(vectors, codebook.len());
     let n_db = db_scans.len();
     let k1 = one_percent_k(n_db);
     let gap_us = a.min_time_gap * 1e6;
@@ -133,31 +241,39 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
     let skips: Vec<usize> =
         queries.par_iter().map(|q| db_scans.iter().filter(|d| is_excluded(q, d)).count()).collect();
     let k = (want + skips.iter().copied().max().unwrap_or(0)).min(n_db);
+    let loaded = crate::query::Loaded {
+        method: method_def.clone(),
+        id: id.clone(),
+        length,
+        codebook: None,
+        scans: db_scans,
+    };
+    let engine = Engine::search_only(loaded);
+    let db_scans = &engine.scans;
     let start = Instant::now();
     // Batched search (one matrix product per block); each query is charged its block's time.
-    let mut retrieved: Vec<(Vec<usize>, f64)> = Vec::with_capacity(queries.len());
+    let mut retrieved: Vec<(Vec<usize>, StepTimes)> = Vec::with_capacity(queries.len());
     for block in queries.chunks(256) {
-        let t = Instant::now();
         let flat: Vec<f32> = block.iter().flat_map(|q| q.descriptor.iter().copied()).collect();
-        let hits = db.search_many(&flat, k);
-        let secs = t.elapsed().as_secs_f64() / block.len() as f64;
-        for (q, h) in block.iter().zip(hits) {
-            let rows: Vec<usize> =
-                h.into_iter().map(|h| h.0).filter(|&r| !is_excluded(q, &db_scans[r])).take(want).collect();
-            retrieved.push((rows, secs));
+        for (q, (hits, t)) in block.iter().zip(engine.find_many(&flat, k)) {
+            let rows: Vec<usize> = hits
+                .into_iter()
+                .map(|h: Found| h.row)
+                .filter(|&r| !is_excluded(q, &db_scans[r]))
+                .take(want)
+                .collect();
+            retrieved.push((rows, t));
         }
     }
     let wall = start.elapsed().as_secs_f64();
-    let search_secs: Vec<f64> = retrieved.iter().map(|r| r.1).collect();
+    let search_times: Vec<StepTimes> = retrieved.iter().map(|r| r.1).collect();
     let mut results = Vec::new();
-    let mut table = String::new();
+    let name = if several { format!("{method}: ") } else { String::new() };
     line!(
         table,
-        "places: {} database scans ({}), {} queries ({}); Recall@1% uses the top {k1}",
+        "{name}{} database scans, {} queries (length {length}); Recall@1% uses the top {k1}",
         n_db,
-        a.db.display(),
-        queries.len(),
-        queries_index.display()
+        queries.len()
     );
     if unposed > 0 {
         line!(table, "left out, without a pose: {db_unposed} database and {query_unposed} query scans");
@@ -221,37 +337,46 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         curves.push((format!("R = {r} m"), with.at_n.clone()));
         results.push(json!({"threshold_m": r, "queries_with_match": with.evaluated, "with_match": with, "all_queries": all}));
     }
-    let (mean, p95) = mean_p95_ms(&search_secs);
     line!(
         table,
-        "search: mean {mean:.3} ms, p95 {p95:.3} ms per query ({} threads, {:.2} s wall)",
+        "search per query (mean / p95 ms): {} ({} threads, {:.2} s wall)",
+        step_summary(&method_def, &search_times, true),
         rayon::current_num_threads(),
         wall
     );
-    std::fs::create_dir_all(&a.out).at(&a.out)?;
-    let mut plots =
-        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (queries with a match)", &curves)?;
     let qpts: Vec<([f64; 2], bool)> =
         queries.iter().zip(&success_first).map(|(q, &ok)| (xy(q), ok)).collect();
     let dpts: Vec<[f64; 2]> = db_scans.iter().map(xy).collect();
-    let title = format!("top-1 within {} m", a.thresholds.first().copied().unwrap_or(0.0));
-    plots.extend(crate::plot::trajectory(&a.out.join("trajectory"), &title, &dpts, &qpts)?);
-    let report = json!({
-        "protocol": "places",
-        "toporec_version": env!("CARGO_PKG_VERSION"),
-        "database": {"index": a.db, "sessions": a.db_sessions, "scans": n_db, "map_every_m": a.map_every, "without_pose": db_unposed},
-        "queries": {"index": queries_index, "sessions": a.query_sessions, "scans": queries.len(), "query_every_m": a.query_every, "without_pose": query_unposed},
-        "codebook_id": codebook.id(),
-        "descriptor_length": codebook.len(),
-        "min_time_gap_s": a.min_time_gap,
+    let title = format!("{name}top-1 within {} m", a.thresholds.first().copied().unwrap_or(0.0));
+    let stem = if several { format!("trajectory_{method}") } else { "trajectory".into() };
+    let plots = crate::plot::trajectory(&a.out.join(stem), &title, &dpts, &qpts)?;
+    let json = json!({
+        "method": method,
+        "id": id,
+        "descriptor_length": length,
+        "database_scans": n_db,
+        "database_without_pose": db_unposed,
+        "query_scans": queries.len(),
+        "queries_without_pose": query_unposed,
         "one_percent_k": k1,
         "max_n": max_n,
         "results": results,
-        "timing": {"search_mean_ms": mean, "search_p95_ms": p95, "threads": rayon::current_num_threads()},
-        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
+        "timing_ms": timing_json(&method_def, &search_times, true),
     });
-    write_report(&a.out, &report, &table)?;
-    Ok(table)
+    Ok(MethodPlaces { json, curves, plots })
+}
+
+/// Mean and p95 (ms) of each step a method has (or of its search steps).
+fn timing_json(
+    method: &crate::baselines::Method,
+    times: &[StepTimes],
+    search_only: bool,
+) -> serde_json::Value {
+    let mut out = serde_json::Map::new();
+    for (name, mean, p95) in step_stats(method, times, search_only) {
+        out.insert(name.to_string(), json!({"mean": mean, "p95": p95}));
+    }
+    serde_json::Value::Object(out)
 }
 
 /// `--max-n` clamped to the database size, with a warning.
@@ -316,6 +441,13 @@ impl Perturbation {
 
     /// Applies it (jitter seeded by `seed`).
     pub fn apply(&self, points: &[[f64; 3]], seed: u64) -> Vec<[f64; 3]> {
+        self.apply_in(points, seed, 1.0)
+    }
+
+    /// Applies it with lengths (jitter σ, translation) in units of `unit`: a raw scan in
+    /// metres gets the perturbation its normalized cloud would get when `unit` is the
+    /// normalization's scale. Rotations and scaling are about the origin (the sensor).
+    pub fn apply_in(&self, points: &[[f64; 3]], seed: u64, unit: f64) -> Vec<[f64; 3]> {
         match *self {
             Perturbation::Original => points.to_vec(),
             Perturbation::Jitter => {
@@ -325,13 +457,14 @@ impl Perturbation {
                 for _ in 0..n {
                     let i = rng.below(p.len());
                     for c in p[i].iter_mut() {
-                        *c += 1e-3 * rng.normal();
+                        *c += 1e-3 * unit * rng.normal();
                     }
                 }
                 p
             }
             Perturbation::Scale(s) => points.iter().map(|q| q.map(|c| c * s)).collect(),
             Perturbation::Translate(t) => {
+                let t = t.map(|c| c * unit);
                 points.iter().map(|q| [q[0] + t[0], q[1] + t[1], q[2] + t[2]]).collect()
             }
             Perturbation::Rotate(deg) => {
@@ -357,15 +490,53 @@ pub struct PerturbationArgs {
     /// Largest N of Recall@N: [1, ∞), clamped to the database size.
     #[arg(long, default_value_t = 25, value_parser = crate::ranges::count)]
     pub max_n: usize,
+    /// Descriptor methods to compare (repeatable; default: every method the index holds that
+    /// can describe a scan, i.e. not imported ones).
+    #[arg(long = "method")]
+    pub methods: Vec<String>,
     /// Output folder.
     #[arg(long, short)]
     pub out: PathBuf,
 }
 
+/// A chosen scan, re-read: its raw points (sensor frame), preprocessed points (TopoRec), and
+/// the normalization scale of its preprocessing (1 without normalization).
+struct Reread {
+    scan_id: String,
+    raw: Vec<[f64; 3]>,
+    preprocessed: Option<Vec<[f64; 3]>>,
+    unit: f64,
+}
+
 /// Runs the perturbation protocol; returns the report text.
+///
+/// TopoRec follows the paper: the preprocessed (normalized) cloud is perturbed. ScanContext
+/// and M2DP take the raw scan in the sensor frame, perturbed the same way with lengths scaled
+/// by the scan's normalization scale (so a 0.2 shift of the normalized cloud is 0.2 × that
+/// scale in metres) and rotations about the sensor, then their own preprocessing.
 pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
-    let engine = Engine::open(&a.index, &[])?;
-    let n = engine.scans.len();
+    let mut methods = chosen_methods(&[&a.index], &a.methods)?;
+    let defs = index_methods(&a.index)?;
+    let imported: Vec<String> = defs
+        .iter()
+        .filter(|m| matches!(m.kind, MethodKind::Imported { .. }))
+        .map(|m| m.name.clone())
+        .collect();
+    if a.methods.is_empty() {
+        methods.retain(|m| !imported.contains(m));
+    } else if let Some(m) = methods.iter().find(|m| imported.contains(m)) {
+        return Err(Error::invalid(format!(
+            "--method {m}: its vectors are imported; perturbed scans cannot be described with it"
+        )));
+    }
+    if methods.is_empty() {
+        return Err(Error::invalid("no method of the index can describe a perturbed scan"));
+    }
+    let engines: Vec<Engine> =
+        methods.iter().map(|m| Engine::open(&a.index, &[], m)).collect::<Result<Vec<_>>>()?;
+    // The queries: a seeded share of the first method's scans.
+    let first = &engines[0];
+    let n = first.scans.len();
     let mut rng = SplitMix64(a.seed ^ 0x7065_7274);
     let mut order: Vec<usize> = (0..n).collect();
     let count = ((a.fraction * n as f64).round() as usize).clamp(1, n);
@@ -375,61 +546,142 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
     }
     let mut chosen: Vec<usize> = order[..count].to_vec();
     chosen.sort_unstable();
-    let wanted: std::collections::HashMap<&str, usize> =
-        chosen.iter().map(|&r| (engine.scans[r].scan_id.as_str(), r)).collect();
-    // Re-read the chosen scans through the index's own sources and preprocessing.
-    let mut clouds: Vec<(usize, Vec<[f64; 3]>)> = Vec::new();
+    let wanted: std::collections::HashSet<&str> =
+        chosen.iter().map(|&r| first.scans[r].scan_id.as_str()).collect();
+    let clouds = reread(a, &wanted, methods.iter().any(|m| m == TOPOREC))?;
+    let mut table = String::new();
+    line!(
+        table,
+        "perturbation: {} queries ({}); methods: {}",
+        clouds.len(),
+        a.index.display(),
+        methods.join(", ")
+    );
+    let kinds = Perturbation::paper();
+    let mut entries = Vec::new();
+    let mut curves = Vec::new();
+    for engine in &engines {
+        let (json, c) = perturbation_of(a, engine, &clouds, &kinds, methods.len() > 1, &mut table)?;
+        entries.push(json);
+        curves.extend(c);
+    }
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
+    let plots =
+        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N under perturbations", &curves)?;
+    let report = json!({
+        "protocol": "perturbation",
+        "toporec_version": env!("CARGO_PKG_VERSION"),
+        "index": a.index,
+        "queries": clouds.len(),
+        "fraction": a.fraction,
+        "seed": a.seed,
+        "methods": entries,
+        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
+    });
+    write_report(&a.out, &report, &table)?;
+    Ok(table)
+}
+
+/// Re-reads the `wanted` scans through the index's own sources: raw points, and (for TopoRec)
+/// the index's preprocessing.
+fn reread(
+    a: &PerturbationArgs,
+    wanted: &std::collections::HashSet<&str>,
+    toporec: bool,
+) -> Result<Vec<Reread>> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(&a.index)?;
+    let mut metric = pipeline.preprocess.clone();
+    metric.normalize = false;
+    let mut clouds = Vec::new();
     for spec in &pipeline.sources {
         for item in spec.open()? {
             let Ok(scan) = item else { continue };
-            if let Some(&row) = wanted.get(scan.id.as_str()) {
-                let id = scan.id.clone();
-                let points = engine
-                    .describer
-                    .preprocess(scan)
-                    .map_err(|skip| Error::invalid(format!("{id}: skipped on re-reading: {}", skip.0)))?;
-                clouds.push((row, points));
+            if !wanted.contains(scan.id.as_str()) {
+                continue;
             }
+            let id = scan.id.clone();
+            let skipped = |skip: crate::preprocess::Skip| {
+                Error::invalid(format!("{id}: skipped on re-reading: {}", skip.0))
+            };
+            let unit = if pipeline.preprocess.normalize {
+                let pts = crate::preprocess::preprocess(scan.points.clone(), scan.fingerprint, &metric)
+                    .map_err(skipped)?;
+                normalization_scale(&pts)
+            } else {
+                1.0
+            };
+            let raw = scan.points.clone();
+            let preprocessed = if toporec {
+                Some(
+                    crate::preprocess::preprocess(scan.points, scan.fingerprint, &pipeline.preprocess)
+                        .map_err(skipped)?,
+                )
+            } else {
+                None
+            };
+            clouds.push(Reread { scan_id: id, raw, preprocessed, unit });
         }
     }
-    if clouds.len() != chosen.len() {
+    if clouds.len() != wanted.len() {
         return Err(Error::index(
             &a.index,
             format!(
                 "{} of {} chosen scans could be re-read from the index's sources",
                 clouds.len(),
-                chosen.len()
+                wanted.len()
             ),
         ));
     }
+    Ok(clouds)
+}
+
+/// The scale `normalize` divides by: the largest |coordinate| about the mean.
+fn normalization_scale(points: &[[f64; 3]]) -> f64 {
+    let n = points.len().max(1) as f64;
+    let mean = points.iter().fold([0.0; 3], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n, m[2] + p[2] / n]);
+    let s = points.iter().flat_map(|p| (0..3).map(move |i| (p[i] - mean[i]).abs())).fold(0.0, f64::max);
+    if s > 0.0 { s } else { 1.0 }
+}
+
+/// The perturbation protocol with one method; appends its block to `table`.
+fn perturbation_of(
+    a: &PerturbationArgs,
+    engine: &Engine,
+    clouds: &[Reread],
+    kinds: &[Perturbation],
+    several: bool,
+    table: &mut String,
+) -> Result<(serde_json::Value, Vec<Curve>)> {
+    let n = engine.scans.len();
+    let rows: std::collections::HashMap<&str, usize> =
+        engine.scans.iter().enumerate().map(|(r, s)| (s.scan_id.as_str(), r)).collect();
     let k1 = one_percent_k(n);
     let max_n = clamp_max_n(a.max_n, n);
     let want = max_n.max(k1).min(n);
-    let kinds = Perturbation::paper();
-    let mut table = String::new();
-    line!(
-        table,
-        "perturbation: {} queries of {n} scans ({}); Recall@1% uses the top {k1}",
-        clouds.len(),
-        a.index.display()
-    );
+    let method = &engine.method;
+    let name = if several { format!("{}: ", method.name) } else { String::new() };
+    let present: Vec<(&Reread, usize)> =
+        clouds.iter().filter_map(|c| rows.get(c.scan_id.as_str()).map(|&r| (c, r))).collect();
+    line!(table, "{name}{} queries of {n} scans; Recall@1% uses the top {k1}", present.len());
     let n5 = 5.min(max_n);
     line!(table, "{:<24} {:>9} {:>9} {:>10}", "perturbation", "R@1", format!("R@{n5}"), "R@1%");
     let mut results = Vec::new();
     let mut curves = Vec::new();
     let mut times: Vec<StepTimes> = Vec::new();
-    for kind in &kinds {
-        let outcomes: Vec<Result<(Option<usize>, StepTimes), crate::describe::DescribeError>> = clouds
+    let topological = engine.describer.topological;
+    for kind in kinds {
+        let outcomes: Vec<Result<(Option<usize>, StepTimes), crate::describe::DescribeError>> = present
             .par_iter()
-            .map(|(row, pts)| {
-                let seed = a.seed ^ crate::preprocess::seed_of(&engine.scans[*row].scan_id);
-                let p = kind.apply(pts, seed);
-                let (v, mut t) = engine.describe_points(&p, &engine.scans[*row].scan_id)?;
-                let start = Instant::now();
-                let hits = engine.search(&v, want);
-                t.search = start.elapsed().as_secs_f64();
-                Ok((first_hit(&hits.iter().map(|h| h.0).collect::<Vec<_>>(), |r| r == *row), t))
+            .map(|(c, row)| {
+                let seed = a.seed ^ crate::preprocess::seed_of(&c.scan_id);
+                let p = match (&c.preprocessed, topological) {
+                    (Some(pts), true) => kind.apply(pts, seed),
+                    _ => kind.apply_in(&c.raw, seed, c.unit),
+                };
+                let (v, t) = engine.describe_points(&p, &c.scan_id)?;
+                let (hits, s) = engine.find(&v, want);
+                let t = StepTimes { search: s.search, rerank: s.rerank, ..t };
+                Ok((first_hit(&hits.iter().map(|h| h.row).collect::<Vec<_>>(), |r| r == *row), t))
             })
             .collect();
         let mut hits = Vec::new();
@@ -447,39 +699,20 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
             rc.at_n[n5 - 1],
             rc.at_one_percent
         );
-        curves.push((kind.name(), rc.at_n.clone()));
+        let prefix = if several { format!("{}, ", method.name) } else { String::new() };
+        curves.push((format!("{prefix}{}", kind.name()), rc.at_n.clone()));
         results.push(json!({"perturbation": kind.name(), "recall": rc}));
     }
-    let stat = |f: fn(&StepTimes) -> f64| mean_p95_ms(&times.iter().map(f).collect::<Vec<_>>());
-    let (pm, pp) = stat(|t| t.persistence);
-    let (vm, vp) = stat(|t| t.vectorize);
-    let (sm, sp) = stat(|t| t.search);
-    line!(
-        table,
-        "per query (mean / p95 ms): persistence {pm:.2} / {pp:.2}, vectorize {vm:.3} / {vp:.3}, search {sm:.3} / {sp:.3}"
-    );
-    std::fs::create_dir_all(&a.out).at(&a.out)?;
-    let plots =
-        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N under perturbations", &curves)?;
-    let report = json!({
-        "protocol": "perturbation",
-        "toporec_version": env!("CARGO_PKG_VERSION"),
-        "index": a.index,
+    line!(table, "per query (mean / p95 ms): {}", step_summary(method, &times, false));
+    let json = json!({
+        "method": method.name,
+        "id": engine.id,
+        "descriptor_length": engine.scans.first().map_or(0, |s| s.descriptor.len()),
         "database_scans": n,
-        "queries": clouds.len(),
-        "fraction": a.fraction,
-        "seed": a.seed,
-        "codebook_id": engine.codebook().id(),
-        "descriptor_length": engine.codebook().len(),
+        "queries": present.len(),
         "one_percent_k": k1,
         "results": results,
-        "timing_ms": {
-            "persistence": {"mean": pm, "p95": pp},
-            "vectorize": {"mean": vm, "p95": vp},
-            "search": {"mean": sm, "p95": sp},
-        },
-        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
+        "timing_ms": timing_json(method, &times, false),
     });
-    write_report(&a.out, &report, &table)?;
-    Ok(table)
+    Ok((json, curves))
 }

@@ -22,8 +22,15 @@
 //! b = 50
 //! dims = "paper"                     # or [0, 1, 2]
 //! # codebook = "codebook.json"       # … or load a saved one
+//! [descriptors]
+//! methods = ["toporec", "scancontext", "m2dp"]   # default ["toporec"]
+//! [scancontext]                      # optional: its parameters (see baselines::scancontext)
+//! [m2dp]                             # optional: its parameters
 //! ```
 
+use crate::baselines::{
+    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, TOPOREC, scancontext::ScanContextParams,
+};
 pub use crate::error::ConfigErrors;
 use crate::preprocess::Preprocess;
 use crate::sources::SourceSpec;
@@ -49,6 +56,8 @@ pub struct Pipeline {
     pub persistence: Persistence,
     /// Vectorizing.
     pub vectorize: Vectorize,
+    /// The descriptor methods.
+    pub methods: Methods,
 }
 
 /// Persistence settings.
@@ -157,6 +166,7 @@ impl Pipeline {
         let preprocess = p.preprocess(&mut root);
         let persistence = p.persistence(&mut root);
         let vectorize = p.vectorize(&mut root, &persistence);
+        let methods = p.methods(&mut root);
         root.finish(&mut p.errors);
         if check_inputs && p.errors.is_empty() {
             check_unique_sessions(&sources, &mut p.errors);
@@ -171,21 +181,31 @@ impl Pipeline {
             preprocess,
             persistence,
             vectorize,
+            methods,
         })
     }
 
-    /// The fingerprint of everything that makes a scan's diagram: the preprocess and
-    /// persistence settings (16 hex digits). An index records it; rows made with other settings
-    /// are outdated.
+    /// The fingerprint of everything that makes a scan's rows: the preprocess and
+    /// persistence settings, and the descriptor methods when they are not the default
+    /// TopoRec alone (16 hex digits). An index records it; rows made with other settings are
+    /// outdated.
     pub fn settings_hash(&self) -> String {
         #[derive(serde::Serialize)]
         struct Settings<'a> {
             preprocess: &'a Preprocess,
             persistence: &'a Persistence,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            methods: Option<String>,
         }
-        let text =
-            toml::to_string(&Settings { preprocess: &self.preprocess, persistence: &self.persistence })
-                .expect("TOML of plain data");
+        let methods = (self.methods != Methods::default()).then(|| {
+            // By name: the order a file lists them in changes no row.
+            let mut entries: Vec<String> =
+                self.methods.computed.iter().map(|m| format!("{}={}", m.name, m.id())).collect();
+            entries.sort();
+            format!("toporec={};{}", self.methods.toporec, entries.join(";"))
+        });
+        let settings = Settings { preprocess: &self.preprocess, persistence: &self.persistence, methods };
+        let text = toml::to_string(&settings).expect("TOML of plain data");
         crate::fingerprint::hex(crate::fingerprint::of_bytes(text.as_bytes()))
     }
 
@@ -227,6 +247,18 @@ impl Pipeline {
             }
         }
         doc.insert("vectorize".into(), Value::Table(v));
+        let mut d = Table::new();
+        let names = self.methods.names().into_iter().map(Value::String).collect();
+        d.insert("methods".into(), Value::Array(names));
+        doc.insert("descriptors".into(), Value::Table(d));
+        for m in &self.methods.computed {
+            let params = match &m.kind {
+                crate::baselines::MethodKind::ScanContext(p) => Value::try_from(p),
+                crate::baselines::MethodKind::M2dp(p) => Value::try_from(p),
+                _ => continue,
+            };
+            doc.insert(m.name.clone(), params.expect("plain data"));
+        }
         format!(
             "# The effective pipeline of this index (resolved by toporec {}).\n{}",
             env!("CARGO_PKG_VERSION"),
@@ -367,6 +399,53 @@ impl Parser {
                 .push(format!("persistence.dims: the descriptor needs H{d}; add {d} to the stored dims"));
         }
         vectorize
+    }
+
+    /// `[descriptors]` (the methods) and the sections of the methods asked for.
+    fn methods(&mut self, root: &mut Section) -> Methods {
+        let mut s = self.section(root, "descriptors");
+        let names: Vec<String> = s.get("methods", &mut self.errors).unwrap_or_else(|| vec![TOPOREC.into()]);
+        s.finish(&mut self.errors);
+        let sc: ScanContextParams = self.method_section(root, SCANCONTEXT);
+        let m2dp: M2dpParams = self.method_section(root, M2DP);
+        let mut methods = Methods { toporec: false, computed: Vec::new() };
+        if names.is_empty() {
+            self.errors.push("descriptors.methods: empty (toporec, scancontext, m2dp)".into());
+        }
+        for (i, name) in names.iter().enumerate() {
+            if names[..i].contains(name) {
+                self.errors.push(format!("descriptors.methods: `{name}` is listed twice"));
+                continue;
+            }
+            match name.as_str() {
+                TOPOREC => methods.toporec = true,
+                SCANCONTEXT => {
+                    self.errors.extend(sc.problems());
+                    methods.computed.push(Method::scancontext(sc.clone()));
+                }
+                M2DP => {
+                    self.errors.extend(m2dp.problems());
+                    methods.computed.push(Method::m2dp(m2dp.clone()));
+                }
+                other => self.errors.push(format!(
+                    "descriptors.methods: unknown method `{other}` (toporec, scancontext, m2dp; \
+                     vectors made elsewhere come in with `toporec import`)"
+                )),
+            }
+        }
+        methods
+    }
+
+    /// A method's section (`[scancontext]`, `[m2dp]`), defaults filled in.
+    fn method_section<T: DeserializeOwned + Default>(&mut self, root: &mut Section, key: &'static str) -> T {
+        root.seen.push(key);
+        match root.table.get(key) {
+            None => T::default(),
+            Some(v) => v.clone().try_into::<T>().unwrap_or_else(|e| {
+                self.errors.push(format!("{key}: {}", e.message().trim()));
+                T::default()
+            }),
+        }
     }
 
     /// The fit keys of `[vectorize]`, defaults filled in.

@@ -28,7 +28,7 @@ use crate::describe::{DescribeError, Describer, StageTimes};
 use crate::error::{Error, Result};
 use crate::homology::Diagram;
 use crate::sinks::index::IndexWriter;
-use crate::sinks::index::writer::CommittedScan;
+use crate::sinks::index::writer::{CommittedScan, MethodDescriptor};
 use crate::sinks::parquet::{DescriptorRow, ScanRow, Status};
 use crate::sources::{Scan, ScanFailure};
 use crate::vectorize::codebook::{Codebook, Descriptor};
@@ -118,6 +118,8 @@ pub struct RunSummary {
     pub codebook_id: String,
     /// Descriptor length.
     pub descriptor_len: usize,
+    /// The descriptor methods (`toporec` first when computed) with their lengths.
+    pub methods: Vec<(String, usize)>,
     /// Worker threads.
     pub threads: usize,
 }
@@ -152,6 +154,7 @@ impl RunSummary {
             "commits": self.commits,
             "codebook_id": self.codebook_id,
             "descriptor_length": self.descriptor_len,
+            "methods": self.methods.iter().map(|(m, len)| serde_json::json!({"method": m, "length": len})).collect::<Vec<_>>(),
             "threads": self.threads,
             "wall_seconds": self.wall.as_secs_f64(),
             "cpu_seconds": self.stages,
@@ -212,7 +215,18 @@ impl std::fmt::Display for RunSummary {
         if self.duplicates > 0 {
             writeln!(f, "  {} scans came twice under one id: the later ones were left out", self.duplicates)?;
         }
-        writeln!(f, "descriptors: length {}, codebook {}", self.descriptor_len, self.codebook_id)?;
+        let methods: Vec<String> = self
+            .methods
+            .iter()
+            .map(|(m, len)| {
+                if m == crate::baselines::TOPOREC {
+                    format!("{m} (length {len}, codebook {})", self.codebook_id)
+                } else {
+                    format!("{m} (length {len})")
+                }
+            })
+            .collect();
+        writeln!(f, "descriptors: {}", methods.join(", "))?;
         writeln!(f, "wall time: {secs:.2} s, {:.1} scans/s", self.read as f64 / secs.max(1e-9))?;
         let stages: Vec<String> = self.stages.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
         write!(f, "cpu time: {}", stages.join(", "))
@@ -228,13 +242,13 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
     let mut writer = IndexWriter::open(&index, &settings, opts.full)?;
     let indexed_before = writer.manifest().generation > 0;
     if indexed_before && writer.manifest().settings_hash != settings {
-        return Err(Error::index(
-            &index,
-            "made with other preprocess or persistence settings than this pipeline's; \
-             rebuild it with `toporec run --full` (every scan is recomputed)",
-        ));
+        return Err(Error::index(&index, settings_change(&writer, p)));
     }
-    let codebook = frozen_codebook(&writer, p, &index)?;
+    let codebook = if p.methods.toporec { frozen_codebook(&writer, p, &index)? } else { None };
+    let mut methods = writer.manifest().methods.clone();
+    methods.retain(|_, e| e.kind == crate::baselines::IMPORTED);
+    methods.extend(p.methods.entries());
+    writer.set_methods(methods);
     let pipeline_toml = p.effective_toml(&index);
     if let (Some(cb), false) = (&codebook, writer.manifest().codebook.is_some()) {
         writer.set_codebook(cb.clone(), Some(pipeline_toml.clone()));
@@ -245,6 +259,8 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
         preprocess: p.preprocess.clone(),
         squared: p.persistence.squared,
         codebook: codebook.clone(),
+        topological: p.methods.toporec,
+        computed: p.methods.computed.clone(),
     };
     let mut summary = RunSummary { index: index.clone(), threads, ..Default::default() };
 
@@ -264,22 +280,28 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
 
     // The codebook: frozen in the index, or fitted now on every committed diagram.
     let t = ThreadTime::now();
-    let (codebook, cached) = match codebook {
-        Some(cb) => (cb, None),
-        None => {
-            let (cb, cached) = fit_codebook(&writer, p, &index, threads)?;
-            writer.set_codebook(cb.clone(), Some(pipeline_toml));
-            writer.commit()?;
-            (cb, cached)
-        }
-    };
-    let fit_secs = t.elapsed().as_secs_f64();
-    let (vectorize, read_back, made) = stored_descriptors(&mut writer, &codebook, threads, opts, cached)?;
-    stages.vectorize += vectorize;
-    summary.descriptors_from_stored = made;
+    let (mut fit_secs, mut read_back) = (0.0, 0.0);
+    if p.methods.toporec {
+        let (codebook, cached) = match codebook {
+            Some(cb) => (cb, None),
+            None => {
+                let (cb, cached) = fit_codebook(&writer, p, &index, threads)?;
+                writer.set_codebook(cb.clone(), Some(pipeline_toml));
+                writer.commit()?;
+                (cb, cached)
+            }
+        };
+        fit_secs = t.elapsed().as_secs_f64();
+        let (vectorize, read, made) = stored_descriptors(&mut writer, &codebook, threads, opts, cached)?;
+        stages.vectorize += vectorize;
+        read_back = read;
+        summary.descriptors_from_stored = made;
+        summary.codebook_id = codebook.id();
+        summary.descriptor_len = codebook.len();
+        summary.methods.push((crate::baselines::TOPOREC.into(), codebook.len()));
+    }
+    summary.methods.extend(p.methods.computed.iter().map(|m| (m.name.clone(), m.len())));
     summary.commits = writer.commits();
-    summary.codebook_id = codebook.id();
-    summary.descriptor_len = codebook.len();
     summary.wall = start.elapsed();
     summary.stages = BTreeMap::from([
         ("read", pass.read_secs),
@@ -287,10 +309,44 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
         ("persistence", stages.persistence),
         ("fit", fit_secs),
         ("vectorize", stages.vectorize),
+        ("baselines", stages.baselines),
         ("read back", read_back),
         ("write", pass.write_secs),
     ]);
     Ok(summary)
+}
+
+/// Why an index's settings differ from a pipeline's.
+fn settings_change(writer: &IndexWriter, p: &Pipeline) -> String {
+    let manifest = writer.manifest();
+    let mut held: Vec<String> = manifest
+        .methods
+        .iter()
+        .filter(|(_, e)| e.kind != crate::baselines::IMPORTED)
+        .map(|(m, e)| format!("{m} {}", e.id))
+        .collect();
+    if manifest.codebook.is_some() || manifest.descriptor_files_of(crate::baselines::TOPOREC).next().is_some()
+    {
+        held.insert(0, crate::baselines::TOPOREC.into());
+    }
+    let mut wanted: Vec<String> =
+        p.methods.computed.iter().map(|m| format!("{} {}", m.name, m.id())).collect();
+    wanted.sort();
+    if p.methods.toporec {
+        wanted.insert(0, crate::baselines::TOPOREC.into());
+    }
+    if held != wanted && manifest.counts.ok > 0 {
+        format!(
+            "holds the descriptor methods [{}], this pipeline asks for [{}] (or other parameters); \
+             rebuild it with `toporec run --full` (every scan is recomputed)",
+            held.join(", "),
+            wanted.join(", ")
+        )
+    } else {
+        "made with other preprocess or persistence settings than this pipeline's; \
+         rebuild it with `toporec run --full` (every scan is recomputed)"
+            .into()
+    }
 }
 
 /// The codebook the run must use: the index's (checked against the pipeline's), or the
@@ -336,6 +392,8 @@ struct Outcome {
     row: ScanRow,
     diagram: Option<Diagram>,
     descriptor: Option<Descriptor>,
+    /// One per computed method (ok scans).
+    baselines: Vec<Vec<f32>>,
     times: StageTimes,
 }
 
@@ -383,8 +441,7 @@ fn index_scans(
     let (credit_tx, credit_rx) = bounded::<()>(window);
     (0..window).for_each(|_| credit_tx.send(()).expect("capacity"));
     let known: Arc<Known> = Arc::new(writer.committed().clone());
-    let mut ordered =
-        OrderedWriter::new(writer, summary, describer.codebook.as_ref(), &p.persistence.dims, opts);
+    let mut ordered = OrderedWriter::new(writer, summary, describer, &p.persistence.dims, opts);
     let report = std::thread::scope(|scope| -> Result<SourceReport> {
         let known = known.clone();
         let reader = scope.spawn(move || read_sources(p, settings, &known, job_tx, credit_rx));
@@ -532,7 +589,8 @@ fn describe(job: Job, describer: &Describer, settings: &str) -> Outcome {
                 status: Status::Error,
                 error: Some(f.error),
             };
-            return Outcome { seq, row, diagram: None, descriptor: None, times: StageTimes::default() };
+            let times = StageTimes::default();
+            return Outcome { seq, row, diagram: None, descriptor: None, baselines: Vec::new(), times };
         }
     };
     let mut row = ScanRow {
@@ -552,22 +610,25 @@ fn describe(job: Job, describer: &Describer, settings: &str) -> Outcome {
     };
     let d = describer.describe(scan);
     row.kept_points = d.kept_points as u64;
-    let (diagram, descriptor) = match d.outcome {
-        Ok(x) => (Some(x.diagram), x.descriptor),
+    let (diagram, descriptor, baselines) = match d.outcome {
+        Ok(x) => (x.diagram, x.descriptor, x.baselines),
         Err(e) => {
             row.status = if matches!(e, DescribeError::Skipped(_)) { Status::Skipped } else { Status::Error };
             row.error = Some(e.to_string());
-            (None, None)
+            (None, None, Vec::new())
         }
     };
-    Outcome { seq, row, diagram, descriptor, times: d.times }
+    Outcome { seq, row, diagram, descriptor, baselines, times: d.times }
 }
 
 /// The writer's side of pass 1: puts outcomes back in input order and writes them.
 struct OrderedWriter<'a> {
     writer: &'a mut IndexWriter,
     summary: &'a mut RunSummary,
-    codebook: Option<&'a Codebook>,
+    /// The codebook's id, when scans get their TopoRec descriptor now.
+    codebook_id: Option<String>,
+    /// Name and id of each computed method, in the describer's order.
+    computed: Vec<(String, String)>,
     dims: &'a [u8],
     opts: &'a RunOptions,
     pending: BTreeMap<u64, Outcome>,
@@ -580,14 +641,15 @@ impl<'a> OrderedWriter<'a> {
     fn new(
         writer: &'a mut IndexWriter,
         summary: &'a mut RunSummary,
-        codebook: Option<&'a Codebook>,
+        describer: &Describer,
         dims: &'a [u8],
         opts: &'a RunOptions,
     ) -> Self {
         OrderedWriter {
             writer,
             summary,
-            codebook,
+            codebook_id: describer.codebook.as_ref().map(|c| c.id()),
+            computed: describer.computed.iter().map(|m| (m.name.clone(), m.id())).collect(),
             dims,
             opts,
             pending: BTreeMap::new(),
@@ -615,13 +677,28 @@ impl<'a> OrderedWriter<'a> {
         self.stages += o.times;
         self.summary.count(o.row.status, o.row.error.as_deref());
         self.summary.computed += 1;
-        let descriptor = match (self.codebook, &o.descriptor) {
-            (Some(cb), Some(d)) => {
-                Some((DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, d), cb))
+        let mut descriptors = Vec::new();
+        if let (Some(id), Some(d)) = (&self.codebook_id, &o.descriptor) {
+            let row = DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, d);
+            descriptors.push(MethodDescriptor {
+                method: crate::baselines::TOPOREC.into(),
+                id: id.clone(),
+                row,
+            });
+        }
+        if o.row.status == Status::Ok {
+            for ((method, id), values) in self.computed.iter().zip(o.baselines) {
+                let row = DescriptorRow {
+                    scan_id: o.row.scan_id.clone(),
+                    utime: o.row.utime,
+                    pose: o.row.pose,
+                    dim_used: None,
+                    values,
+                };
+                descriptors.push(MethodDescriptor { method: method.clone(), id: id.clone(), row });
             }
-            _ => None,
-        };
-        self.writer.write_scan(o.row, o.diagram.as_ref(), self.dims, descriptor)?;
+        }
+        self.writer.write_scan(o.row, o.diagram.as_ref(), self.dims, descriptors)?;
         if self.writer.chunk_len() >= self.opts.commit_every
             || self.writer.chunk_age().as_secs_f64() >= self.opts.commit_seconds
         {
@@ -631,8 +708,8 @@ impl<'a> OrderedWriter<'a> {
     }
 }
 
-/// Fits the pipeline's codebook on every committed ok scan's diagram; the diagrams read come
-/// back too when they fit in memory.
+/// Fits the pipeline's codebook on every committed ok scan's diagram. The diagrams are not
+/// kept: the vectorize pass reads them again, so a run's memory does not grow with its scans.
 fn fit_codebook(
     writer: &IndexWriter,
     p: &Pipeline,
@@ -641,7 +718,7 @@ fn fit_codebook(
 ) -> Result<(Codebook, Option<stored::Cached>)> {
     let Vectorize::Fit(spec) = &p.vectorize else { unreachable!("a loaded codebook is never fitted") };
     let counts = writer.manifest().counts;
-    let (codebook, cached) = fit_on_stored(writer, spec, threads, true)?;
+    let (codebook, cached) = fit_on_stored(writer, spec, threads, false)?;
     let codebook = codebook.map_err(|e| {
         Error::index(
             index,

@@ -317,10 +317,13 @@ pub struct DescriptorsFile {
 }
 
 impl DescriptorsFile {
-    /// Creates the file for descriptors of `session`, of length `b`, made with codebook
-    /// `codebook_id`.
-    pub fn create(path: &Path, session: &str, b: usize, codebook_id: &str) -> Result<Self> {
-        let meta = [(schema::meta::CODEBOOK_ID, codebook_id.to_string())];
+    /// Creates the file for descriptors of `method` and `session`, of length `b`, made with
+    /// codebook (or method id) `codebook_id`.
+    pub fn create(path: &Path, session: &str, method: &str, b: usize, codebook_id: &str) -> Result<Self> {
+        let meta = [
+            (schema::meta::CODEBOOK_ID, codebook_id.to_string()),
+            (schema::meta::METHOD, method.to_string()),
+        ];
         Ok(DescriptorsFile {
             file: TableFile::create(path, &schema::descriptors(b), &meta)?,
             session: session.to_string(),

@@ -1,8 +1,9 @@
 //! The index's tables, declared once: column names, Arrow types, nullability, meaning.
 //! `schemas/*.json` is rendered from here ([`render_json`]) and a test keeps them equal.
-//! Every table is partitioned Hive style by `session` (`<table>/session=<name>/part-N.parquet`):
-//! the session column comes from the path, as Spark, DuckDB, DataFusion, Polars and pyarrow
-//! expect, and is not repeated inside the files.
+//! Every table is partitioned Hive style by `session` (`<table>/session=<name>/part-N.parquet`;
+//! descriptors by method too, `descriptors/method=<m>/session=<name>/`): partition columns come
+//! from the path, as Spark, DuckDB, DataFusion, Polars and pyarrow expect, and are not repeated
+//! inside the files.
 
 use arrow::datatypes::{DataType, Field, Schema};
 use std::sync::Arc;
@@ -17,8 +18,10 @@ pub mod meta {
     pub const TABLE: &str = "toporec.table";
     /// toporec version that wrote the file.
     pub const WRITER: &str = "toporec.version";
-    /// Codebook id (descriptors only).
+    /// Codebook id (TopoRec descriptors) or method id (other methods' descriptors).
     pub const CODEBOOK_ID: &str = "toporec.codebook_id";
+    /// The descriptor method (descriptors only).
+    pub const METHOD: &str = "toporec.method";
 }
 
 /// Column names, the one place they are spelled (writers and readers use these).
@@ -168,14 +171,14 @@ pub fn diagrams() -> Table {
     }
 }
 
-/// `descriptors`: one row per ok scan; `b` is the descriptor length.
+/// `descriptors`: one row per ok scan and method; `b` is the method's descriptor length.
 pub fn descriptors(b: usize) -> Table {
     use DataType::*;
     use columns as C;
     let item = Arc::new(Field::new("item", Float32, false));
     Table {
         name: tables::DESCRIPTORS,
-        doc: "One ATOL descriptor per ok scan.",
+        doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, ScanContext, M2DP or an imported one.",
         columns: vec![
             col(C::SCAN_ID, Utf8, false, "the scan"),
             col(C::UTIME, Int64, true, "timestamp (µs)"),
@@ -188,8 +191,13 @@ pub fn descriptors(b: usize) -> Table {
                 true,
                 "paper rule: the diagram dimension vectorized (null with concatenated dims)",
             ),
-            col(C::DESCRIPTOR, FixedSizeList(item, b as i32), false, "the ATOL vector (length b, float32)"),
-            col(C::CODEBOOK_ID, Utf8, false, "id of codebook.json it was made with"),
+            col(C::DESCRIPTOR, FixedSizeList(item, b as i32), false, "the vector (length b, float32)"),
+            col(
+                C::CODEBOOK_ID,
+                Utf8,
+                false,
+                "what made it: the codebook id (TopoRec) or the method's id (manifest `methods`)",
+            ),
         ],
     }
 }

@@ -8,18 +8,23 @@
 use crate::error::{Error, Result, ResultExt};
 use crate::vectorize::codebook::Codebook;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// The `format` tag of a manifest.
 pub const FORMAT: &str = "toporec-index";
-/// The manifest layout this toporec writes and reads.
-pub const MANIFEST_VERSION: u64 = 2;
+/// The manifest layout this toporec writes (it reads every older one since 2).
+pub const MANIFEST_VERSION: u64 = 3;
 
 /// One committed part file.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FileEntry {
     /// `scans`, `diagrams` or `descriptors`.
     pub table: String,
+    /// For `descriptors`: the method whose descriptors the file holds (absent: `toporec`, as
+    /// in manifests before version 3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method: Option<String>,
     /// The session (the partition).
     pub session: String,
     /// Path relative to the index folder.
@@ -30,6 +35,13 @@ pub struct FileEntry {
     pub bytes: u64,
     /// xxh3-64 of the file's bytes, 16 hex digits.
     pub xxh3: String,
+}
+
+impl FileEntry {
+    /// The method of a descriptors file (`toporec` when the entry names none).
+    pub fn method_name(&self) -> &str {
+        self.method.as_deref().unwrap_or(crate::baselines::TOPOREC)
+    }
 }
 
 /// Scan counts over the whole index, by status.
@@ -70,8 +82,26 @@ pub struct Manifest {
     pub descriptor_length: Option<usize>,
     /// The codebook itself (its `codebook.json` form), once there is one.
     pub codebook: Option<serde_json::Value>,
+    /// The descriptor methods besides the TopoRec one: name → what made the descriptors
+    /// (parameters, length). Computed ones (ScanContext, M2DP) and imported ones.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub methods: BTreeMap<String, MethodEntry>,
     /// The committed part files, in commit order.
     pub files: Vec<FileEntry>,
+}
+
+/// A descriptor method of an index, besides the TopoRec one.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MethodEntry {
+    /// `scancontext`, `m2dp` or `imported`.
+    pub kind: String,
+    /// Its parameters (computed methods) or where the vectors came from (imported ones).
+    pub params: serde_json::Value,
+    /// Descriptor length.
+    pub length: usize,
+    /// The id every row of its files carries (in the `codebook_id` column): a hash of `kind`
+    /// and `params`.
+    pub id: String,
 }
 
 impl Manifest {
@@ -89,6 +119,7 @@ impl Manifest {
             codebook_id: None,
             descriptor_length: None,
             codebook: None,
+            methods: BTreeMap::new(),
             files: Vec::new(),
         }
     }
@@ -122,6 +153,11 @@ impl Manifest {
     /// The committed files of `table`, in commit order.
     pub fn files_of<'a>(&'a self, table: &'a str) -> impl Iterator<Item = &'a FileEntry> + 'a {
         self.files.iter().filter(move |f| f.table == table)
+    }
+
+    /// The committed descriptors files of `method`, in commit order.
+    pub fn descriptor_files_of<'a>(&'a self, method: &'a str) -> impl Iterator<Item = &'a FileEntry> + 'a {
+        self.files_of(crate::sinks::schema::tables::DESCRIPTORS).filter(move |f| f.method_name() == method)
     }
 
     /// The committed codebook, if any.

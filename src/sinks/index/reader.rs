@@ -41,6 +41,13 @@ pub struct IndexedScan {
     pub codebook_id: String,
 }
 
+/// Files sorted by (session, path).
+fn sorted(files: impl Iterator<Item = (String, PathBuf)>) -> Vec<(String, PathBuf)> {
+    let mut files: Vec<(String, PathBuf)> = files.collect();
+    files.sort();
+    files
+}
+
 /// One row of `scans`, as stored.
 pub type ScanRecord = ScanRow;
 
@@ -84,24 +91,62 @@ impl IndexReader {
         }
     }
 
-    /// The part files of a table, with their sessions, sorted by (session, part).
+    /// The part files of a table, with their sessions, sorted by (session, part); for
+    /// `descriptors`, the TopoRec method's (see [`IndexReader::descriptor_files`]).
     pub fn files(&self, table: &str) -> Result<Vec<(String, PathBuf)>> {
+        if table == tables::DESCRIPTORS {
+            return self.descriptor_files(crate::baselines::TOPOREC);
+        }
         match &self.manifest {
-            Some(m) => {
-                let mut files: Vec<(String, PathBuf)> =
-                    m.files_of(table).map(|f| (f.session.clone(), self.root.join(&f.path))).collect();
-                files.sort();
-                Ok(files)
-            }
-            None => table_files(&self.root, table),
+            Some(m) => Ok(sorted(m.files_of(table).map(|f| (f.session.clone(), self.root.join(&f.path))))),
+            None => table_files(&self.root, table, None),
         }
     }
 
-    /// Every descriptor (only `sessions`, when not empty), in (session, part, row) order.
-    /// `length`: the descriptor length expected (needed to read variable-length lists).
-    pub fn descriptors(&self, sessions: &[String], length: Option<usize>) -> Result<Vec<IndexedScan>> {
+    /// The descriptors files of `method`, with their sessions, sorted by (session, part).
+    pub fn descriptor_files(&self, method: &str) -> Result<Vec<(String, PathBuf)>> {
+        match &self.manifest {
+            Some(m) => Ok(sorted(
+                m.descriptor_files_of(method).map(|f| (f.session.clone(), self.root.join(&f.path))),
+            )),
+            None => table_files(&self.root, tables::DESCRIPTORS, Some(method)),
+        }
+    }
+
+    /// The descriptor methods the index holds: `toporec` (when it has a codebook, or
+    /// TopoRec descriptors files) and those of the manifest, sorted by name.
+    pub fn methods(&self) -> Result<Vec<String>> {
         let mut out = Vec::new();
-        for (session, path) in self.files(tables::DESCRIPTORS)? {
+        let toporec = match &self.manifest {
+            Some(m) => m.codebook.is_some(),
+            None => !self.descriptor_files(crate::baselines::TOPOREC)?.is_empty(),
+        };
+        if toporec {
+            out.push(crate::baselines::TOPOREC.to_string());
+        }
+        if let Some(m) = &self.manifest {
+            out.extend(m.methods.keys().cloned());
+        }
+        out.sort();
+        Ok(out)
+    }
+
+    /// Every TopoRec descriptor (only `sessions`, when not empty), in (session, part, row)
+    /// order. `length`: the descriptor length expected (needed to read variable-length lists).
+    pub fn descriptors(&self, sessions: &[String], length: Option<usize>) -> Result<Vec<IndexedScan>> {
+        self.descriptors_of(crate::baselines::TOPOREC, sessions, length)
+    }
+
+    /// Every descriptor of `method` (only `sessions`, when not empty), in (session, part, row)
+    /// order.
+    pub fn descriptors_of(
+        &self,
+        method: &str,
+        sessions: &[String],
+        length: Option<usize>,
+    ) -> Result<Vec<IndexedScan>> {
+        let mut out = Vec::new();
+        for (session, path) in self.descriptor_files(method)? {
             if sessions.is_empty() || sessions.contains(&session) {
                 out.extend(read_descriptors(&path, &session, length)?);
             }

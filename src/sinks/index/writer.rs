@@ -12,9 +12,10 @@
 //! point. Files the new manifest no longer names are deleted last. Killed at any moment, the
 //! index keeps every chunk committed before; the next writer resumes from there.
 
-use super::manifest::{Counts, FileEntry, Manifest, file_checksum};
+use super::manifest::{Counts, FileEntry, MANIFEST_VERSION, Manifest, MethodEntry, file_checksum};
 use super::reader::{read_scans, scan_ids};
-use super::{CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, partition};
+use super::{CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, partition_dir};
+use crate::baselines::TOPOREC;
 use crate::error::{Error, Result, ResultExt};
 use crate::fsutil::{StagedFile, is_temp_name};
 use crate::homology::Diagram;
@@ -43,7 +44,7 @@ pub struct CommittedScan {
     pub status: Status,
     /// Why skipped or failed.
     pub error: Option<String>,
-    /// Whether the descriptors table has its row.
+    /// Whether the descriptors table has its TopoRec row.
     pub has_descriptor: bool,
     /// Timestamp (µs).
     pub utime: Option<i64>,
@@ -56,7 +57,29 @@ pub struct CommittedScan {
 struct SessionFiles {
     scans: Option<ScansFile>,
     diagrams: Option<DiagramsFile>,
-    descriptors: Option<DescriptorsFile>,
+    /// By method.
+    descriptors: BTreeMap<String, DescriptorsFile>,
+}
+
+/// A closed file waiting for its commit.
+struct Staged {
+    table: &'static str,
+    /// The method, for descriptors.
+    method: Option<String>,
+    session: String,
+    file: StagedFile,
+    rows: u64,
+}
+
+/// One descriptor of a scan, for [`IndexWriter::write_scan`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct MethodDescriptor {
+    /// The method (`toporec`, `scancontext`, …).
+    pub method: String,
+    /// What made it: the codebook id (TopoRec) or the method's id (others).
+    pub id: String,
+    /// The row.
+    pub row: DescriptorRow,
 }
 
 /// The index writer (see the module doc).
@@ -79,7 +102,9 @@ pub struct IndexWriter {
     /// Committed files to drop at the next commit (a new descriptors table, compaction).
     dropped: HashSet<String>,
     /// Merged files to add at the next commit (compaction).
-    compacted: Vec<(&'static str, String, StagedFile, u64)>,
+    compacted: Vec<Staged>,
+    /// The methods to record with the next commit.
+    pending_methods: Option<BTreeMap<String, MethodEntry>>,
     /// A pause between publishing a chunk's files and committing its manifest
     /// (`TOPOREC_COMMIT_PAUSE_MS`: fault injection for crash tests).
     pause: Option<Duration>,
@@ -125,6 +150,7 @@ impl IndexWriter {
             pending_pipeline: None,
             dropped: HashSet::new(),
             compacted: Vec::new(),
+            pending_methods: None,
             pause,
             commits: 0,
         })
@@ -160,10 +186,10 @@ impl IndexWriter {
         self.chunk_started.elapsed()
     }
 
-    fn next_part(&mut self, table: &str, session: &str) -> PathBuf {
+    fn next_part(&mut self, table: &str, method: Option<&str>, session: &str) -> PathBuf {
         let n = self.manifest.next_part;
         self.manifest.next_part += 1;
-        self.root.join(table).join(partition(session)).join(format!("part-{n:06}.parquet"))
+        self.root.join(partition_dir(table, method, session)).join(format!("part-{n:06}.parquet"))
     }
 
     fn session_files(&mut self, session: &str) -> &mut SessionFiles {
@@ -174,14 +200,14 @@ impl IndexWriter {
     }
 
     /// Adds one scan to the open chunk: its row, its pairs in `dims` (ok scans), its
-    /// descriptor (when there is one). A committed scan of the same id is replaced at the
+    /// descriptors (one per method it has). A committed scan of the same id is replaced at the
     /// commit.
     pub fn write_scan(
         &mut self,
         row: ScanRow,
         diagram: Option<&Diagram>,
         dims: &[u8],
-        descriptor: Option<(DescriptorRow, &Codebook)>,
+        descriptors: Vec<MethodDescriptor>,
     ) -> Result<()> {
         if self.committed.contains_key(&row.scan_id) {
             self.removals.insert(row.scan_id.clone());
@@ -189,17 +215,17 @@ impl IndexWriter {
         let session = row.session.clone();
         if let Some(d) = diagram {
             if self.session_files(&session).diagrams.is_none() {
-                let f = DiagramsFile::create(&self.next_part(tables::DIAGRAMS, &session))?;
+                let f = DiagramsFile::create(&self.next_part(tables::DIAGRAMS, None, &session))?;
                 self.session_files(&session).diagrams = Some(f);
             }
             self.session_files(&session).diagrams.as_mut().expect("opened").push(&row.scan_id, d, dims)?;
         }
-        let has_descriptor = descriptor.is_some();
-        if let Some((d, codebook)) = descriptor {
-            self.push_descriptor(&session, d, codebook)?;
+        let has_descriptor = descriptors.iter().any(|d| d.method == TOPOREC);
+        for d in descriptors {
+            self.push_descriptor(&session, &d.method, d.row, || d.id.clone())?;
         }
         if self.session_files(&session).scans.is_none() {
-            let f = ScansFile::create(&self.next_part(tables::SCANS, &session))?;
+            let f = ScansFile::create(&self.next_part(tables::SCANS, None, &session))?;
             self.session_files(&session).scans = Some(f);
         }
         let record = CommittedScan {
@@ -218,22 +244,54 @@ impl IndexWriter {
         self.session_files(&session).scans.as_mut().expect("opened").push(row)
     }
 
-    /// Adds the descriptor of a committed scan to the open chunk.
+    /// Adds the TopoRec descriptor of a committed scan to the open chunk.
     pub fn write_descriptor(&mut self, session: &str, row: DescriptorRow, codebook: &Codebook) -> Result<()> {
         self.chunk_rows += 1;
         if let Some(c) = self.committed.get_mut(&row.scan_id) {
             c.has_descriptor = true;
         }
-        self.push_descriptor(session, row, codebook)
+        self.push_descriptor(session, TOPOREC, row, || codebook.id())
     }
 
-    fn push_descriptor(&mut self, session: &str, row: DescriptorRow, codebook: &Codebook) -> Result<()> {
-        if self.session_files(session).descriptors.is_none() {
-            let path = self.next_part(tables::DESCRIPTORS, session);
-            let f = DescriptorsFile::create(&path, session, codebook.len(), &codebook.id())?;
-            self.session_files(session).descriptors = Some(f);
+    /// Adds a descriptor of `method` (not TopoRec) of a committed scan to the open chunk
+    /// (`toporec import`): `id` is the method's.
+    pub fn write_method_descriptor(
+        &mut self,
+        session: &str,
+        method: &str,
+        id: &str,
+        row: DescriptorRow,
+    ) -> Result<()> {
+        self.chunk_rows += 1;
+        self.push_descriptor(session, method, row, || id.to_string())
+    }
+
+    fn push_descriptor(
+        &mut self,
+        session: &str,
+        method: &str,
+        row: DescriptorRow,
+        id: impl FnOnce() -> String,
+    ) -> Result<()> {
+        if !self.session_files(session).descriptors.contains_key(method) {
+            let path = self.next_part(tables::DESCRIPTORS, Some(method), session);
+            let f = DescriptorsFile::create(&path, session, method, row.values.len(), &id())?;
+            self.session_files(session).descriptors.insert(method.to_string(), f);
         }
-        self.session_files(session).descriptors.as_mut().expect("opened").push(row)
+        self.session_files(session).descriptors.get_mut(method).expect("opened").push(row)
+    }
+
+    /// Records the index's descriptor methods besides TopoRec with the next commit.
+    pub fn set_methods(&mut self, methods: BTreeMap<String, MethodEntry>) {
+        if methods != self.manifest.methods {
+            self.pending_methods = Some(methods);
+        }
+    }
+
+    /// Drops every committed descriptors file of `method` (not TopoRec) at the next commit.
+    pub fn drop_method(&mut self, method: &str) {
+        let files: Vec<String> = self.manifest.descriptor_files_of(method).map(|f| f.path.clone()).collect();
+        self.dropped.extend(files);
     }
 
     /// Marks a committed scan for removal at the next commit.
@@ -248,11 +306,10 @@ impl IndexWriter {
         self.pending_codebook = Some((codebook, pipeline_toml));
     }
 
-    /// Drops every committed descriptors file at the next commit (a new codebook's descriptors
-    /// replace them in the same commit).
+    /// Drops every committed TopoRec descriptors file at the next commit (a new codebook's
+    /// descriptors replace them in the same commit).
     pub fn drop_descriptors(&mut self) {
-        let files: Vec<String> =
-            self.manifest.files_of(tables::DESCRIPTORS).map(|f| f.path.clone()).collect();
+        let files: Vec<String> = self.manifest.descriptor_files_of(TOPOREC).map(|f| f.path.clone()).collect();
         self.dropped.extend(files);
         self.committed.values_mut().for_each(|c| c.has_descriptor = false);
     }
@@ -260,14 +317,15 @@ impl IndexWriter {
     /// Merges each partition's part files of each table into one file, in one commit.
     /// Returns how many files were merged into how many.
     pub fn compact(&mut self) -> Result<(usize, usize)> {
-        let mut groups: BTreeMap<(String, String), Vec<FileEntry>> = BTreeMap::new();
+        let mut groups: BTreeMap<(String, Option<String>, String), Vec<FileEntry>> = BTreeMap::new();
         for f in &self.manifest.files {
-            groups.entry((f.table.clone(), f.session.clone())).or_default().push(f.clone());
+            let method = (f.table == tables::DESCRIPTORS).then(|| f.method_name().to_string());
+            groups.entry((f.table.clone(), method, f.session.clone())).or_default().push(f.clone());
         }
         let (mut merged, mut into) = (0, 0);
-        for ((table, session), files) in groups.into_iter().filter(|(_, files)| files.len() > 1) {
+        for ((table, method, session), files) in groups.into_iter().filter(|(_, files)| files.len() > 1) {
             let table = tables::ALL.into_iter().find(|t| *t == table).expect("a table name");
-            let target = self.next_part(table, &session);
+            let target = self.next_part(table, method.as_deref(), &session);
             let first = self.root.join(&files[0].path);
             let schema = {
                 let file = std::fs::File::open(&first).at(&first)?;
@@ -290,7 +348,7 @@ impl IndexWriter {
                 self.dropped.insert(f.path.clone());
             }
             let (file, rows) = out.finish()?;
-            self.compacted.push((table, session, file, rows));
+            self.compacted.push(Staged { table, method, session, file, rows });
             merged += files.len();
             into += 1;
         }
@@ -309,24 +367,38 @@ impl IndexWriter {
             && self.compacted.is_empty()
             && self.removals.is_empty()
             && self.pending_codebook.is_none()
+            && self.pending_methods.is_none()
             && self.dropped.is_empty()
         {
             return Ok(());
         }
         // 1. The chunk's files, complete under their temporary names.
-        let mut staged: Vec<(&'static str, String, StagedFile, u64)> = std::mem::take(&mut self.compacted);
+        let mut staged: Vec<Staged> = std::mem::take(&mut self.compacted);
         for (session, files) in std::mem::take(&mut self.chunk) {
             if let Some(f) = files.scans {
                 let (file, rows) = f.finish()?;
-                staged.push((tables::SCANS, session.clone(), file, rows));
+                staged.push(Staged {
+                    table: tables::SCANS,
+                    method: None,
+                    session: session.clone(),
+                    file,
+                    rows,
+                });
             }
             if let Some(f) = files.diagrams {
                 let (file, rows) = f.finish()?;
-                staged.push((tables::DIAGRAMS, session.clone(), file, rows));
+                staged.push(Staged {
+                    table: tables::DIAGRAMS,
+                    method: None,
+                    session: session.clone(),
+                    file,
+                    rows,
+                });
             }
-            if let Some(f) = files.descriptors {
+            for (method, f) in files.descriptors {
                 let (file, rows) = f.finish()?;
-                staged.push((tables::DESCRIPTORS, session.clone(), file, rows));
+                let (table, method, session) = (tables::DESCRIPTORS, Some(method), session.clone());
+                staged.push(Staged { table, method, session, file, rows });
             }
         }
         // 2. Committed files holding rows to remove: rewritten without them.
@@ -350,23 +422,25 @@ impl IndexWriter {
                 }
                 superseded.push(entry.path.clone());
                 let table = tables::ALL.into_iter().find(|t| *t == entry.table).expect("a table name");
-                let target = self.next_part(table, &entry.session);
+                let method = (table == tables::DESCRIPTORS).then(|| entry.method_name().to_string());
+                let target = self.next_part(table, method.as_deref(), &entry.session);
                 if let Some((file, rows)) = rewrite_without(&path, &target, &removals)? {
-                    staged.push((table, entry.session.clone(), file, rows));
+                    staged.push(Staged { table, method, session: entry.session.clone(), file, rows });
                 }
             }
         }
         // 3. The new manifest.
         let mut manifest = self.manifest.clone();
         manifest.files.retain(|f| !superseded.contains(&f.path));
-        for (table, session, file, rows) in &staged {
-            let (bytes, xxh3) = file_checksum(file.temp())?;
-            let path = file.path().strip_prefix(&self.root).expect("inside the index");
+        for s in &staged {
+            let (bytes, xxh3) = file_checksum(s.file.temp())?;
+            let path = s.file.path().strip_prefix(&self.root).expect("inside the index");
             manifest.files.push(FileEntry {
-                table: table.to_string(),
-                session: session.clone(),
+                table: s.table.to_string(),
+                method: s.method.clone(),
+                session: s.session.clone(),
                 path: path.to_string_lossy().replace('\\', "/"),
-                rows: *rows,
+                rows: s.rows,
                 bytes,
                 xxh3,
             });
@@ -382,7 +456,11 @@ impl IndexWriter {
         }
         manifest.counts = counts;
         manifest.generation += 1;
+        manifest.manifest_version = MANIFEST_VERSION;
         manifest.toporec_version = env!("CARGO_PKG_VERSION").into();
+        if let Some(methods) = &self.pending_methods {
+            manifest.methods = methods.clone();
+        }
         if let Some((codebook, _)) = &self.pending_codebook {
             manifest.codebook_id = Some(codebook.id());
             manifest.descriptor_length = Some(codebook.len());
@@ -409,6 +487,7 @@ impl IndexWriter {
         self.committed.extend(std::mem::take(&mut self.chunk_scans));
         self.manifest = manifest;
         self.pending_codebook = None;
+        self.pending_methods = None;
         self.commits += 1;
         self.chunk_rows = 0;
         self.chunk_started = Instant::now();
@@ -421,13 +500,13 @@ impl IndexWriter {
     /// codebook's and pipeline's copies, then the manifest.
     fn publish_and_commit(
         &mut self,
-        staged: Vec<(&'static str, String, StagedFile, u64)>,
+        staged: Vec<Staged>,
         manifest: &Manifest,
         published: &mut Vec<PathBuf>,
     ) -> Result<()> {
         let mut folders: HashSet<PathBuf> = HashSet::new();
-        for (_, _, file, _) in staged {
-            let path = file.publish_unsynced()?;
+        for s in staged {
+            let path = s.file.publish_unsynced()?;
             folders.insert(path.parent().expect("in a partition").to_owned());
             published.push(path);
         }
@@ -504,26 +583,28 @@ fn remove_uncommitted(root: &Path, manifest: &Manifest) -> Result<()> {
             let _ = std::fs::remove_file(e.path());
         }
     }
-    for table in tables::ALL {
-        let dir = root.join(table);
-        let Ok(partitions) = std::fs::read_dir(&dir) else { continue };
-        for p in partitions.flatten() {
-            let Ok(files) = std::fs::read_dir(p.path()) else { continue };
-            for f in files.flatten() {
-                let rel = format!(
-                    "{table}/{}/{}",
-                    p.file_name().to_string_lossy(),
-                    f.file_name().to_string_lossy()
-                );
-                if !named.contains(rel.as_str()) {
-                    tracing::info!("{}: removing a file no commit names", f.path().display());
-                    let _ = std::fs::remove_file(f.path());
-                }
-            }
-            let _ = std::fs::remove_dir(p.path()); // only when empty
+    for (path, rel) in super::files_on_disk(root) {
+        if !named.contains(rel.as_str()) {
+            tracing::info!("{}: removing a file no commit names", path.display());
+            let _ = std::fs::remove_file(&path);
         }
     }
+    // Partition folders left empty (a folder is removed only when empty).
+    for table in tables::ALL {
+        remove_empty_dirs(&root.join(table));
+    }
     Ok(())
+}
+
+/// Removes the empty folders under `dir` (not `dir` itself), deepest first.
+fn remove_empty_dirs(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for e in entries.flatten() {
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
+            remove_empty_dirs(&e.path());
+            let _ = std::fs::remove_dir(e.path());
+        }
+    }
 }
 
 /// Every committed scan, by id, from the manifest's `scans` and `descriptors` files.
@@ -546,7 +627,7 @@ fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, C
             );
         }
     }
-    for f in manifest.files_of(tables::DESCRIPTORS) {
+    for f in manifest.descriptor_files_of(TOPOREC) {
         for id in scan_ids(&root.join(&f.path))? {
             if let Some(c) = out.get_mut(&id) {
                 c.has_descriptor = true;

@@ -1,0 +1,132 @@
+//! Baselines benchmark: ScanContext and M2DP per scan (design goal: under 2 ms each for a
+//! 4096-point scan), and a ScanContext search over 100,000 entries (design goal: under 5 ms per
+//! query: ring-key candidates, then the re-rank), one thread.
+//!
+//! Scans: the real KITTI scans of `../shared/data` when present (subsampled to 4096 points, and
+//! whole), else simulated ones from `samples/`. The 100,000 database entries are ScanContexts of
+//! those scans, each turned by a random yaw and shifted by up to 10 m, so ring keys and columns
+//! look like real ones.
+//!
+//! Run: `cargo bench --bench baselines`.
+
+use std::path::Path;
+use std::time::Instant;
+use toporec::baselines::m2dp;
+use toporec::baselines::scancontext::{self, ScanContextParams, Searcher};
+use toporec::homology::Point;
+use toporec::rng::SplitMix64;
+
+fn scans() -> (String, Vec<Vec<Point>>) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let kitti = root.join("../shared/data/kitti/sequences/00/velodyne");
+    let (name, dir) = if kitti.is_dir() {
+        ("KITTI 00", kitti)
+    } else {
+        ("simulated (samples/town)", root.join("samples/town/velodyne_data/2026-01-01/velodyne_sync"))
+    };
+    let mut files: Vec<_> =
+        std::fs::read_dir(&dir).expect("scan folder").flatten().map(|e| e.path()).collect();
+    files.sort();
+    let clouds =
+        files.iter().take(8).map(|f| toporec::sources::read_cloud(f, None).expect("a scan")).collect();
+    (name.to_string(), clouds)
+}
+
+fn subsample(points: &[Point], n: usize, seed: u64) -> Vec<Point> {
+    let mut rng = SplitMix64(seed);
+    let mut p = points.to_vec();
+    for i in 0..n.min(p.len()) {
+        let j = i + rng.below(p.len() - i);
+        p.swap(i, j);
+    }
+    p.truncate(n);
+    p
+}
+
+/// Median milliseconds of `reps` runs.
+fn median_ms(reps: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+fn main() {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    pool.install(|| {
+        let (name, clouds) = scans();
+        let p = ScanContextParams::default();
+        let small: Vec<Vec<Point>> = clouds.iter().enumerate().map(|(i, c)| subsample(c, 4096, i as u64)).collect();
+        println!("scans: {name}, {} of them; medians over 20 runs per scan, one thread", clouds.len());
+        let per = |clouds: &[Vec<Point>], f: &dyn Fn(&[Point])| -> f64 {
+            let ms: Vec<f64> = clouds.iter().map(|c| median_ms(20, || f(c))).collect();
+            ms.iter().sum::<f64>() / ms.len() as f64
+        };
+        let voxel = |c: &[Point]| toporec::preprocess::voxel_grid(c, p.voxel);
+        let mean_points = clouds.iter().map(|c| c.len()).sum::<usize>() / clouds.len();
+        println!("| step | 4096 points | whole scan (mean {mean_points} points) |");
+        println!("|---|---:|---:|");
+        type Describe<'a> = &'a dyn Fn(&[Point]);
+        let rows: [(&str, Describe); 4] = [
+            ("ScanContext descriptor", &|c| {
+                std::hint::black_box(scancontext::describe(c, &p));
+            }),
+            ("ScanContext with its 0.5 m voxel grid", &|c| {
+                std::hint::black_box(scancontext::describe(&voxel(c), &p));
+            }),
+            ("M2DP descriptor", &|c| {
+                std::hint::black_box(m2dp::describe(c));
+            }),
+            ("M2DP with a 0.5 m voxel grid", &|c| {
+                std::hint::black_box(m2dp::describe(&voxel(c)));
+            }),
+        ];
+        for (label, f) in rows {
+            println!("| {label} | {:.3} ms | {:.3} ms |", per(&small, f), per(&clouds, f));
+        }
+
+        // Search: 100,000 turned and shifted ScanContexts.
+        let n = 100_000;
+        let base: Vec<Vec<Point>> = clouds.iter().map(|c| voxel(c)).collect();
+        let t = Instant::now();
+        let mut rng = SplitMix64(7);
+        let mut db = Vec::with_capacity(n * p.len());
+        for i in 0..n {
+            let c = &base[i % base.len()];
+            let (s, co) = (rng.next_f64() * std::f64::consts::TAU).sin_cos();
+            let (dx, dy) = (rng.next_f64() * 20.0 - 10.0, rng.next_f64() * 20.0 - 10.0);
+            let moved: Vec<Point> = c.iter().map(|q| [co * q[0] - s * q[1] + dx, s * q[0] + co * q[1] + dy, q[2]]).collect();
+            db.extend(scancontext::describe(&moved, &p));
+        }
+        let made = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let searcher = Searcher::new(db, p.clone());
+        let build = t.elapsed().as_secs_f64();
+        let queries: Vec<Vec<f32>> = base.iter().map(|c| scancontext::describe(c, &p)).collect();
+        let (mut cand, mut rerank, mut total) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..10 {
+            for q in &queries {
+                let s = Instant::now();
+                let (hits, times) = searcher.search(q, 25);
+                total.push(s.elapsed().as_secs_f64() * 1e3);
+                cand.push(times.candidates * 1e3);
+                rerank.push(times.rerank * 1e3);
+                assert_eq!(hits.len(), 25);
+            }
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        println!(
+            "ScanContext search, {n} entries (made in {made:.1} s, ring-key structure built in {build:.2} s), k = 25 ({} candidates): {:.3} ms per query (ring-key candidates {:.3} ms, re-rank {:.3} ms), mean of {} queries",
+            p.candidates.max(25),
+            mean(&total),
+            mean(&cand),
+            mean(&rerank),
+            total.len()
+        );
+    });
+}

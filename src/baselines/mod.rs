@@ -1,0 +1,203 @@
+//! The descriptors place recognition is usually compared against, beside the TopoRec one:
+//! [`scancontext`] (Kim & Kim 2018) and [`m2dp`] (He et al. 2016), each computed from the raw
+//! scan in the sensor frame with its own preprocessing; and descriptors made elsewhere
+//! (PointNetVLAD, PCAN, MinkLoc3D, …), imported into an index with `toporec import`.
+//!
+//! A [`Method`] names one of them with its parameters; an index stores each method's
+//! descriptors apart (`descriptors/method=<name>/session=<s>/`), and `query` and `eval` take
+//! `--method`.
+
+pub mod m2dp;
+pub mod scancontext;
+
+use crate::preprocess::voxel_grid;
+use crate::sinks::index::manifest::MethodEntry;
+use crate::types::Point;
+use scancontext::ScanContextParams;
+use std::collections::BTreeMap;
+
+/// The name of the TopoRec paper's descriptor (alpha persistence + ATOL).
+pub const TOPOREC: &str = "toporec";
+/// The name of ScanContext.
+pub const SCANCONTEXT: &str = "scancontext";
+/// The name of M2DP.
+pub const M2DP: &str = "m2dp";
+
+/// M2DP settings (`[m2dp]` of a pipeline file).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct M2dpParams {
+    /// Voxel-grid cell of the preprocessing (m); none when 0 (the reference uses the raw cloud).
+    pub voxel: f64,
+}
+
+impl Default for M2dpParams {
+    fn default() -> Self {
+        M2dpParams { voxel: 0.0 }
+    }
+}
+
+impl M2dpParams {
+    /// The settings' problems, each with its key.
+    pub fn problems(&self) -> Vec<String> {
+        if self.voxel.is_finite() && self.voxel >= 0.0 {
+            Vec::new()
+        } else {
+            vec![format!("m2dp.voxel: must be in [0, inf) m; found {}", self.voxel)]
+        }
+    }
+}
+
+/// What a method computes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MethodKind {
+    /// The TopoRec paper's descriptor: the pipeline's preprocess, persistence and codebook.
+    Toporec,
+    /// ScanContext.
+    ScanContext(ScanContextParams),
+    /// M2DP.
+    M2dp(M2dpParams),
+    /// Vectors made elsewhere, imported (`toporec import`): stored, never computed.
+    Imported {
+        /// Their length.
+        length: usize,
+        /// Where they came from (the file imported).
+        source: String,
+    },
+}
+
+/// A descriptor method of an index.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Method {
+    /// Its name (`toporec`, `scancontext`, `m2dp`, or an imported one's).
+    pub name: String,
+    /// What it computes.
+    pub kind: MethodKind,
+}
+
+/// The kind name of imported methods in the manifest.
+pub const IMPORTED: &str = "imported";
+
+impl Method {
+    /// ScanContext with these parameters.
+    pub fn scancontext(p: ScanContextParams) -> Self {
+        Method { name: SCANCONTEXT.into(), kind: MethodKind::ScanContext(p) }
+    }
+
+    /// M2DP with these parameters.
+    pub fn m2dp(p: M2dpParams) -> Self {
+        Method { name: M2DP.into(), kind: MethodKind::M2dp(p) }
+    }
+
+    /// The kind's name (`scancontext`, `m2dp`, `imported`, `toporec`).
+    pub fn kind_name(&self) -> &'static str {
+        match self.kind {
+            MethodKind::Toporec => TOPOREC,
+            MethodKind::ScanContext(_) => SCANCONTEXT,
+            MethodKind::M2dp(_) => M2DP,
+            MethodKind::Imported { .. } => IMPORTED,
+        }
+    }
+
+    /// The method's parameters as JSON (recorded in the manifest).
+    pub fn params(&self) -> serde_json::Value {
+        match &self.kind {
+            MethodKind::Toporec => serde_json::json!({}),
+            MethodKind::ScanContext(p) => serde_json::to_value(p).expect("plain data"),
+            MethodKind::M2dp(p) => serde_json::to_value(p).expect("plain data"),
+            MethodKind::Imported { source, .. } => serde_json::json!({ "source": source }),
+        }
+    }
+
+    /// Descriptor length (0 for TopoRec, whose length is its codebook's).
+    pub fn len(&self) -> usize {
+        match &self.kind {
+            MethodKind::Toporec => 0,
+            MethodKind::ScanContext(p) => p.len(),
+            MethodKind::M2dp(_) => m2dp::LEN,
+            MethodKind::Imported { length, .. } => *length,
+        }
+    }
+
+    /// Whether the descriptor is empty (TopoRec, whose length is its codebook's).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The id every descriptor row of the method carries: 16 hex digits of the kind and
+    /// parameters.
+    pub fn id(&self) -> String {
+        let text = format!("{}:{}", self.kind_name(), self.params());
+        crate::fingerprint::hex(crate::fingerprint::of_bytes(text.as_bytes()))
+    }
+
+    /// Its manifest entry.
+    pub fn entry(&self) -> MethodEntry {
+        MethodEntry {
+            kind: self.kind_name().into(),
+            params: self.params(),
+            length: self.len(),
+            id: self.id(),
+        }
+    }
+
+    /// The method a manifest entry records; `None` for an entry this toporec does not know.
+    pub fn from_entry(name: &str, e: &MethodEntry) -> Option<Method> {
+        let kind = match e.kind.as_str() {
+            SCANCONTEXT => MethodKind::ScanContext(serde_json::from_value(e.params.clone()).ok()?),
+            M2DP => MethodKind::M2dp(serde_json::from_value(e.params.clone()).ok()?),
+            IMPORTED => MethodKind::Imported {
+                length: e.length,
+                source: e.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),
+            },
+            _ => return None,
+        };
+        Some(Method { name: name.to_string(), kind })
+    }
+
+    /// Whether the method is computed from raw scans (ScanContext, M2DP).
+    pub fn is_computed(&self) -> bool {
+        matches!(self.kind, MethodKind::ScanContext(_) | MethodKind::M2dp(_))
+    }
+
+    /// The descriptor of a raw scan (sensor frame, metres) for ScanContext and M2DP, after the
+    /// method's own preprocessing (its voxel grid); `None` for the others.
+    pub fn describe_raw(&self, points: &[Point]) -> Option<Vec<f32>> {
+        let grid = |voxel: f64| if voxel > 0.0 { voxel_grid(points, voxel) } else { points.to_vec() };
+        match &self.kind {
+            MethodKind::ScanContext(p) => Some(scancontext::describe(&grid(p.voxel), p)),
+            MethodKind::M2dp(p) => Some(m2dp::describe(&grid(p.voxel))),
+            _ => None,
+        }
+    }
+}
+
+/// The descriptor methods a pipeline computes: the TopoRec one (persistence + ATOL) or not,
+/// and the ones computed from raw scans.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Methods {
+    /// Whether the TopoRec descriptor (and so the persistence stage) is wanted.
+    pub toporec: bool,
+    /// ScanContext and M2DP, as asked for.
+    pub computed: Vec<Method>,
+}
+
+impl Default for Methods {
+    fn default() -> Self {
+        Methods { toporec: true, computed: Vec::new() }
+    }
+}
+
+impl Methods {
+    /// The method names, in the order asked for (`toporec` first when wanted).
+    pub fn names(&self) -> Vec<String> {
+        let mut out: Vec<String> = if self.toporec { vec![TOPOREC.into()] } else { Vec::new() };
+        out.extend(self.computed.iter().map(|m| m.name.clone()));
+        out
+    }
+
+    /// The manifest entries of the computed methods.
+    pub fn entries(&self) -> BTreeMap<String, MethodEntry> {
+        self.computed.iter().map(|m| (m.name.clone(), m.entry())).collect()
+    }
+}

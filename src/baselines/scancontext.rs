@@ -1,0 +1,275 @@
+//! ScanContext (Kim & Kim, IROS 2018), as the authors' C++ implementation computes it
+//! (`irapkaist/scancontext`, `Scancontext.cpp`; the same in `gisbi-kim/SC-A-LOAM`).
+//!
+//! * The descriptor: `rings × sectors` bins (20 × 60) over a disc of `max_radius` (80 m) around
+//!   the sensor; a point at range r = √(x² + y²) and azimuth θ ∈ [0°, 360°) falls in ring
+//!   ⌈r / max_radius · rings⌉ and sector ⌈θ / 360° · sectors⌉ (both clamped to 1..); points
+//!   beyond `max_radius` are left out. A bin holds the largest `z + lidar_height` (2 m) of its
+//!   points, 0 when it has none. Stored row by row (ring-major), as float32.
+//! * The ring key (one mean per ring) finds candidates in a k-d tree; the sector key (one mean
+//!   per sector) aligns a pair coarsely; the distance is `1 −` the mean cosine similarity of the
+//!   columns both scans fill, minimised over the shifts within `search_ratio · sectors / 2` of
+//!   the coarse one. The best shift gives the yaw between the scans: `shift · 360° / sectors`.
+//!
+//! Where the references differ: the MATLAB and Python versions bin points beyond the range into
+//! the last ring, keep bins of fewer than 5 points empty (MATLAB), take the raw height (MATLAB)
+//! or clip negative heights to 0 (Python), and try all 60 shifts. toporec follows the C++ code,
+//! which SC-A-LOAM and most systems deploy. The input is expected pre-downsampled (the paper: a
+//! 0.5 m voxel grid), which the method's preprocessing does.
+
+use crate::types::Point;
+
+/// ScanContext settings (`[scancontext]` of a pipeline file).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScanContextParams {
+    /// Rings (radial bins).
+    pub rings: usize,
+    /// Sectors (azimuthal bins).
+    pub sectors: usize,
+    /// Radius of the described disc (m).
+    pub max_radius: f64,
+    /// Added to every z (m): the sensor's height above the ground.
+    pub lidar_height: f64,
+    /// Candidates taken from the ring-key tree before the re-rank (at least the k asked for).
+    pub candidates: usize,
+    /// Shifts tried around the coarse alignment: `round(search_ratio · sectors / 2)` each side.
+    pub search_ratio: f64,
+    /// Voxel-grid cell of the preprocessing (m); none when 0.
+    pub voxel: f64,
+}
+
+impl Default for ScanContextParams {
+    fn default() -> Self {
+        ScanContextParams {
+            rings: 20,
+            sectors: 60,
+            max_radius: 80.0,
+            lidar_height: 2.0,
+            candidates: 10,
+            search_ratio: 0.1,
+            voxel: 0.5,
+        }
+    }
+}
+
+impl ScanContextParams {
+    /// The settings' problems, each with its key.
+    pub fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if !(1..=1000).contains(&self.rings) || !(1..=3600).contains(&self.sectors) {
+            out.push(format!(
+                "scancontext: need rings in [1, 1000] and sectors in [1, 3600] (rings {}, sectors {})",
+                self.rings, self.sectors
+            ));
+        }
+        if !(self.max_radius.is_finite() && self.max_radius > 0.0) {
+            out.push(format!("scancontext.max_radius: must be in (0, inf) m; found {}", self.max_radius));
+        }
+        if !self.lidar_height.is_finite() {
+            out.push(format!("scancontext.lidar_height: must be finite; found {}", self.lidar_height));
+        }
+        if self.candidates == 0 {
+            out.push("scancontext.candidates: must be in [1, inf)".into());
+        }
+        if !(0.0..=1.0).contains(&self.search_ratio) {
+            out.push(format!("scancontext.search_ratio: must be in [0, 1]; found {}", self.search_ratio));
+        }
+        if !(self.voxel.is_finite() && self.voxel >= 0.0) {
+            out.push(format!("scancontext.voxel: must be in [0, inf) m; found {}", self.voxel));
+        }
+        out
+    }
+
+    /// Descriptor length: rings × sectors.
+    pub fn len(&self) -> usize {
+        self.rings * self.sectors
+    }
+
+    /// Whether the descriptor is empty (never, for valid settings).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The bin value of an empty bin while filling (the C++ `NO_POINT`).
+const NO_POINT: f64 = -1000.0;
+
+/// The azimuth of (x, y) in degrees, [0, 360), as the C++ `xy2theta` (quadrant-wise atan).
+fn azimuth_degrees(x: f64, y: f64) -> f64 {
+    let deg = |r: f64| r.to_degrees();
+    if x >= 0.0 && y >= 0.0 {
+        deg((y / x).atan())
+    } else if x < 0.0 && y >= 0.0 {
+        180.0 - deg((y / -x).atan())
+    } else if x < 0.0 && y < 0.0 {
+        180.0 + deg((y / x).atan())
+    } else {
+        360.0 - deg((-y / x).atan())
+    }
+}
+
+/// The ScanContext of a cloud in the sensor frame (metres, z up): `rings × sectors` values,
+/// row by row.
+pub fn describe(points: &[Point], p: &ScanContextParams) -> Vec<f32> {
+    let (rings, sectors) = (p.rings, p.sectors);
+    let mut bins = vec![NO_POINT; rings * sectors];
+    for q in points {
+        let (x, y, z) = (q[0], q[1], q[2] + p.lidar_height);
+        let r = (x * x + y * y).sqrt();
+        if r > p.max_radius {
+            continue;
+        }
+        // At the origin the C++ atan is 0/0; such a point is in the first sector.
+        let theta = if r == 0.0 { 0.0 } else { azimuth_degrees(x, y) };
+        let ring = ((r / p.max_radius * rings as f64).ceil() as usize).clamp(1, rings);
+        let sector = ((theta / 360.0 * sectors as f64).ceil() as usize).clamp(1, sectors);
+        let b = &mut bins[(ring - 1) * sectors + sector - 1];
+        if z > *b {
+            *b = z;
+        }
+    }
+    bins.into_iter().map(|v| if v == NO_POINT { 0.0 } else { v as f32 }).collect()
+}
+
+/// The ring key: the mean of each ring (row).
+pub fn ring_key(sc: &[f32], p: &ScanContextParams) -> Vec<f32> {
+    sc.chunks_exact(p.sectors)
+        .map(|row| (row.iter().map(|&v| v as f64).sum::<f64>() / p.sectors as f64) as f32)
+        .collect()
+}
+
+/// The sector key: the mean of each sector (column).
+pub fn sector_key(sc: &[f32], p: &ScanContextParams) -> Vec<f64> {
+    (0..p.sectors)
+        .map(|c| (0..p.rings).map(|r| sc[r * p.sectors + c] as f64).sum::<f64>() / p.rings as f64)
+        .collect()
+}
+
+/// `1 −` the mean cosine similarity of the columns both descriptors fill, with `b`'s column
+/// `c` compared to `a`'s column `(c + shift) mod sectors` (`b` shifted by `shift`); `None` when
+/// no column is filled in both.
+fn direct_distance(a: &[f32], b: &[f32], shift: usize, p: &ScanContextParams) -> Option<f64> {
+    let (rings, sectors) = (p.rings, p.sectors);
+    let (mut sum, mut count) = (0.0, 0usize);
+    for c in 0..sectors {
+        let ca = (c + shift) % sectors;
+        let (mut dot, mut na, mut nb) = (0.0f64, 0.0f64, 0.0f64);
+        for r in 0..rings {
+            let (x, y) = (a[r * sectors + ca] as f64, b[r * sectors + c] as f64);
+            dot += x * y;
+            na += x * x;
+            nb += y * y;
+        }
+        if na == 0.0 || nb == 0.0 {
+            continue;
+        }
+        sum += dot / (na.sqrt() * nb.sqrt());
+        count += 1;
+    }
+    (count > 0).then(|| 1.0 - sum / count as f64)
+}
+
+/// The ScanContext distance of `query` to `candidate` and the shift that attains it: the
+/// candidate's column `c` lines up with the query's column `(c + shift) mod sectors`, so the
+/// query is the candidate turned by `shift · 360° / sectors` (counter-clockwise, seen from
+/// above). Columns empty in either descriptor are left out; when none is left, the distance is
+/// 1 (nothing alike).
+pub fn distance(query: &[f32], candidate: &[f32], p: &ScanContextParams) -> (f64, usize) {
+    let sectors = p.sectors;
+    let (kq, kc) = (sector_key(query, p), sector_key(candidate, p));
+    // Coarse: the shift of the candidate's sector key closest to the query's.
+    let mut coarse = (f64::INFINITY, 0usize);
+    for s in 0..sectors {
+        let d: f64 = (0..sectors).map(|c| (kq[(c + s) % sectors] - kc[c]).powi(2)).sum::<f64>();
+        if d < coarse.0 {
+            coarse = (d, s);
+        }
+    }
+    let radius = (0.5 * p.search_ratio * sectors as f64).round() as usize;
+    let mut shifts: Vec<usize> =
+        (0..=2 * radius).map(|i| (coarse.1 + sectors + i % sectors - radius % sectors) % sectors).collect();
+    shifts.sort_unstable();
+    shifts.dedup();
+    let mut best = (f64::INFINITY, coarse.1);
+    for s in shifts {
+        let d = direct_distance(query, candidate, s, p).unwrap_or(1.0);
+        if d < best.0 {
+            best = (d, s);
+        }
+    }
+    best
+}
+
+/// The yaw (degrees, in [0, 360)) that a shift stands for.
+pub fn yaw_degrees(shift: usize, p: &ScanContextParams) -> f64 {
+    shift as f64 * 360.0 / p.sectors as f64
+}
+
+/// A hit of a ScanContext search: database row, ScanContext distance, and the column shift
+/// that attains it (the yaw is [`yaw_degrees`] of it).
+pub type ScHit = (usize, f64, usize);
+
+/// ScanContexts searched as the reference does: the ring keys' nearest neighbours (exact,
+/// Euclidean) are the candidates, re-ranked by the ScanContext distance. For Recall@N the
+/// candidates are at least N: `max(candidates, k)`.
+pub struct Searcher {
+    params: ScanContextParams,
+    descriptors: Vec<f32>,
+    keys: crate::search::Database,
+}
+
+/// Seconds a search spent in each step.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SearchTimes {
+    /// Ring-key nearest neighbours.
+    pub candidates: f64,
+    /// ScanContext distances of the candidates.
+    pub rerank: f64,
+}
+
+impl Searcher {
+    /// A searcher over `descriptors` (`n × rings·sectors`, row-major).
+    pub fn new(descriptors: Vec<f32>, params: ScanContextParams) -> Self {
+        let keys: Vec<f32> =
+            descriptors.chunks_exact(params.len()).flat_map(|d| ring_key(d, &params)).collect();
+        let keys = crate::search::Database::new(keys, params.rings);
+        Searcher { params, descriptors, keys }
+    }
+
+    /// Rows.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ScanContextParams {
+        &self.params
+    }
+
+    /// The `k` best rows for `query`, by (distance, row), with the time of each step.
+    pub fn search(&self, query: &[f32], k: usize) -> (Vec<ScHit>, SearchTimes) {
+        let p = &self.params;
+        let t = std::time::Instant::now();
+        let wanted = p.candidates.max(k).min(self.len());
+        let candidates = self.keys.search(&ring_key(query, p), wanted);
+        let candidates_secs = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let len = p.len();
+        let mut hits: Vec<ScHit> = candidates
+            .into_iter()
+            .map(|(row, _)| {
+                let (d, shift) = distance(query, &self.descriptors[row * len..(row + 1) * len], p);
+                (row, d, shift)
+            })
+            .collect();
+        hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        hits.truncate(k);
+        (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
+    }
+}

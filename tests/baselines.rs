@@ -1,0 +1,308 @@
+//! ScanContext and M2DP: hand-made clouds with known answers, and a cross-check against the
+//! numpy transcription of the reference code (`scripts/baselines_reference.py`) on the real
+//! scans of `../shared/data`.
+
+use crate::util::{self, python_with, root, shared_data};
+use toporec::baselines::m2dp;
+use toporec::baselines::scancontext::{self, ScanContextParams};
+use toporec::homology::Point;
+
+fn turned(points: &[Point], degrees: f64) -> Vec<Point> {
+    let (s, c) = degrees.to_radians().sin_cos();
+    points.iter().map(|p| [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]]).collect()
+}
+
+/// A cloud with one point at the centre of every third bin, heights varying by bin.
+fn bin_centre_cloud(p: &ScanContextParams) -> Vec<Point> {
+    let mut out = Vec::new();
+    for ring in 0..p.rings {
+        for sector in (0..p.sectors).filter(|s| (s * 7 + ring) % 3 != 0) {
+            let r = (ring as f64 + 0.5) * p.max_radius / p.rings as f64;
+            let theta = ((sector as f64 + 0.5) * 360.0 / p.sectors as f64).to_radians();
+            let z = ((ring * 31 + sector * 17) % 23) as f64 * 0.25 - 1.5;
+            out.push([r * theta.cos(), r * theta.sin(), z]);
+        }
+    }
+    out
+}
+
+#[test]
+fn scancontext_puts_a_point_in_its_bin_with_the_height_offset() {
+    let p = ScanContextParams::default();
+    // r = 14.14 m -> ring ceil(14.14 / 80 * 20) = 4; azimuth 45 deg -> sector ceil(45 / 6) = 8.
+    let sc = scancontext::describe(&[[10.0, 10.0, 1.0], [10.0, 10.0, 0.5]], &p);
+    assert_eq!(sc.len(), 1200);
+    let at = 3 * 60 + 7;
+    assert_eq!(sc[at], 3.0, "max z + lidar height 2 m");
+    assert_eq!(sc.iter().filter(|&&v| v != 0.0).count(), 1, "every other bin empty");
+    // Azimuth 200 deg (third quadrant), r = 50 m -> ring 13, sector ceil(200 / 6) = 34.
+    let (s, c) = 200f64.to_radians().sin_cos();
+    let sc = scancontext::describe(&[[50.0 * c, 50.0 * s, -0.5]], &p);
+    assert_eq!(sc[12 * 60 + 33], 1.5);
+    // Beyond 80 m: left out (the C++ reference; MATLAB would use the last ring).
+    let sc = scancontext::describe(&[[81.0, 0.0, 1.0]], &p);
+    assert!(sc.iter().all(|&v| v == 0.0));
+    // The keys: ring means and sector means.
+    let sc = scancontext::describe(&[[10.0, 10.0, 1.0]], &p);
+    let rk = scancontext::ring_key(&sc, &p);
+    assert!((rk[3] - 3.0 / 60.0).abs() < 1e-7);
+    let sk = scancontext::sector_key(&sc, &p);
+    assert!((sk[7] - 3.0 / 20.0).abs() < 1e-12);
+}
+
+#[test]
+fn scancontext_of_a_turned_scan_matches_at_the_turning_shift() {
+    let p = ScanContextParams::default();
+    let cloud = bin_centre_cloud(&p);
+    let original = scancontext::describe(&cloud, &p);
+    for (degrees, shift) in [(42.0, 7usize), (6.0, 1), (180.0, 30), (354.0, 59), (0.0, 0)] {
+        let query = scancontext::describe(&turned(&cloud, degrees), &p);
+        let (d, s) = scancontext::distance(&query, &original, &p);
+        assert_eq!(s, shift, "turned by {degrees} deg");
+        assert!(d.abs() < 1e-9, "turned by {degrees} deg: distance {d}");
+        assert!((scancontext::yaw_degrees(s, &p) - degrees).abs() < 1e-9);
+    }
+    // Another place: a clearly larger distance.
+    let other: Vec<Point> = cloud.iter().map(|q| [q[0], q[1], -q[2] * 0.5 + 3.0]).collect();
+    let (d, _) = scancontext::distance(&scancontext::describe(&other, &p), &original, &p);
+    assert!(d > 0.01, "distance to another place {d}");
+}
+
+/// A cloud with clearly different spreads along three skewed axes.
+fn anisotropic_cloud() -> Vec<Point> {
+    let mut rng = toporec::rng::SplitMix64(7);
+    (0..3000)
+        .map(|_| {
+            let (a, b, c) = (rng.next_f64() - 0.5, rng.next_f64() - 0.5, rng.next_f64() - 0.5);
+            [40.0 * a + 3.0 * b, 15.0 * b - 2.0 * c, 4.0 * c + 0.5 * a]
+        })
+        .collect()
+}
+
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+#[test]
+fn m2dp_is_invariant_to_rotations_the_sign_convention_keeps() {
+    let cloud = anisotropic_cloud();
+    let d0 = m2dp::describe(&cloud);
+    assert_eq!(d0.len(), 192);
+    let norm = |v: &[f32]| v.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt();
+    assert!((norm(&d0[..64]) - 1.0).abs() < 1e-6 && (norm(&d0[64..]) - 1.0).abs() < 1e-6);
+    assert!(d0[..64].iter().sum::<f32>() >= 0.0, "left singular vector signed to a non-negative sum");
+    // Small rotations about z (here up to 35 deg) keep each principal axis' largest component positive,
+    // so the aligned cloud, and the descriptor, are unchanged; so are a shift and the order.
+    for degrees in [10.0, -30.0, 35.0] {
+        let d = m2dp::describe(&turned(&cloud, degrees));
+        assert!(max_abs_diff(&d, &d0) < 1e-5, "turned {degrees} deg: {}", max_abs_diff(&d, &d0));
+    }
+    let shifted: Vec<Point> = cloud.iter().rev().map(|p| [p[0] + 100.0, p[1] - 7.0, p[2] + 2.0]).collect();
+    assert!(max_abs_diff(&m2dp::describe(&shifted), &d0) < 1e-5);
+    // A turn of 180 deg makes the convention pick the other sign of the first two axes: the
+    // aligned cloud is the original's turned 180 deg about its third axis, which M2DP (as the
+    // reference) does not see as the same cloud.
+    let d = m2dp::describe(&turned(&cloud, 180.0));
+    assert!(max_abs_diff(&d, &d0) > 1e-3, "turned 180 deg: {}", max_abs_diff(&d, &d0));
+    // Degenerate clouds: zeros, not a panic.
+    assert!(m2dp::describe(&[[1.0, 2.0, 3.0]]).iter().all(|&v| v == 0.0));
+    assert!(m2dp::describe(&[[1.0, 2.0, 3.0]; 10]).iter().all(|&v| v == 0.0));
+    // Another place: another descriptor.
+    let other: Vec<Point> = cloud.iter().map(|p| [p[0], p[1] * 0.2, p[2] + p[0] * 0.3]).collect();
+    assert!(max_abs_diff(&m2dp::describe(&other), &d0) > 1e-2);
+}
+
+/// ScanContext and M2DP equal the numpy transcription of the reference code within 1e-6 on
+/// real KITTI and NCLT scans (the clouds as toporec reads them, handed over as exact CSV).
+#[test]
+fn baselines_match_the_reference_transcription_on_real_scans() {
+    let Some(data) = shared_data("baselines_match_the_reference_transcription_on_real_scans") else { return };
+    if !python_with("baselines_match_the_reference_transcription_on_real_scans", &["numpy"]) {
+        return;
+    }
+    let scans = [
+        data.join("kitti/sequences/00/velodyne/000000.bin"),
+        data.join("kitti/sequences/08/velodyne/000006.bin"),
+        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
+    ];
+    let dir = util::scratch_dir("baselines_reference");
+    let mut csvs = Vec::new();
+    let mut clouds = Vec::new();
+    for (i, scan) in scans.iter().enumerate() {
+        let cloud = util::read_cloud(scan);
+        let path = dir.join(format!("cloud{i}.csv"));
+        let mut text = String::from("x,y,z\n");
+        for p in &cloud {
+            text.push_str(&format!("{:?},{:?},{:?}\n", p[0], p[1], p[2]));
+        }
+        std::fs::write(&path, text).unwrap();
+        csvs.push(path);
+        clouds.push(cloud);
+    }
+    let out = std::process::Command::new("python3")
+        .arg(root().join("scripts/baselines_reference.py"))
+        .args(&csvs)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let p = ScanContextParams::default();
+    let mut checked = 0;
+    for line in text.lines() {
+        let fields: Vec<&str> = line.split(',').collect();
+        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
+        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
+        let ours: Vec<f64> = match fields[1] {
+            "scancontext" => scancontext::describe(&clouds[i], &p).iter().map(|&v| v as f64).collect(),
+            "m2dp" => m2dp::describe(&clouds[i]).iter().map(|&v| v as f64).collect(),
+            "scdist" => {
+                let q = scancontext::describe(&turned(&clouds[i], 42.0), &p);
+                let (d, s) = scancontext::distance(&q, &scancontext::describe(&clouds[i], &p), &p);
+                assert!((6..=8).contains(&s), "{}: a 42 deg turn found at shift {s}", scans[i].display());
+                vec![d, s as f64]
+            }
+            other => panic!("unknown line kind {other}"),
+        };
+        assert_eq!(ours.len(), values.len(), "{} {}", scans[i].display(), fields[1]);
+        let worst = ours.iter().zip(&values).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        assert!(worst <= 1e-6, "{} {}: max difference {worst:e}", scans[i].display(), fields[1]);
+        println!("{} {}: {} values, max difference {worst:e}", scans[i].display(), fields[1], ours.len());
+        checked += 1;
+    }
+    assert_eq!(checked, 3 * scans.len());
+}
+
+/// The committed sample indexed with every method (pipelines/compare.toml asks for TopoRec,
+/// ScanContext and M2DP): the index layout, `verify`, `query --method` (with ScanContext's yaw),
+/// `eval places` side by side, and a methods change refused.
+#[test]
+fn one_run_indexes_every_method_and_query_and_eval_take_each() {
+    use crate::util::{run_pipeline, scratch_dir, text, toporec};
+    let dir = scratch_dir("multi_method");
+    let index = dir.join("index");
+    let o = run_pipeline(&root().join("pipelines/compare.toml"), &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let said = text(&o.stdout) + &text(&o.stderr);
+    assert!(said.contains("scancontext (length 1200), m2dp (length 192)"), "{said}");
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    let methods = manifest["methods"].as_object().unwrap();
+    assert_eq!(methods.keys().collect::<Vec<_>>(), ["m2dp", "scancontext"]);
+    assert_eq!(methods["scancontext"]["length"], 1200);
+    assert_eq!(methods["m2dp"]["length"], 192);
+    for m in ["toporec", "scancontext", "m2dp"] {
+        for s in ["2026-01-01", "2026-01-02"] {
+            assert!(index.join(format!("descriptors/method={m}/session={s}")).is_dir(), "{m} {s}");
+        }
+    }
+    let o = toporec(&["verify", "--index", index.to_str().unwrap()]);
+    assert!(o.status.success() && text(&o.stdout).contains("ok:"), "{}{}", text(&o.stdout), text(&o.stderr));
+    assert!(!text(&o.stderr).contains("note:"), "{}", text(&o.stderr));
+
+    // query: a scan turned by 42 deg is found by ScanContext, with its yaw.
+    let day2 = root().join("samples/town/velodyne_data/2026-01-02/velodyne_sync");
+    let mut files: Vec<_> = std::fs::read_dir(&day2).unwrap().flatten().map(|e| e.path()).collect();
+    files.sort();
+    let scan = &files[5];
+    let id = format!("2026-01-02/{}", scan.file_stem().unwrap().to_string_lossy());
+    let cloud = util::read_cloud(scan);
+    let csv = dir.join("turned.csv");
+    let mut body = String::from("x,y,z\n");
+    for p in turned(&cloud, 42.0) {
+        body.push_str(&format!("{:?},{:?},{:?}\n", p[0], p[1], p[2]));
+    }
+    std::fs::write(&csv, body).unwrap();
+    let q = |method: &str, input: &std::path::Path| {
+        toporec(&[
+            "query",
+            "--index",
+            index.to_str().unwrap(),
+            "--method",
+            method,
+            "-k",
+            "1",
+            input.to_str().unwrap(),
+        ])
+    };
+    let o = q("scancontext", &csv);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines[0], toporec::query::CSV_HEADER);
+    let row: Vec<&str> = lines[1].split(',').collect();
+    assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
+    // M2DP of the file itself: the very scan, at distance 0 (one scan, one descriptor).
+    let o = q("m2dp", scan);
+    let out = text(&o.stdout);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!((row[2], row[4], row[8]), (id.as_str(), "0.0", ""), "{out}");
+    let o = q("pointnetvlad", scan);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        text(&o.stderr)
+            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext)"),
+        "{}",
+        text(&o.stderr)
+    );
+
+    // eval places: every method, side by side, in one report and one Recall@N plot.
+    let eval = dir.join("eval");
+    let args = |out: &std::path::Path, extra: &[&str]| {
+        let mut a = vec!["eval", "places", "--db", index.to_str().unwrap(), "--db-session", "2026-01-01"];
+        a.extend(["--query-session", "2026-01-02", "-o", out.to_str().unwrap()]);
+        a.extend(extra.iter().copied());
+        toporec(
+            &a.iter()
+                .map(|s| s.to_string())
+                .collect::<Vec<_>>()
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>(),
+        )
+    };
+    let o = args(&eval, &[]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(eval.join("report.json")).unwrap()).unwrap();
+    let r1 = |m: usize| -> Vec<f64> {
+        report["methods"][m]["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| (r["with_match"]["at_n"][0].as_f64().unwrap() * 32.0 / 100.0).round())
+            .collect()
+    };
+    let names: Vec<&str> =
+        report["methods"].as_array().unwrap().iter().map(|m| m["method"].as_str().unwrap()).collect();
+    assert_eq!(names, ["toporec", "m2dp", "scancontext"]);
+    // Regression values (toporec's own output on the committed sample): R@1 at 5, 10, 20,
+    // 50 m, in 32nds of the queries.
+    assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
+    assert_eq!(r1(1), [24.0, 24.0, 26.0, 29.0], "M2DP");
+    assert_eq!(r1(2), [32.0, 32.0, 32.0, 32.0], "ScanContext");
+    for f in
+        ["recall_at_n.png", "trajectory_toporec.png", "trajectory_m2dp.png", "trajectory_scancontext.png"]
+    {
+        assert!(eval.join(f).is_file(), "{f}");
+    }
+    assert!(report["methods"][2]["timing_ms"]["rerank"]["mean"].as_f64().unwrap() > 0.0);
+    let one = dir.join("eval-m2dp");
+    let o = args(&one, &["--method", "m2dp"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(one.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["methods"].as_array().unwrap().len(), 1);
+    assert!(one.join("trajectory.png").is_file());
+
+    // Another set of methods on the same index: refused, with both sets named.
+    let toporec_only = dir.join("toporec-only.toml");
+    let text_of = std::fs::read_to_string(root().join("pipelines/compare.toml")).unwrap();
+    let base = root().join("pipelines").display().to_string();
+    let edited = text_of
+        .replace("methods = [\"toporec\", \"scancontext\", \"m2dp\"]", "methods = [\"toporec\", \"m2dp\"]")
+        .replace("\"../", &format!("\"{base}/../"));
+    std::fs::write(&toporec_only, edited).unwrap();
+    let o = run_pipeline(&toporec_only, &index, 2);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("holds the descriptor methods [toporec, m2dp"), "{}", text(&o.stderr));
+}
