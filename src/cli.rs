@@ -69,6 +69,9 @@ enum Command {
     /// Check an index against its manifest (files, sizes, checksums, rows, codebook, every ok
     /// scan's rows); exit 1 with the list of problems.
     Verify(IndexArgs),
+    /// Store descriptors made elsewhere (Parquet, .npy with scan ids, CSV) as one more method
+    /// of an index, matched to its scans by id.
+    Import(toporec::import::ImportArgs),
 }
 
 /// An index folder.
@@ -227,6 +230,19 @@ pub fn main() -> ExitCode {
         Command::Revectorize(args) => revectorize(args).map(|()| Done::All),
         Command::Compact(args) => compact(args).map(|()| Done::All),
         Command::Verify(args) => verify(args),
+        Command::Import(args) => toporec::import::import(&args)
+            .map_err(Into::into)
+            .and_then(|r| {
+                print(&format!(
+                    "{}: method {} stored: {} scans, length {}, id {}\n",
+                    args.index.display(),
+                    args.method,
+                    r.rows,
+                    r.length,
+                    r.id
+                ))
+            })
+            .map(|()| Done::All),
     };
     match result {
         Ok(Done::All) => ExitCode::SUCCESS,

@@ -27,7 +27,7 @@
 //!   file ([`pipeline::config`]) describes.
 //!
 //! Downstream of the index: [`search`] (exact k-NN), [`query`], [`eval`] (Recall@N,
-//! Recall@1 %), [`plot`]. Beside it: [`offline`] fits codebooks and vectorizes stored
+//! Recall@1 %), [`plot`]; [`import`] adds descriptors made elsewhere. Beside it: [`offline`] fits codebooks and vectorizes stored
 //! diagrams, [`simulate`] makes multi-session drives in the formats the sources read, and
 //! [`inspect`] describes files. At the bottom, shared by all: [`types`], [`error`],
 //! [`fsutil`] (atomic files), [`rng`]. The `toporec` binary is a thin command line over this
@@ -42,6 +42,7 @@ pub mod eval;
 pub mod fingerprint;
 pub mod fsutil;
 pub mod homology;
+pub mod import;
 pub mod inspect;
 pub mod maintenance;
 pub mod offline;

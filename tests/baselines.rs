@@ -306,3 +306,147 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
     assert!(text(&o.stderr).contains("holds the descriptor methods [toporec, m2dp"), "{}", text(&o.stderr));
 }
+
+/// `toporec import`: vectors made elsewhere (here, copies of the index's own TopoRec
+/// descriptors) become one more method, in each accepted format; `eval` ranks them exactly as the
+/// originals; bad files are refused whole.
+#[test]
+fn imported_vectors_are_one_more_method() {
+    use crate::util::{run_pipeline, scratch_dir, text, toporec};
+    let dir = scratch_dir("import");
+    let index = dir.join("index");
+    let o = run_pipeline(&root().join("pipelines/sample.toml"), &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let rows = toporec::sinks::index::IndexReader::open(&index).unwrap().descriptors(&[], None).unwrap();
+    assert_eq!(rows.len(), 64);
+    // CSV with a header, .npy (float32) with an id list, Parquet with a List<float64> column.
+    let mut csv = String::from("scan_id");
+    (0..rows[0].descriptor.len()).for_each(|i| csv.push_str(&format!(",v{i}")));
+    csv.push('\n');
+    for r in &rows {
+        csv.push_str(&r.scan_id);
+        r.descriptor.iter().for_each(|v| csv.push_str(&format!(",{v:?}")));
+        csv.push('\n');
+    }
+    std::fs::write(dir.join("copy.csv"), &csv).unwrap();
+    let (n, d) = (rows.len(), rows[0].descriptor.len());
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({n}, {d}), }}");
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+    npy.extend((header.len() as u16).to_le_bytes());
+    npy.extend(header.as_bytes());
+    rows.iter().flat_map(|r| r.descriptor.iter()).for_each(|v| npy.extend(v.to_le_bytes()));
+    std::fs::write(dir.join("copy.npy"), npy).unwrap();
+    let ids: String = rows.iter().map(|r| format!("{}\n", r.scan_id)).collect();
+    std::fs::write(dir.join("copy.ids"), ids).unwrap();
+    {
+        use arrow::array::{ArrayRef, Float64Builder, ListBuilder, StringArray};
+        let mut list = ListBuilder::new(Float64Builder::new());
+        for r in &rows {
+            r.descriptor.iter().for_each(|&v| list.values().append_value(v as f64));
+            list.append(true);
+        }
+        let ids: ArrayRef =
+            std::sync::Arc::new(StringArray::from_iter_values(rows.iter().map(|r| r.scan_id.clone())));
+        let batch = arrow::array::RecordBatch::try_from_iter([
+            ("scan_id", ids),
+            ("descriptor", std::sync::Arc::new(list.finish()) as ArrayRef),
+        ])
+        .unwrap();
+        let file = std::fs::File::create(dir.join("copy.parquet")).unwrap();
+        let mut w = parquet::arrow::ArrowWriter::try_new(file, batch.schema(), None).unwrap();
+        w.write(&batch).unwrap();
+        w.close().unwrap();
+    }
+    let import = |method: &str, file: &str, extra: &[&str]| {
+        let f = dir.join(file);
+        let mut a =
+            vec!["import", "--index", index.to_str().unwrap(), "--method", method, f.to_str().unwrap()];
+        a.extend(extra);
+        toporec(&a)
+    };
+    let ids_path = dir.join("copy.ids");
+    for (method, file, extra) in [
+        ("copy-csv", "copy.csv", vec![]),
+        ("copy_npy", "copy.npy", vec!["--ids", ids_path.to_str().unwrap()]),
+        ("copy-parquet", "copy.parquet", vec![]),
+    ] {
+        let o = import(method, file, &extra);
+        assert!(o.status.success(), "{method}: {}", text(&o.stderr));
+        assert!(text(&o.stdout).contains("64 scans, length 50"), "{}", text(&o.stdout));
+    }
+    // Again: replaced, not added.
+    let o = import("copy-csv", "copy.csv", &[]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let o = toporec(&["verify", "--index", index.to_str().unwrap()]);
+    assert!(o.status.success(), "{}{}", text(&o.stdout), text(&o.stderr));
+
+    // eval ranks the copies exactly as the originals.
+    let out = dir.join("eval");
+    let o = toporec(&[
+        "eval",
+        "places",
+        "--db",
+        index.to_str().unwrap(),
+        "--db-session",
+        "2026-01-01",
+        "--query-session",
+        "2026-01-02",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let methods = report["methods"].as_array().unwrap();
+    let names: Vec<&str> = methods.iter().map(|m| m["method"].as_str().unwrap()).collect();
+    assert_eq!(names, ["toporec", "copy-csv", "copy-parquet", "copy_npy"]);
+    for m in &methods[1..] {
+        assert_eq!(m["results"], methods[0]["results"], "{}", m["method"]);
+    }
+    // query cannot describe a new scan with vectors made elsewhere.
+    let scan = root().join("samples/town/velodyne_data/2026-01-02/velodyne_sync/1767348000000000.bin");
+    let o = toporec(&[
+        "query",
+        "--index",
+        index.to_str().unwrap(),
+        "--method",
+        "copy-csv",
+        scan.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o.stderr).contains("has its vectors imported"), "{}", text(&o.stderr));
+    // An up-to-date run keeps them.
+    let o = run_pipeline(&root().join("pipelines/sample.toml"), &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["methods"].as_object().unwrap().len(), 3);
+
+    // Refused whole: an unknown id, a wrong length, a reserved name, .npy without ids.
+    let bad = csv.replace("2026-01-01/1767261600000000,", "nowhere/1,");
+    std::fs::write(dir.join("unknown.csv"), bad).unwrap();
+    let o = import("bad", "unknown.csv", &[]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        text(&o.stderr).contains("1 scan ids are not in") && text(&o.stderr).contains("nowhere/1"),
+        "{}",
+        text(&o.stderr)
+    );
+    let mut short = csv.clone();
+    short.push_str("2026-01-01/1767261600000000,1.0\n");
+    std::fs::write(dir.join("short.csv"), short).unwrap();
+    let o = import("bad", "short.csv", &[]);
+    assert!(text(&o.stderr).contains("line 66") || text(&o.stderr).contains("row 65"), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("1 values, the first row has 50"), "{}", text(&o.stderr));
+    let o = import("scancontext", "copy.csv", &[]);
+    assert!(text(&o.stderr).contains("the name of a computed method"), "{}", text(&o.stderr));
+    let o = import("bad", "copy.npy", &[]);
+    assert!(text(&o.stderr).contains("give them with --ids"), "{}", text(&o.stderr));
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    assert!(m["methods"].get("bad").is_none(), "nothing of a refused import is committed");
+}
