@@ -116,7 +116,7 @@ pub fn import(args: &ImportArgs) -> Result<Imported> {
             args.method, e.kind
         )));
     }
-    methods.insert(args.method.clone(), method.entry());
+    methods.insert(args.method.clone(), crate::sinks::index::manifest::MethodEntry::of(&method));
     writer.drop_method(&args.method);
     writer.set_methods(methods);
     let n = rows.len();

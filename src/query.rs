@@ -67,6 +67,17 @@ enum Search {
     ScanContext(Searcher),
 }
 
+impl Search {
+    /// The structure `method` searches `scans`' descriptors (of `length`) with.
+    fn over(method: &Method, scans: &[IndexedScan], length: usize) -> Self {
+        let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
+        match &method.kind {
+            MethodKind::ScanContext(p) => Search::ScanContext(Searcher::new(vectors, p.clone())),
+            _ => Search::Vectors(Database::new(vectors, length)),
+        }
+    }
+}
+
 /// An opened index, ready to answer queries with one method.
 pub struct Engine {
     /// How a scan becomes this method's descriptor (the index's preprocessing, persistence
@@ -158,11 +169,7 @@ impl Engine {
                 ..Describer::toporec(Default::default(), true, None)
             },
         };
-        let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
-        let search = match &method.kind {
-            MethodKind::ScanContext(p) => Search::ScanContext(Searcher::new(vectors, p.clone())),
-            _ => Search::Vectors(Database::new(vectors, length)),
-        };
+        let search = Search::over(&method, &scans, length);
         Ok(Engine { describer, method, id, scans, search })
     }
 
@@ -170,11 +177,7 @@ impl Engine {
     /// are stored descriptors).
     pub fn search_only(loaded: Loaded) -> Self {
         let Loaded { method, id, length, scans, .. } = loaded;
-        let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
-        let search = match &method.kind {
-            MethodKind::ScanContext(p) => Search::ScanContext(Searcher::new(vectors, p.clone())),
-            _ => Search::Vectors(Database::new(vectors, length)),
-        };
+        let search = Search::over(&method, &scans, length);
         let describer =
             Describer { topological: false, ..Describer::toporec(Default::default(), true, None) };
         Engine { describer, method, id, scans, search }
@@ -294,7 +297,7 @@ pub fn index_methods(index: &Path) -> Result<Vec<Method>> {
             continue;
         }
         let entry = reader.manifest().and_then(|m| m.methods.get(&name)).expect("listed by the manifest");
-        match Method::from_entry(&name, entry) {
+        match entry.method(&name) {
             Some(m) => out.push(m),
             None => tracing::warn!(
                 "{}: method `{name}` is of kind `{}`, unknown to this toporec; left out",

@@ -11,10 +11,8 @@ pub mod m2dp;
 pub mod scancontext;
 
 use crate::preprocess::voxel_grid;
-use crate::sinks::index::manifest::MethodEntry;
 use crate::types::Point;
 use scancontext::ScanContextParams;
-use std::collections::BTreeMap;
 
 /// The name of the TopoRec paper's descriptor (alpha persistence + ATOL).
 pub const TOPOREC: &str = "toporec";
@@ -131,30 +129,6 @@ impl Method {
         crate::fingerprint::hex(crate::fingerprint::of_bytes(text.as_bytes()))
     }
 
-    /// Its manifest entry.
-    pub fn entry(&self) -> MethodEntry {
-        MethodEntry {
-            kind: self.kind_name().into(),
-            params: self.params(),
-            length: self.len(),
-            id: self.id(),
-        }
-    }
-
-    /// The method a manifest entry records; `None` for an entry this toporec does not know.
-    pub fn from_entry(name: &str, e: &MethodEntry) -> Option<Method> {
-        let kind = match e.kind.as_str() {
-            SCANCONTEXT => MethodKind::ScanContext(serde_json::from_value(e.params.clone()).ok()?),
-            M2DP => MethodKind::M2dp(serde_json::from_value(e.params.clone()).ok()?),
-            IMPORTED => MethodKind::Imported {
-                length: e.length,
-                source: e.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),
-            },
-            _ => return None,
-        };
-        Some(Method { name: name.to_string(), kind })
-    }
-
     /// Whether the method is computed from raw scans (ScanContext, M2DP).
     pub fn is_computed(&self) -> bool {
         matches!(self.kind, MethodKind::ScanContext(_) | MethodKind::M2dp(_))
@@ -194,10 +168,5 @@ impl Methods {
         let mut out: Vec<String> = if self.toporec { vec![TOPOREC.into()] } else { Vec::new() };
         out.extend(self.computed.iter().map(|m| m.name.clone()));
         out
-    }
-
-    /// The manifest entries of the computed methods.
-    pub fn entries(&self) -> BTreeMap<String, MethodEntry> {
-        self.computed.iter().map(|m| (m.name.clone(), m.entry())).collect()
     }
 }

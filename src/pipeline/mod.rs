@@ -247,7 +247,7 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
     let codebook = if p.methods.toporec { frozen_codebook(&writer, p, &index)? } else { None };
     let mut methods = writer.manifest().methods.clone();
     methods.retain(|_, e| e.kind == crate::baselines::IMPORTED);
-    methods.extend(p.methods.entries());
+    methods.extend(crate::sinks::index::manifest::MethodEntry::of_computed(&p.methods));
     writer.set_methods(methods);
     let pipeline_toml = p.effective_toml(&index);
     if let (Some(cb), false) = (&codebook, writer.manifest().codebook.is_some()) {

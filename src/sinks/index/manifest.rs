@@ -5,6 +5,7 @@
 //! leaves such files behind, and the next writer deletes them. The format is documented as a
 //! JSON Schema in `schemas/manifest.json`.
 
+use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT};
 use crate::error::{Error, Result, ResultExt};
 use crate::vectorize::codebook::Codebook;
 use serde::{Deserialize, Serialize};
@@ -35,6 +36,33 @@ pub struct FileEntry {
     pub bytes: u64,
     /// xxh3-64 of the file's bytes, 16 hex digits.
     pub xxh3: String,
+}
+
+impl MethodEntry {
+    /// The entry of a method (its kind, parameters, length and id).
+    pub fn of(m: &Method) -> Self {
+        MethodEntry { kind: m.kind_name().into(), params: m.params(), length: m.len(), id: m.id() }
+    }
+
+    /// The entries of a pipeline's computed methods, by name.
+    pub fn of_computed(methods: &Methods) -> BTreeMap<String, MethodEntry> {
+        methods.computed.iter().map(|m| (m.name.clone(), Self::of(m))).collect()
+    }
+
+    /// The method this entry records, named `name`; `None` for a kind this toporec does not
+    /// know.
+    pub fn method(&self, name: &str) -> Option<Method> {
+        let kind = match self.kind.as_str() {
+            SCANCONTEXT => MethodKind::ScanContext(serde_json::from_value(self.params.clone()).ok()?),
+            M2DP => MethodKind::M2dp(serde_json::from_value(self.params.clone()).ok()?),
+            IMPORTED => MethodKind::Imported {
+                length: self.length,
+                source: self.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),
+            },
+            _ => return None,
+        };
+        Some(Method { name: name.to_string(), kind })
+    }
 }
 
 impl FileEntry {
