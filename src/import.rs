@@ -49,6 +49,12 @@ pub struct Imported {
 /// Reads the vectors of `args.file` and stores them as method `args.method` of the index.
 pub fn import(args: &ImportArgs) -> Result<Imported> {
     check_name(&args.method)?;
+    if !args.index.join(crate::sinks::index::MANIFEST_FILE).is_file() {
+        return Err(Error::index(
+            &args.index,
+            "no manifest.json: not an index toporec wrote (index its scans first)",
+        ));
+    }
     let rows = read_vectors(&args.file, args.ids.as_deref())?;
     let length = rows.first().map(|r| r.1.len()).unwrap_or(0);
     if length == 0 {
@@ -71,12 +77,6 @@ pub fn import(args: &ImportArgs) -> Result<Imported> {
         if !seen.insert(id.as_str()) {
             return Err(Error::table(&args.file, format!("row {}: scan {id} comes twice", i + 1)));
         }
-    }
-    if !args.index.join(crate::sinks::index::MANIFEST_FILE).is_file() {
-        return Err(Error::index(
-            &args.index,
-            "no manifest.json: not an index toporec wrote (index its scans first)",
-        ));
     }
     let mut writer = IndexWriter::open(&args.index, "", false)?;
     if writer.manifest().generation == 0 {

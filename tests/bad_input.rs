@@ -164,6 +164,82 @@ fn bad_inputs_table() {
     }
     assert!(!d.join("sim").exists(), "a refused simulate writes nothing");
 
+    // 3b. The descriptor methods' flags, keys and files.
+    std::fs::write(d.join("nan.csv"), "scan_id,a,b\n2026-01-01/1767261600000000,1.0,nan\n").unwrap();
+    std::fs::write(
+        d.join("cut.npy"),
+        b"\x93NUMPY\x01\x00\x3d\x00{'descr': '<f4', 'fortran_order': False, 'shape': (64, 50), }",
+    )
+    .unwrap();
+    std::fs::write(d.join("ids.txt"), "a\n").unwrap();
+    let methods: [(&str, &[&str], &[&str]); 7] = [
+        (
+            "query --method nope",
+            &["query", "--index", "idx", "--method", "nope", "x.csv"],
+            &["idx", "`nope`"],
+        ),
+        (
+            "eval places --method nope",
+            &["eval", "places", "--db", "idx", "-o", "ev", "--method", "nope"],
+            &["--method nope"],
+        ),
+        (
+            "import --method toporec",
+            &["import", "--index", "idx", "--method", "toporec", "nan.csv"],
+            &["--method toporec"],
+        ),
+        (
+            "import --method a/b",
+            &["import", "--index", "idx", "--method", "a/b", "nan.csv"],
+            &["--method", "a/b"],
+        ),
+        (
+            "import a NaN",
+            &["import", "--index", "idx", "--method", "x", "nan.csv"],
+            &["nan.csv", "row 1", "not finite"],
+        ),
+        (
+            "import a cut .npy",
+            &["import", "--index", "idx", "--method", "x", "cut.npy", "--ids", "ids.txt"],
+            &["cut.npy", "shape (64, 50)"],
+        ),
+        (
+            "import into no index",
+            &["import", "--index", "nowhere", "--method", "x", "nan.csv"],
+            &["nowhere", "no manifest.json"],
+        ),
+    ];
+    for (case, args, names) in methods {
+        check(case, &run(args), 2, names);
+    }
+    let base = std::fs::read_to_string(&pipeline).unwrap();
+    let keys: [(&str, &str, &[&str]); 4] = [
+        (
+            "an unknown method",
+            "[descriptors]\nmethods = [\"toporec\", \"nope\"]\n",
+            &["descriptors.methods", "`nope`"],
+        ),
+        ("no method", "[descriptors]\nmethods = []\n", &["descriptors.methods: empty"]),
+        (
+            "scancontext out of range",
+            "[descriptors]\nmethods = [\"scancontext\"]\n[scancontext]\nrings = 0\nmax_radius = nan\n",
+            &["scancontext", "rings", "max_radius"],
+        ),
+        ("an unknown m2dp key", "[m2dp]\nvoxels = 1.0\n", &["m2dp", "voxels"]),
+    ];
+    for (case, extra, names) in keys {
+        let file = d.join("methods.toml");
+        std::fs::write(&file, format!("{base}\n{extra}")).unwrap();
+        let o = run(&["validate", file.to_str().unwrap()]);
+        let err = text(&o.stderr);
+        assert!(!err.contains("panicked at"), "{case}: {err}");
+        assert_eq!(o.status.code(), Some(2), "{case}: {err}");
+        for n in names {
+            assert!(err.contains(n), "{case}: `{n}` not named in: {err}");
+        }
+        println!("ok  {case}: exit 2");
+    }
+
     // 4. `--max-n` smaller than the columns of the table: the headers follow it, no NaN.
     let o = run(&[
         "eval",
