@@ -10,6 +10,7 @@ mod homology;
 mod incremental;
 mod index;
 mod pipeline;
+mod pointnetvlad;
 mod simulate;
 mod sources;
 mod util;

@@ -14,6 +14,7 @@
 //! (and threshold), and each method's time per query split into its steps.
 
 pub mod metrics;
+pub mod pointnetvlad;
 
 /// Appends one formatted line to a report table (a `String`, which cannot fail to grow).
 macro_rules! line {
@@ -68,9 +69,22 @@ pub struct PlacesArgs {
     /// Descriptor methods to compare (repeatable; default: every method both indexes hold).
     #[arg(long = "method")]
     pub methods: Vec<String>,
+    /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
+    /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
+    #[arg(long, value_enum, default_value = "places")]
+    pub protocol: Protocol,
     /// Output folder for report.json, report.txt and the plots.
     #[arg(long, short)]
     pub out: PathBuf,
+}
+
+/// The protocols of `eval places`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Protocol {
+    /// Database and query sessions, true matches within each threshold.
+    Places,
+    /// The PointNetVLAD benchmark ([`pointnetvlad`]).
+    Pointnetvlad,
 }
 
 /// The methods to evaluate: those asked for, or every method all `indexes` hold (TopoRec
@@ -131,6 +145,9 @@ fn subsample(scans: Vec<IndexedScan>, every: Option<f64>) -> Vec<IndexedScan> {
 
 /// Runs the places protocol; returns the report text (also written beside the JSON).
 pub fn places(a: &PlacesArgs) -> Result<String> {
+    if a.protocol == Protocol::Pointnetvlad {
+        return pointnetvlad_places(a);
+    }
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
     let methods = chosen_methods(&[&a.db, &queries_index], &a.methods)?;
     let mut table = String::new();
@@ -172,7 +189,27 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
 }
 
 /// A named Recall@N curve.
-type Curve = (String, Vec<f64>);
+pub(crate) type Curve = (String, Vec<f64>);
+
+/// `eval places --protocol pointnetvlad`: the benchmark's own database and query sets.
+fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
+    if a.queries.is_some() || !a.db_sessions.is_empty() || !a.query_sessions.is_empty() {
+        return Err(Error::invalid(
+            "--protocol pointnetvlad pairs the benchmark's own runs: --queries, --db-session and --query-session do not apply",
+        ));
+    }
+    let methods = chosen_methods(&[&a.db], &a.methods)?;
+    let (table, report, curves) = pointnetvlad::evaluate(&a.db, &methods)?;
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
+    let plots =
+        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
+    let mut report = report;
+    report["plots"] = json!(
+        plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>()
+    );
+    write_report(&a.out, &report, &table)?;
+    Ok(table)
+}
 
 /// One method's part of a places report.
 struct MethodPlaces {

@@ -555,6 +555,7 @@ fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
                 errors.push(format!("sources[{i}].sequences: empty"));
             }
         }
+        SourceSpec::PointNetVlad(p) => check("root", &p.root),
     }
 }
 
@@ -568,7 +569,7 @@ fn check_source_numbers(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
             Some(n.tolerance_ms)
         }
         SourceSpec::Mcap(m) => Some(m.tolerance_ms),
-        SourceSpec::Kitti(_) => None,
+        SourceSpec::Kitti(_) | SourceSpec::PointNetVlad(_) => None,
     };
     if let Some(t) = tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {
         errors.push(format!("sources[{i}].tolerance_ms: must be in [0, inf) ms; found {t}"));

@@ -16,6 +16,7 @@ pub mod mcap;
 pub mod mcap_reader;
 pub mod nclt;
 pub mod pointcloud2;
+pub mod pointnetvlad;
 
 pub use crate::error::SourceError;
 pub use detect::{CloudFormat, InputKind};
@@ -143,6 +144,8 @@ pub enum SourceSpec {
     Mcap(mcap::McapSpec),
     /// KITTI odometry sequences.
     Kitti(kitti::KittiSpec),
+    /// The PointNetVLAD benchmark's test submaps (`benchmark_datasets/`).
+    PointNetVlad(pointnetvlad::PointNetVladSpec),
 }
 
 impl SourceSpec {
@@ -153,6 +156,7 @@ impl SourceSpec {
             SourceSpec::Nclt(s) => s.open(),
             SourceSpec::Mcap(s) => s.open(),
             SourceSpec::Kitti(s) => s.open(),
+            SourceSpec::PointNetVlad(s) => s.open(),
         }
     }
 
@@ -175,6 +179,7 @@ impl SourceSpec {
         Ok(match self {
             SourceSpec::Nclt(s) => s.session_dirs()?.into_iter().map(|d| (name(&d), d)).collect(),
             SourceSpec::Kitti(s) => s.sequences.iter().map(|d| (name(d), d.clone())).collect(),
+            SourceSpec::PointNetVlad(s) => s.runs()?.into_iter().map(|r| (r.name, r.dir)).collect(),
             SourceSpec::Mcap(s) => s
                 .files
                 .iter()
@@ -204,6 +209,7 @@ impl SourceSpec {
                 s.poses.iter_mut().for_each(fix);
             }
             SourceSpec::Kitti(s) => s.sequences.iter_mut().for_each(fix),
+            SourceSpec::PointNetVlad(s) => fix(&mut s.root),
         }
     }
 }
