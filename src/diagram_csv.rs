@@ -49,17 +49,8 @@ pub fn parse(text: &str) -> Result<Diagram, ParseError> {
         return Err(ParseError { line: 1, message });
     }
     let mut pairs = Vec::new();
-    let mut record = csv::StringRecord::new();
-    loop {
-        let line = reader.position().line() as usize;
-        match reader.read_record(&mut record) {
-            Ok(false) => break,
-            Ok(true) => {}
-            Err(e) => return Err(ParseError { line, message: format!("not CSV: {e}") }),
-        }
-        if record.iter().all(str::is_empty) {
-            continue;
-        }
+    for (line, record) in crate::sources::csv::numbered_records(&mut reader) {
+        let record = record.map_err(|e| ParseError { line, message: format!("not CSV: {e}") })?;
         let text: Vec<&str> = record.iter().collect();
         let bad = |what: &str| ParseError { line, message: format!("{what}: `{}`", text.join(",")) };
         let [dim, birth, death] = text[..] else {

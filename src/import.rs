@@ -211,20 +211,17 @@ fn read_csv(path: &Path) -> Result<Rows> {
     let file = std::fs::File::open(path).at(path)?;
     let mut reader = csv::ReaderBuilder::new().has_headers(false).flexible(true).from_reader(file);
     let mut out = Vec::new();
-    for (line, record) in reader.records().enumerate() {
-        let record = record.map_err(|e| Error::table(path, format!("line {}: {e}", line + 1)))?;
+    for (i, (line, record)) in crate::sources::csv::numbered_records(&mut reader).enumerate() {
+        let record = record.map_err(|e| Error::table(path, format!("line {line}: {e}")))?;
         let id = record.get(0).unwrap_or_default().trim().trim_start_matches('\u{feff}').to_string();
         let values: std::result::Result<Vec<f32>, _> =
             record.iter().skip(1).map(|v| v.trim().parse::<f32>()).collect();
         match values {
             Ok(v) if !id.is_empty() => out.push((id, v)),
             // A header line: the first line, whose values are not numbers.
-            Err(_) if line == 0 => continue,
+            Err(_) if i == 0 => continue,
             _ => {
-                return Err(Error::table(
-                    path,
-                    format!("line {}: expected a scan id then numbers", line + 1),
-                ));
+                return Err(Error::table(path, format!("line {line}: expected a scan id then numbers")));
             }
         }
     }

@@ -260,8 +260,9 @@ pub fn subsample(points: Vec<Point>, n: usize, rng: &mut SplitMix64) -> Vec<Poin
     chosen.into_iter().map(|i| points[i as usize]).collect()
 }
 
-/// Zero mean, largest |coordinate| 1 (the PointNetVLAD convention).
-pub fn normalize(points: &mut [Point]) {
+/// Zero mean, largest |coordinate| 1 (the PointNetVLAD convention). Returns the scale divided
+/// by (the largest |coordinate| about the mean; 1 when the points coincide).
+pub fn normalize(points: &mut [Point]) -> f64 {
     let n = points.len() as f64;
     let mean = [0, 1, 2].map(|k| points.iter().map(|q| q[k]).sum::<f64>() / n);
     let mut scale = 0.0f64;
@@ -273,5 +274,8 @@ pub fn normalize(points: &mut [Point]) {
     }
     if scale > 0.0 {
         points.iter_mut().for_each(|q| *q = q.map(|c| c / scale));
+        scale
+    } else {
+        1.0
     }
 }

@@ -289,7 +289,11 @@ impl Engine {
 
 /// The methods of an index, as its manifest records them (TopoRec first, when present).
 pub fn index_methods(index: &Path) -> Result<Vec<Method>> {
-    let reader = IndexReader::open(index)?;
+    methods_of(&IndexReader::open(index)?)
+}
+
+/// The methods an opened index records (see [`index_methods`]).
+fn methods_of(reader: &IndexReader) -> Result<Vec<Method>> {
     let mut out = Vec::new();
     for name in reader.methods()? {
         if name == TOPOREC {
@@ -301,7 +305,7 @@ pub fn index_methods(index: &Path) -> Result<Vec<Method>> {
             Some(m) => out.push(m),
             None => tracing::warn!(
                 "{}: method `{name}` is of kind `{}`, unknown to this toporec; left out",
-                index.display(),
+                reader.root().display(),
                 entry.kind
             ),
         }
@@ -314,7 +318,7 @@ pub fn index_methods(index: &Path) -> Result<Vec<Method>> {
 /// left out with a warning.
 pub fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Loaded> {
     let reader = IndexReader::open(index)?;
-    let methods = index_methods(index)?;
+    let methods = methods_of(&reader)?;
     let Some(m) = methods.iter().find(|m| m.name == method).cloned() else {
         let names: Vec<&str> = methods.iter().map(|m| m.name.as_str()).collect();
         return Err(Error::index(

@@ -24,7 +24,7 @@ macro_rules! line {
     }};
 }
 
-use crate::baselines::{MethodKind, TOPOREC};
+use crate::baselines::{Method, MethodKind, TOPOREC};
 use crate::error::{Error, Result, ResultExt};
 use crate::query::{Engine, Found, StepTimes, index_methods, load_method, step_stats, step_summary};
 use crate::rng::SplitMix64;
@@ -87,15 +87,15 @@ pub enum Protocol {
     Pointnetvlad,
 }
 
-/// The methods to evaluate: those asked for, or every method all `indexes` hold (TopoRec
-/// first).
-fn chosen_methods(indexes: &[&Path], asked: &[String]) -> Result<Vec<String>> {
-    let mut held: Option<Vec<String>> = None;
+/// The methods to evaluate, as the first of `indexes` records them: those asked for, or every
+/// method all `indexes` hold (TopoRec first).
+fn chosen_methods(indexes: &[&Path], asked: &[String]) -> Result<Vec<Method>> {
+    let mut held: Option<Vec<Method>> = None;
     for index in indexes {
-        let names: Vec<String> = index_methods(index)?.into_iter().map(|m| m.name).collect();
+        let here = index_methods(index)?;
         held = Some(match held {
-            None => names,
-            Some(h) => h.into_iter().filter(|m| names.contains(m)).collect(),
+            None => here,
+            Some(h) => h.into_iter().filter(|m| here.iter().any(|x| x.name == m.name)).collect(),
         });
     }
     let held = held.unwrap_or_default();
@@ -105,21 +105,27 @@ fn chosen_methods(indexes: &[&Path], asked: &[String]) -> Result<Vec<String>> {
         }
         return Ok(held);
     }
-    let mut out = Vec::new();
-    for m in asked {
-        if out.contains(m) {
+    let mut out: Vec<Method> = Vec::new();
+    for name in asked {
+        if out.iter().any(|m| &m.name == name) {
             continue;
         }
-        if !held.contains(m) {
+        let Some(m) = held.iter().find(|m| &m.name == name) else {
+            let common: Vec<&str> = held.iter().map(|m| m.name.as_str()).collect();
             return Err(Error::invalid(format!(
-                "--method {m}: not held by {} (common methods: {})",
+                "--method {name}: not held by {} (common methods: {})",
                 indexes.iter().map(|i| i.display().to_string()).collect::<Vec<_>>().join(" and "),
-                held.join(", ")
+                common.join(", ")
             )));
-        }
+        };
         out.push(m.clone());
     }
     Ok(out)
+}
+
+/// The names of `methods`.
+fn names(methods: &[Method]) -> Vec<String> {
+    methods.iter().map(|m| m.name.clone()).collect()
 }
 
 fn xy(s: &IndexedScan) -> [f64; 2] {
@@ -149,7 +155,7 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         return pointnetvlad_places(a);
     }
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
-    let methods = chosen_methods(&[&a.db, &queries_index], &a.methods)?;
+    let methods = names(&chosen_methods(&[&a.db, &queries_index], &a.methods)?);
     let mut table = String::new();
     line!(
         table,
@@ -198,7 +204,7 @@ fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
             "--protocol pointnetvlad pairs the benchmark's own runs: --queries, --db-session and --query-session do not apply",
         ));
     }
-    let methods = chosen_methods(&[&a.db], &a.methods)?;
+    let methods = names(&chosen_methods(&[&a.db], &a.methods)?);
     let (table, report, curves) = pointnetvlad::evaluate(&a.db, &methods)?;
     std::fs::create_dir_all(&a.out).at(&a.out)?;
     let plots =
@@ -404,11 +410,7 @@ fn places_of(
 }
 
 /// Mean and p95 (ms) of each step a method has (or of its search steps).
-fn timing_json(
-    method: &crate::baselines::Method,
-    times: &[StepTimes],
-    search_only: bool,
-) -> serde_json::Value {
+fn timing_json(method: &Method, times: &[StepTimes], search_only: bool) -> serde_json::Value {
     let mut out = serde_json::Map::new();
     for (name, mean, p95) in step_stats(method, times, search_only) {
         out.insert(name.to_string(), json!({"mean": mean, "p95": p95}));
@@ -553,22 +555,19 @@ struct Reread {
 /// scale in metres) and rotations about the sensor, then their own preprocessing.
 pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
     let mut methods = chosen_methods(&[&a.index], &a.methods)?;
-    let defs = index_methods(&a.index)?;
-    let imported: Vec<String> = defs
-        .iter()
-        .filter(|m| matches!(m.kind, MethodKind::Imported { .. }))
-        .map(|m| m.name.clone())
-        .collect();
+    let imported = |m: &Method| matches!(m.kind, MethodKind::Imported { .. });
     if a.methods.is_empty() {
-        methods.retain(|m| !imported.contains(m));
-    } else if let Some(m) = methods.iter().find(|m| imported.contains(m)) {
+        methods.retain(|m| !imported(m));
+    } else if let Some(m) = methods.iter().find(|m| imported(m)) {
         return Err(Error::invalid(format!(
-            "--method {m}: its vectors are imported; perturbed scans cannot be described with it"
+            "--method {}: its vectors are imported; perturbed scans cannot be described with it",
+            m.name
         )));
     }
     if methods.is_empty() {
         return Err(Error::invalid("no method of the index can describe a perturbed scan"));
     }
+    let methods = names(&methods);
     let engines: Vec<Engine> =
         methods.iter().map(|m| Engine::open(&a.index, &[], m)).collect::<Result<Vec<_>>>()?;
     // The queries: a seeded share of the first method's scans.
@@ -627,6 +626,8 @@ fn reread(
     toporec: bool,
 ) -> Result<Vec<Reread>> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(&a.index)?;
+    // One preprocessing, in metres; the normalization (the last step) then gives TopoRec's
+    // cloud and the scale the raw scans' perturbations are measured in.
     let mut metric = pipeline.preprocess.clone();
     metric.normalize = false;
     let mut clouds = Vec::new();
@@ -637,26 +638,17 @@ fn reread(
                 continue;
             }
             let id = scan.id.clone();
-            let skipped = |skip: crate::preprocess::Skip| {
-                Error::invalid(format!("{id}: skipped on re-reading: {}", skip.0))
-            };
-            let unit = if pipeline.preprocess.normalize {
-                let pts = crate::preprocess::preprocess(scan.points.clone(), scan.fingerprint, &metric)
-                    .map_err(skipped)?;
-                normalization_scale(&pts)
-            } else {
-                1.0
-            };
-            let raw = scan.points.clone();
-            let preprocessed = if toporec {
-                Some(
-                    crate::preprocess::preprocess(scan.points, scan.fingerprint, &pipeline.preprocess)
-                        .map_err(skipped)?,
-                )
-            } else {
-                None
-            };
-            clouds.push(Reread { scan_id: id, raw, preprocessed, unit });
+            let (mut preprocessed, mut unit) = (None, 1.0);
+            if toporec || pipeline.preprocess.normalize {
+                let mut pts =
+                    crate::preprocess::preprocess(scan.points.clone(), scan.fingerprint, &metric)
+                        .map_err(|skip| Error::invalid(format!("{id}: skipped on re-reading: {}", skip.0)))?;
+                if pipeline.preprocess.normalize {
+                    unit = crate::preprocess::normalize(&mut pts);
+                }
+                preprocessed = toporec.then_some(pts);
+            }
+            clouds.push(Reread { scan_id: id, raw: scan.points, preprocessed, unit });
         }
     }
     if clouds.len() != wanted.len() {
@@ -670,14 +662,6 @@ fn reread(
         ));
     }
     Ok(clouds)
-}
-
-/// The scale `normalize` divides by: the largest |coordinate| about the mean.
-fn normalization_scale(points: &[[f64; 3]]) -> f64 {
-    let n = points.len().max(1) as f64;
-    let mean = points.iter().fold([0.0; 3], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n, m[2] + p[2] / n]);
-    let s = points.iter().flat_map(|p| (0..3).map(move |i| (p[i] - mean[i]).abs())).fold(0.0, f64::max);
-    if s > 0.0 { s } else { 1.0 }
 }
 
 /// The perturbation protocol with one method; appends its block to `table`.

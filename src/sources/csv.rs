@@ -6,6 +6,25 @@ use super::SourceError;
 use crate::types::Point;
 use std::path::Path;
 
+/// The records of a CSV reader, each with the line it starts on (1-based), blank records left
+/// out. A malformed record is an `Err` item; reading goes on after it.
+pub fn numbered_records<R: std::io::Read>(
+    reader: &mut csv::Reader<R>,
+) -> impl Iterator<Item = (usize, Result<csv::StringRecord, csv::Error>)> + '_ {
+    std::iter::from_fn(move || {
+        loop {
+            let line = reader.position().line() as usize;
+            let mut record = csv::StringRecord::new();
+            return match reader.read_record(&mut record) {
+                Ok(false) => None,
+                Ok(true) if record.iter().all(str::is_empty) => continue,
+                Ok(true) => Some((line, Ok(record))),
+                Err(e) => Some((line, Err(e))),
+            };
+        }
+    })
+}
+
 /// Parses a CSV cloud.
 pub fn parse_xyz(bytes: &[u8], path: &Path) -> Result<Vec<Point>, SourceError> {
     let err = |line: usize, message: String| SourceError::Parse { path: path.to_owned(), line, message };
@@ -20,17 +39,8 @@ pub fn parse_xyz(bytes: &[u8], path: &Path) -> Result<Vec<Point>, SourceError> {
         return Err(err(1, format!("header `{}` lacks one of the columns x, y, z", names.join(","))));
     };
     let mut points = Vec::new();
-    let mut record = csv::StringRecord::new();
-    loop {
-        let line = reader.position().line() as usize;
-        match reader.read_record(&mut record) {
-            Ok(false) => break,
-            Ok(true) => {}
-            Err(e) => return Err(err(line, format!("not CSV: {e}"))),
-        }
-        if record.iter().all(str::is_empty) {
-            continue;
-        }
+    for (line, record) in numbered_records(&mut reader) {
+        let record = record.map_err(|e| err(line, format!("not CSV: {e}")))?;
         let get = |k: usize| -> Result<f64, SourceError> {
             let f = record.get(k).ok_or_else(|| {
                 err(line, format!("expected {} fields, found {}", header.len(), record.len()))

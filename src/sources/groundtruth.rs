@@ -43,20 +43,14 @@ impl GroundTruth {
             .flexible(true)
             .trim(csv::Trim::All)
             .from_reader(bytes);
-        let mut record = csv::StringRecord::new();
-        loop {
-            let line = reader.position().line() as usize;
-            match reader.read_record(&mut record) {
-                Ok(false) => break,
-                Ok(true) => {}
+        for (line, record) in super::csv::numbered_records(&mut reader) {
+            let record = match record {
+                Ok(r) => r,
                 Err(e) => {
                     gt.bad(path, line, &format!("not CSV: {e}"));
                     continue;
                 }
-            }
-            if record.iter().all(str::is_empty) {
-                continue;
-            }
+            };
             let numbers: Option<Vec<f64>> = record.iter().take(7).map(|f| f.parse::<f64>().ok()).collect();
             match numbers.filter(|v| v.len() == 7) {
                 Some(v) if v[0].is_finite() && v[0].abs() < 9.2e18 => {

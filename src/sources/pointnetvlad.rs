@@ -136,33 +136,24 @@ impl PointNetVladSpec {
 /// The rows of a locations CSV: (timestamp, northing, easting). A header line is skipped; a
 /// bad line is an error naming the file and the line.
 pub fn read_locations(path: &Path) -> Result<Vec<(i64, f64, f64)>, SourceError> {
-    let text =
-        std::fs::read_to_string(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
-    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    let bytes = std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+    let mut reader = ::csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .trim(::csv::Trim::All)
+        .from_reader(bytes.as_slice());
     let mut out = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        if line.trim().is_empty() || (i == 0 && fields.first().is_some_and(|f| f.parse::<f64>().is_err())) {
-            continue;
+    for (i, (line, record)) in super::csv::numbered_records(&mut reader).enumerate() {
+        let bad = |message: String| SourceError::Parse { path: path.to_owned(), line, message };
+        let record = record.map_err(|e| bad(format!("not CSV: {e}")))?;
+        let field = |k: usize| record.get(k).unwrap_or_default();
+        if i == 0 && field(0).parse::<f64>().is_err() {
+            continue; // the header
         }
-        let parsed = (fields.len() >= 3)
-            .then(|| {
-                Some((
-                    fields[0].parse::<i64>().ok()?,
-                    fields[1].parse::<f64>().ok()?,
-                    fields[2].parse::<f64>().ok()?,
-                ))
-            })
-            .flatten();
-        match parsed {
-            Some(row) => out.push(row),
-            None => {
-                return Err(SourceError::Parse {
-                    path: path.to_owned(),
-                    line: i + 1,
-                    message: "expected timestamp,northing,easting".into(),
-                });
-            }
+        let row = (field(0).parse::<i64>(), field(1).parse::<f64>(), field(2).parse::<f64>());
+        match row {
+            (Ok(t), Ok(n), Ok(e)) => out.push((t, n, e)),
+            _ => return Err(bad("expected timestamp,northing,easting".into())),
         }
     }
     Ok(out)
