@@ -396,8 +396,7 @@ fn a_write_failure_keeps_committed_chunks_and_leaves_no_file_behind() {
     let err = text(&o.stderr);
     assert_eq!(err.matches("File too large").count(), 1, "the OS error once: {err}");
     // The committed chunks stay; nothing uncommitted is left behind.
-    let manifest: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    let manifest: serde_json::Value = read_json(&index.join("manifest.json"));
     let committed = manifest["counts"]["scans"].as_u64().unwrap();
     assert!(committed > 0, "some chunks committed before the failure");
     let leftovers: Vec<String> = walk(&index)

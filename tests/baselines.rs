@@ -2,7 +2,7 @@
 //! numpy transcription of the reference code (`scripts/baselines_reference.py`) on the real
 //! scans of `../shared/data`.
 
-use crate::util::{self, python_with, root, shared_data};
+use crate::util::{self, eval_days, python_with, read_json, root, shared_data};
 use toporec::baselines::m2dp;
 use toporec::baselines::scancontext::{self, ScanContextParams};
 use toporec::homology::Point;
@@ -184,8 +184,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     let said = text(&o.stdout) + &text(&o.stderr);
     assert!(said.contains("scancontext (length 1200), m2dp (length 192)"), "{said}");
-    let manifest: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    let manifest: serde_json::Value = read_json(&index.join("manifest.json"));
     let methods = manifest["methods"].as_object().unwrap();
     assert_eq!(methods.keys().collect::<Vec<_>>(), ["m2dp", "scancontext"]);
     assert_eq!(methods["scancontext"]["length"], 1200);
@@ -247,23 +246,9 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
 
     // eval places: every method, side by side, in one report and one Recall@N plot.
     let eval = dir.join("eval");
-    let args = |out: &std::path::Path, extra: &[&str]| {
-        let mut a = vec!["eval", "places", "--db", index.to_str().unwrap(), "--db-session", "2026-01-01"];
-        a.extend(["--query-session", "2026-01-02", "-o", out.to_str().unwrap()]);
-        a.extend(extra.iter().copied());
-        toporec(
-            &a.iter()
-                .map(|s| s.to_string())
-                .collect::<Vec<_>>()
-                .iter()
-                .map(|s| s.as_str())
-                .collect::<Vec<_>>(),
-        )
-    };
-    let o = args(&eval, &[]);
+    let o = eval_days(&index, &eval, &[]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(eval.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = read_json(&eval.join("report.json"));
     let r1 = |m: usize| -> Vec<f64> {
         report["methods"][m]["results"]
             .as_array()
@@ -287,10 +272,9 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     }
     assert!(report["methods"][2]["timing_ms"]["rerank"]["mean"].as_f64().unwrap() > 0.0);
     let one = dir.join("eval-m2dp");
-    let o = args(&one, &["--method", "m2dp"]);
+    let o = eval_days(&index, &one, &["--method", "m2dp"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(one.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = read_json(&one.join("report.json"));
     assert_eq!(report["methods"].as_array().unwrap().len(), 1);
     assert!(one.join("trajectory.png").is_file());
 
@@ -386,21 +370,9 @@ fn imported_vectors_are_one_more_method() {
 
     // eval ranks the copies exactly as the originals.
     let out = dir.join("eval");
-    let o = toporec(&[
-        "eval",
-        "places",
-        "--db",
-        index.to_str().unwrap(),
-        "--db-session",
-        "2026-01-01",
-        "--query-session",
-        "2026-01-02",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let o = eval_days(&index, &out, &[]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = read_json(&out.join("report.json"));
     let methods = report["methods"].as_array().unwrap();
     let names: Vec<&str> = methods.iter().map(|m| m["method"].as_str().unwrap()).collect();
     assert_eq!(names, ["toporec", "copy-csv", "copy-parquet", "copy_npy"]);
@@ -422,8 +394,7 @@ fn imported_vectors_are_one_more_method() {
     // An up-to-date run keeps them.
     let o = run_pipeline(&root().join("pipelines/sample.toml"), &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let m: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    let m: serde_json::Value = read_json(&index.join("manifest.json"));
     assert_eq!(m["methods"].as_object().unwrap().len(), 3);
 
     // Refused whole: an unknown id, a wrong length, a reserved name, .npy without ids.
@@ -446,7 +417,6 @@ fn imported_vectors_are_one_more_method() {
     assert!(text(&o.stderr).contains("the name of a computed method"), "{}", text(&o.stderr));
     let o = import("bad", "copy.npy", &[]);
     assert!(text(&o.stderr).contains("give them with --ids"), "{}", text(&o.stderr));
-    let m: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    let m: serde_json::Value = read_json(&index.join("manifest.json"));
     assert!(m["methods"].get("bad").is_none(), "nothing of a refused import is committed");
 }

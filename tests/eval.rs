@@ -79,21 +79,9 @@ fn query_and_eval_places_on_the_sample_and_on_nclt() {
 
     // Day 2 against day 1.
     let eval = dir.join("eval");
-    let o = toporec(&[
-        "eval",
-        "places",
-        "--db",
-        index.to_str().unwrap(),
-        "--db-session",
-        "2026-01-01",
-        "--query-session",
-        "2026-01-02",
-        "-o",
-        eval.to_str().unwrap(),
-    ]);
+    let o = eval_days(&index, &eval, &[]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(eval.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = read_json(&eval.join("report.json"));
     let m = &report["methods"][0];
     assert_eq!(m["method"], "toporec");
     assert_eq!(m["database_scans"], 32);
@@ -154,8 +142,7 @@ fn query_and_eval_places_on_the_sample_and_on_nclt() {
     let neval = dir.join("nclt-eval");
     let o = toporec(&["eval", "places", "--db", nidx.to_str().unwrap(), "-o", neval.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(neval.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = read_json(&neval.join("report.json"));
     assert_eq!(report["methods"][0]["query_scans"], 14);
     // Regression values (toporec's own output; the 14 scans are not revisits, so this is a
     // check of the protocol on real geometry, not a claim): R@1 is 9 of 14 at 5 m and 14 of 14
@@ -189,8 +176,7 @@ fn perturbation_protocol_on_kitti() {
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     println!("{}", text(&o.stdout));
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = read_json(&out.join("report.json"));
     assert_eq!(report["queries"], 48);
     // Original, translation and rotations about z: the descriptor is invariant, so 48 of 48.
     // Jitter and scaling: regression values (toporec's own output: 45, 48 and 47 of 48; the

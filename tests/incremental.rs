@@ -276,7 +276,7 @@ fn verify_catches_damage() {
 
     let miscounted = copy("miscounted");
     let path = miscounted.join("manifest.json");
-    let mut m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let mut m: serde_json::Value = read_json(&path);
     let entry = m["files"].as_array_mut().unwrap().iter_mut().find(|f| f["table"] == "scans").unwrap();
     entry["rows"] = serde_json::json!(entry["rows"].as_u64().unwrap() + 1);
     std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
@@ -415,8 +415,7 @@ fn manifest_json_schema_matches_a_real_manifest() {
     let dir = scratch_dir("incremental_manifest_schema");
     let index = dir.join("index");
     assert!(run_pipeline(&root().join("pipelines/sample.toml"), &index, 2).status.success());
-    let manifest: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(index.join("manifest.json")).unwrap()).unwrap();
+    let manifest: serde_json::Value = read_json(&index.join("manifest.json"));
     let schema: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(root().join("schemas/manifest.json")).unwrap())
             .unwrap();

@@ -55,13 +55,8 @@ fn benchmark_from_simulation(dir: &Path, scans: usize) -> PathBuf {
     for scan in spec.open().unwrap() {
         let scan = scan.unwrap();
         let pose = scan.pose.unwrap();
-        let n = scan.points.len() as f64;
-        let mean =
-            scan.points.iter().fold([0.0; 3], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n, m[2] + p[2] / n]);
-        let scale =
-            scan.points.iter().flat_map(|p| (0..3).map(move |i| (p[i] - mean[i]).abs())).fold(0.0, f64::max);
-        let pts: Vec<Point> =
-            scan.points.iter().map(|p| [0, 1, 2].map(|i| (p[i] - mean[i]) / scale)).collect();
+        let mut pts = scan.points;
+        toporec::preprocess::normalize(&mut pts);
         let step = (pts.len() / 4096).max(1);
         let pts: Vec<Point> = pts.into_iter().step_by(step).take(4096).collect();
         by_session.entry(scan.session.clone()).or_default().push((
@@ -95,10 +90,6 @@ fn pipeline(dir: &Path, root: &Path, methods: &str) -> PathBuf {
     p
 }
 
-fn report(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
-}
-
 /// The protocol on a generated benchmark folder equals the transcription of
 /// `generate_test_sets.py` + `evaluate.py` (`scripts/pointnetvlad_reference.py`), within 1e-9.
 #[test]
@@ -123,7 +114,7 @@ fn pointnetvlad_protocol_matches_the_reference_scripts() {
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     println!("{}", text(&o.stdout));
-    let ours = report(&out);
+    let ours = read_json(&out.join("report.json"));
     if !python_with("pointnetvlad_protocol_matches_the_reference_scripts", &["numpy", "pyarrow", "sklearn"]) {
         return;
     }
@@ -207,7 +198,7 @@ fn pointnetvlad_metric_on_a_hand_computed_example() {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let r = &report(&out)["methods"][0]["datasets"][0];
+    let r = &read_json(&out.join("report.json"))["methods"][0]["datasets"][0];
     assert_eq!(r["pairs"], 20);
     assert_eq!(r["recall_at_n"][0].as_f64().unwrap(), 60.0);
     assert_eq!(r["recall_at_n"][1].as_f64().unwrap(), 100.0);

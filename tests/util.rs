@@ -150,3 +150,17 @@ pub fn part_file(index: &Path, table: &str, session: &str) -> PathBuf {
     assert_eq!(mine.len(), 1, "{table}/{session}: {mine:?}");
     mine.into_iter().next().unwrap()
 }
+
+/// A JSON file (a report, a manifest).
+pub fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// `eval places` on `index`: day 2 of the sample drive (2026-01-02) against day 1, into `out`,
+/// with `extra` flags.
+pub fn eval_days(index: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["eval", "places", "--db", index.to_str().unwrap(), "--db-session", "2026-01-01"];
+    args.extend(["--query-session", "2026-01-02", "-o", out.to_str().unwrap()]);
+    args.extend(extra);
+    toporec(&args)
+}
