@@ -24,7 +24,9 @@
 //! * [`sinks`] write and read the index: Hive-partitioned Parquet tables whose schemas are
 //!   declared once ([`sinks::schema`]), committed atomically.
 //! * [`pipeline`] connects the stages with bounded channels (`toporec run`), as a pipeline
-//!   file ([`pipeline::config`]) describes.
+//!   file ([`pipeline::config`]) describes. [`batch`] runs the same per-scan step on batches
+//!   handed over in memory and returns the rows as Arrow batches (the Python package and
+//!   distributed engines call it).
 //!
 //! Downstream of the index: [`search`] (exact k-NN), [`query`], [`eval`] (Recall@N,
 //! Recall@1 %), [`plot`]; [`import`] adds descriptors made elsewhere. Beside it: [`offline`] fits codebooks and vectorizes stored
@@ -35,6 +37,7 @@
 #![deny(missing_docs)]
 
 pub mod baselines;
+pub mod batch;
 pub mod describe;
 pub mod diagram_csv;
 pub mod error;

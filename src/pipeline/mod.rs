@@ -389,12 +389,62 @@ struct Job {
 /// A worker's result for one scan.
 struct Outcome {
     seq: u64,
-    row: ScanRow,
-    diagram: Option<Diagram>,
-    descriptor: Option<Descriptor>,
+    scan: ScanResult,
+}
+
+/// What became of one scan: its `scans` row and what it was described by.
+#[derive(Clone, Debug)]
+pub struct ScanResult {
+    /// The `scans` row.
+    pub row: ScanRow,
+    /// The diagram (ok scans, when the TopoRec descriptor is wanted).
+    pub diagram: Option<Diagram>,
+    /// The TopoRec descriptor (ok scans, with a codebook).
+    pub descriptor: Option<Descriptor>,
     /// One per computed method (ok scans).
-    baselines: Vec<Vec<f32>>,
-    times: StageTimes,
+    pub baselines: Vec<Vec<f32>>,
+    /// CPU time per stage.
+    pub times: StageTimes,
+}
+
+impl ScanResult {
+    /// The scan's `descriptors` rows, one per method: TopoRec's made with the codebook
+    /// `codebook_id` (when given), then the computed methods as `(name, id)`, in the
+    /// describer's order.
+    pub fn method_descriptors(
+        &self,
+        codebook_id: Option<&str>,
+        computed: &[(String, String)],
+    ) -> Vec<MethodDescriptor> {
+        let row = &self.row;
+        let mut out = Vec::new();
+        if let (Some(id), Some(d)) = (codebook_id, &self.descriptor) {
+            let r = DescriptorRow::new(row.scan_id.clone(), row.utime, row.pose, d);
+            out.push(MethodDescriptor {
+                method: crate::baselines::TOPOREC.into(),
+                id: id.to_string(),
+                row: r,
+            });
+        }
+        if row.status == Status::Ok {
+            for ((method, id), values) in computed.iter().zip(&self.baselines) {
+                let r = DescriptorRow {
+                    scan_id: row.scan_id.clone(),
+                    utime: row.utime,
+                    pose: row.pose,
+                    dim_used: None,
+                    values: values.clone(),
+                };
+                out.push(MethodDescriptor { method: method.clone(), id: id.clone(), row: r });
+            }
+        }
+        out
+    }
+}
+
+/// Name and id of each computed method of `describer`, in its order.
+pub fn computed_ids(describer: &Describer) -> Vec<(String, String)> {
+    describer.computed.iter().map(|m| (m.name.clone(), m.id())).collect()
 }
 
 /// What the index holds for a scan, as the source thread needs it.
@@ -570,8 +620,18 @@ fn read_sources(
 
 /// A worker's step: one scan through the [`Describer`], as a `scans` row and its results.
 fn describe(job: Job, describer: &Describer, settings: &str) -> Outcome {
-    let (seq, position) = (job.seq, job.position);
-    let scan = match job.item {
+    Outcome { seq: job.seq, scan: describe_scan(job.item, job.position, describer, settings) }
+}
+
+/// One scan (or the failure to read it) through the [`Describer`]: its `scans` row, at
+/// `position` in the input, made with settings `settings`, and its results.
+pub fn describe_scan(
+    item: std::result::Result<Scan, ScanFailure>,
+    position: u64,
+    describer: &Describer,
+    settings: &str,
+) -> ScanResult {
+    let scan = match item {
         Ok(scan) => scan,
         Err(f) => {
             let row = ScanRow {
@@ -590,7 +650,7 @@ fn describe(job: Job, describer: &Describer, settings: &str) -> Outcome {
                 error: Some(f.error),
             };
             let times = StageTimes::default();
-            return Outcome { seq, row, diagram: None, descriptor: None, baselines: Vec::new(), times };
+            return ScanResult { row, diagram: None, descriptor: None, baselines: Vec::new(), times };
         }
     };
     let mut row = ScanRow {
@@ -618,7 +678,7 @@ fn describe(job: Job, describer: &Describer, settings: &str) -> Outcome {
             (None, None, Vec::new())
         }
     };
-    Outcome { seq, row, diagram, descriptor, baselines, times: d.times }
+    ScanResult { row, diagram, descriptor, baselines, times: d.times }
 }
 
 /// The writer's side of pass 1: puts outcomes back in input order and writes them.
@@ -649,7 +709,7 @@ impl<'a> OrderedWriter<'a> {
             writer,
             summary,
             codebook_id: describer.codebook.as_ref().map(|c| c.id()),
-            computed: describer.computed.iter().map(|m| (m.name.clone(), m.id())).collect(),
+            computed: computed_ids(describer),
             dims,
             opts,
             pending: BTreeMap::new(),
@@ -674,30 +734,11 @@ impl<'a> OrderedWriter<'a> {
     }
 
     fn write(&mut self, o: Outcome) -> Result<()> {
+        let o = o.scan;
         self.stages += o.times;
         self.summary.count(o.row.status, o.row.error.as_deref());
         self.summary.computed += 1;
-        let mut descriptors = Vec::new();
-        if let (Some(id), Some(d)) = (&self.codebook_id, &o.descriptor) {
-            let row = DescriptorRow::new(o.row.scan_id.clone(), o.row.utime, o.row.pose, d);
-            descriptors.push(MethodDescriptor {
-                method: crate::baselines::TOPOREC.into(),
-                id: id.clone(),
-                row,
-            });
-        }
-        if o.row.status == Status::Ok {
-            for ((method, id), values) in self.computed.iter().zip(o.baselines) {
-                let row = DescriptorRow {
-                    scan_id: o.row.scan_id.clone(),
-                    utime: o.row.utime,
-                    pose: o.row.pose,
-                    dim_used: None,
-                    values,
-                };
-                descriptors.push(MethodDescriptor { method: method.clone(), id: id.clone(), row });
-            }
-        }
+        let descriptors = o.method_descriptors(self.codebook_id.as_deref(), &self.computed);
         self.writer.write_scan(o.row, o.diagram.as_ref(), self.dims, descriptors)?;
         if self.writer.chunk_len() >= self.opts.commit_every
             || self.writer.chunk_age().as_secs_f64() >= self.opts.commit_seconds

@@ -207,40 +207,7 @@ impl ScansFile {
             return Ok(());
         }
         let rows = std::mem::take(&mut self.rows);
-        let s = |f: &dyn Fn(&ScanRow) -> Option<String>| {
-            let mut b = StringBuilder::new();
-            rows.iter().for_each(|r| b.append_option(f(r)));
-            Arc::new(b.finish()) as ArrayRef
-        };
-        let u = |f: &dyn Fn(&ScanRow) -> Option<u64>| {
-            let mut b = UInt64Builder::new();
-            rows.iter().for_each(|r| b.append_option(f(r)));
-            Arc::new(b.finish()) as ArrayRef
-        };
-        let p = |f: &dyn Fn(&Pose) -> f64| {
-            let mut b = Float64Builder::new();
-            rows.iter().for_each(|r| b.append_option(r.pose.as_ref().map(f)));
-            Arc::new(b.finish()) as ArrayRef
-        };
-        let mut utime = Int64Builder::new();
-        rows.iter().for_each(|r| utime.append_option(r.utime));
-        let columns = vec![
-            s(&|r| Some(r.scan_id.clone())),
-            s(&|r| r.fingerprint.clone()),
-            s(&|r| Some(r.settings_hash.clone())),
-            u(&|r| Some(r.seq)),
-            s(&|r| Some(r.source_path.clone())),
-            u(&|r| r.message_index),
-            Arc::new(utime.finish()) as ArrayRef,
-            p(&|q| q.x),
-            p(&|q| q.y),
-            p(&|q| q.z),
-            p(&|q| q.yaw),
-            u(&|r| Some(r.raw_points)),
-            u(&|r| Some(r.kept_points)),
-            s(&|r| Some(r.status.as_str().to_string())),
-            s(&|r| r.error.clone()),
-        ];
+        let columns = scan_columns(&rows);
         self.file.write(columns)
     }
 
@@ -254,10 +221,7 @@ impl ScansFile {
 /// Writer of one `diagrams` file.
 pub struct DiagramsFile {
     file: TableFile,
-    ids: StringBuilder,
-    dims: UInt8Builder,
-    births: Float64Builder,
-    deaths: Float64Builder,
+    columns: DiagramColumns,
     pending: usize,
 }
 
@@ -266,23 +230,14 @@ impl DiagramsFile {
     pub fn create(path: &Path) -> Result<Self> {
         Ok(DiagramsFile {
             file: TableFile::create(path, &schema::diagrams(), &[])?,
-            ids: StringBuilder::new(),
-            dims: UInt8Builder::new(),
-            births: Float64Builder::new(),
-            deaths: Float64Builder::new(),
+            columns: DiagramColumns::default(),
             pending: 0,
         })
     }
 
     /// Adds one scan's pairs in dimensions `dims`.
     pub fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> Result<()> {
-        for p in diagram.pairs().iter().filter(|p| dims.contains(&p.dim)) {
-            self.ids.append_value(scan_id);
-            self.dims.append_value(p.dim);
-            self.births.append_value(p.birth);
-            self.deaths.append_value(p.death);
-            self.pending += 1;
-        }
+        self.pending += self.columns.push(scan_id, diagram, dims);
         if self.pending >= 8 * BATCH_ROWS { self.flush() } else { Ok(()) }
     }
 
@@ -291,12 +246,7 @@ impl DiagramsFile {
             return Ok(());
         }
         self.pending = 0;
-        let columns: Vec<ArrayRef> = vec![
-            Arc::new(self.ids.finish()),
-            Arc::new(self.dims.finish()),
-            Arc::new(self.births.finish()),
-            Arc::new(self.deaths.finish()),
-        ];
+        let columns = self.columns.finish();
         self.file.write(columns)
     }
 
@@ -361,37 +311,7 @@ impl DescriptorsFile {
             return Ok(());
         }
         let rows = std::mem::take(&mut self.rows);
-        let mut ids = StringBuilder::new();
-        let mut utime = Int64Builder::new();
-        let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
-        let mut dim = UInt8Builder::new();
-        let item = Arc::new(arrow::datatypes::Field::new("item", arrow::datatypes::DataType::Float32, false));
-        let mut vec =
-            FixedSizeListBuilder::new(Float32Builder::with_capacity(rows.len() * self.b), self.b as i32)
-                .with_field(item);
-        let mut codebook = StringBuilder::new();
-        for r in &rows {
-            ids.append_value(&r.scan_id);
-            utime.append_option(r.utime);
-            pose[0].append_option(r.pose.map(|p| p.x));
-            pose[1].append_option(r.pose.map(|p| p.y));
-            pose[2].append_option(r.pose.map(|p| p.z));
-            dim.append_option(r.dim_used);
-            vec.values().append_slice(&r.values);
-            vec.append(true);
-            codebook.append_value(&self.codebook_id);
-        }
-        let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
-        let columns: Vec<ArrayRef> = vec![
-            Arc::new(ids.finish()),
-            Arc::new(utime.finish()),
-            px,
-            py,
-            pz,
-            Arc::new(dim.finish()),
-            Arc::new(vec.finish()),
-            Arc::new(codebook.finish()),
-        ];
+        let columns = descriptor_columns(&rows, self.b, &self.codebook_id);
         self.file.write(columns)
     }
 
@@ -400,4 +320,113 @@ impl DescriptorsFile {
         self.flush()?;
         self.file.finish()
     }
+}
+
+/// The `scans` columns of `rows`, in the schema's order ([`schema::scans`]).
+pub fn scan_columns(rows: &[ScanRow]) -> Vec<ArrayRef> {
+    let s = |f: &dyn Fn(&ScanRow) -> Option<String>| {
+        let mut b = StringBuilder::new();
+        rows.iter().for_each(|r| b.append_option(f(r)));
+        Arc::new(b.finish()) as ArrayRef
+    };
+    let u = |f: &dyn Fn(&ScanRow) -> Option<u64>| {
+        let mut b = UInt64Builder::new();
+        rows.iter().for_each(|r| b.append_option(f(r)));
+        Arc::new(b.finish()) as ArrayRef
+    };
+    let p = |f: &dyn Fn(&Pose) -> f64| {
+        let mut b = Float64Builder::new();
+        rows.iter().for_each(|r| b.append_option(r.pose.as_ref().map(f)));
+        Arc::new(b.finish()) as ArrayRef
+    };
+    let mut utime = Int64Builder::new();
+    rows.iter().for_each(|r| utime.append_option(r.utime));
+    let columns = vec![
+        s(&|r| Some(r.scan_id.clone())),
+        s(&|r| r.fingerprint.clone()),
+        s(&|r| Some(r.settings_hash.clone())),
+        u(&|r| Some(r.seq)),
+        s(&|r| Some(r.source_path.clone())),
+        u(&|r| r.message_index),
+        Arc::new(utime.finish()) as ArrayRef,
+        p(&|q| q.x),
+        p(&|q| q.y),
+        p(&|q| q.z),
+        p(&|q| q.yaw),
+        u(&|r| Some(r.raw_points)),
+        u(&|r| Some(r.kept_points)),
+        s(&|r| Some(r.status.as_str().to_string())),
+        s(&|r| r.error.clone()),
+    ];
+    columns
+}
+
+/// The `diagrams` columns, built a scan at a time ([`schema::diagrams`]).
+#[derive(Default)]
+pub struct DiagramColumns {
+    ids: StringBuilder,
+    dims: UInt8Builder,
+    births: Float64Builder,
+    deaths: Float64Builder,
+}
+
+impl DiagramColumns {
+    /// Adds one scan's pairs in dimensions `dims`; returns how many.
+    pub fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> usize {
+        let mut added = 0;
+        for p in diagram.pairs().iter().filter(|p| dims.contains(&p.dim)) {
+            self.ids.append_value(scan_id);
+            self.dims.append_value(p.dim);
+            self.births.append_value(p.birth);
+            self.deaths.append_value(p.death);
+            added += 1;
+        }
+        added
+    }
+
+    /// The columns of every pair added since the last call.
+    pub fn finish(&mut self) -> Vec<ArrayRef> {
+        vec![
+            Arc::new(self.ids.finish()),
+            Arc::new(self.dims.finish()),
+            Arc::new(self.births.finish()),
+            Arc::new(self.deaths.finish()),
+        ]
+    }
+}
+
+/// The `descriptors` columns of `rows` (length `b`, made by `codebook_id`), in the schema's
+/// order ([`schema::descriptors`]).
+pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str) -> Vec<ArrayRef> {
+    let mut ids = StringBuilder::new();
+    let mut utime = Int64Builder::new();
+    let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
+    let mut dim = UInt8Builder::new();
+    let item = Arc::new(arrow::datatypes::Field::new("item", arrow::datatypes::DataType::Float32, false));
+    let mut vec =
+        FixedSizeListBuilder::new(Float32Builder::with_capacity(rows.len() * b), b as i32).with_field(item);
+    let mut codebook = StringBuilder::new();
+    for r in rows {
+        ids.append_value(&r.scan_id);
+        utime.append_option(r.utime);
+        pose[0].append_option(r.pose.map(|p| p.x));
+        pose[1].append_option(r.pose.map(|p| p.y));
+        pose[2].append_option(r.pose.map(|p| p.z));
+        dim.append_option(r.dim_used);
+        vec.values().append_slice(&r.values);
+        vec.append(true);
+        codebook.append_value(codebook_id);
+    }
+    let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
+    let columns: Vec<ArrayRef> = vec![
+        Arc::new(ids.finish()),
+        Arc::new(utime.finish()),
+        px,
+        py,
+        pz,
+        Arc::new(dim.finish()),
+        Arc::new(vec.finish()),
+        Arc::new(codebook.finish()),
+    ];
+    columns
 }

@@ -26,6 +26,8 @@ pub mod meta {
 
 /// Column names, the one place they are spelled (writers and readers use these).
 pub mod columns {
+    /// The Hive partition column of every table (`session=<s>/` in the path, not in the files).
+    pub const SESSION: &str = "session";
     /// The scan's id (every table).
     pub const SCAN_ID: &str = "scan_id";
     /// xxh3-64 of the scan's raw bytes (`scans`).

@@ -124,12 +124,28 @@ fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFa
     let frame: Option<usize> = name.parse().ok();
     let utime = frame.and_then(|f| seq.times.get(f).copied().flatten()).map(|t| (t * 1e6).round() as i64);
     let fail = |error: String| ScanFailure::of_file(format!("{session}/{name}"), session, path, utime, error);
+    let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
+    frame_scan_bytes(path, &bytes, session, seq)
+}
+
+/// The scan of a `velodyne/<frame>.bin` file's `bytes` in sequence `session`, with its time
+/// and pose from `seq`: as the KITTI source makes it from the file.
+#[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
+pub fn frame_scan_bytes(
+    path: &Path,
+    bytes: &[u8],
+    session: &str,
+    seq: &Sequence,
+) -> Result<Scan, ScanFailure> {
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let frame: Option<usize> = name.parse().ok();
+    let utime = frame.and_then(|f| seq.times.get(f).copied().flatten()).map(|t| (t * 1e6).round() as i64);
+    let fail = |error: String| ScanFailure::of_file(format!("{session}/{name}"), session, path, utime, error);
     let Some(frame) = frame else {
         return Err(fail(format!("{}: file name is not a frame number", path.display())));
     };
-    let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
-    let fingerprint = crate::fingerprint::of_bytes(&bytes);
-    let mut scan = decode(&bytes, path).map_err(|e| fail(e.to_string()).with_fingerprint(fingerprint))?;
+    let fingerprint = crate::fingerprint::of_bytes(bytes);
+    let mut scan = decode(bytes, path).map_err(|e| fail(e.to_string()).with_fingerprint(fingerprint))?;
     let raw_points = scan.points.len();
     let mut intensity = Some(std::mem::take(&mut scan.reflectance));
     let mut ring = None;

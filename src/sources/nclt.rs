@@ -192,12 +192,28 @@ fn sync_scan(
 ) -> Result<Scan, ScanFailure> {
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let fail = |error: String| ScanFailure::of_file(format!("{session}/{name}"), session, path, utime, error);
+    let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
+    sync_scan_bytes(path, &bytes, session, gt, tolerance)
+}
+
+/// The scan of a `velodyne_sync/<utime>.bin` file's `bytes`, in session `session`, its pose
+/// joined from `gt` within `tolerance` µs: as the NCLT source makes it from the file.
+#[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
+pub fn sync_scan_bytes(
+    path: &Path,
+    bytes: &[u8],
+    session: &str,
+    gt: Option<&GroundTruth>,
+    tolerance: i64,
+) -> Result<Scan, ScanFailure> {
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let utime: Option<i64> = name.parse().ok();
+    let fail = |error: String| ScanFailure::of_file(format!("{session}/{name}"), session, path, utime, error);
     let Some(utime) = utime else {
         return Err(fail(format!("{}: file name is not a utime (µs)", path.display())));
     };
-    let bytes = std::fs::read(path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
-    let fingerprint = crate::fingerprint::of_bytes(&bytes);
-    let scan = decode_sync(&bytes, path).map_err(|e| fail(e.to_string()).with_fingerprint(fingerprint))?;
+    let fingerprint = crate::fingerprint::of_bytes(bytes);
+    let scan = decode_sync(bytes, path).map_err(|e| fail(e.to_string()).with_fingerprint(fingerprint))?;
     Ok(to_scan(
         scan,
         format!("{session}/{utime}"),

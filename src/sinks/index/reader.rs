@@ -113,6 +113,65 @@ impl IndexReader {
         }
     }
 
+    /// A whole table — `scans`, `diagrams`, or `descriptors` of `method` (TopoRec by default)
+    /// — as record batches in toporec's schema (columns cast to toporec's types, as every
+    /// reader here does), with the Hive partition column `session` appended, in (session,
+    /// part, row) order. An empty table has the schema and no batch.
+    pub fn table(
+        &self,
+        table: &str,
+        method: Option<&str>,
+    ) -> Result<(Arc<arrow::datatypes::Schema>, Vec<RecordBatch>)> {
+        let method = method.unwrap_or(crate::baselines::TOPOREC);
+        let (files, length) = match table {
+            tables::DESCRIPTORS => {
+                let length = match self.manifest.as_ref().and_then(|m| m.methods.get(method)) {
+                    Some(entry) => Some(entry.length),
+                    None if method == crate::baselines::TOPOREC => self.codebook().ok().map(|c| c.len()),
+                    None => None,
+                };
+                (self.descriptor_files(method)?, length)
+            }
+            tables::SCANS | tables::DIAGRAMS => (self.files(table)?, None),
+            other => return Err(Error::index(&self.root, format!("`{other}` is not a table of an index"))),
+        };
+        let definition = match table {
+            tables::SCANS => schema::scans(),
+            tables::DIAGRAMS => schema::diagrams(),
+            _ => schema::descriptors(length.unwrap_or(0)),
+        };
+        let names: Vec<&'static str> = definition.columns.iter().map(|c| c.name).collect();
+        // Field types as the checked columns come (a descriptor's list items may be nullable).
+        let schema_of = |types: Vec<DataType>| {
+            let mut fields: Vec<Field> = definition
+                .columns
+                .iter()
+                .zip(types)
+                .map(|(c, t)| Field::new(c.name, t, c.nullable))
+                .collect();
+            fields.push(Field::new(C::SESSION, DataType::Utf8, false));
+            Arc::new(arrow::datatypes::Schema::new(fields))
+        };
+        let mut schema = schema_of(definition.columns.iter().map(|c| c.data_type.clone()).collect());
+        let mut batches = Vec::new();
+        for (session, path) in files {
+            let mut checked = CheckedTable::open(&path, &definition, &names, length)?;
+            while let Some(columns) = checked.next_batch() {
+                let mut columns = columns?;
+                for (column, def) in columns.iter_mut().zip(&definition.columns) {
+                    *column = as_declared(column.clone(), &def.data_type);
+                }
+                if batches.is_empty() {
+                    schema = schema_of(columns.iter().map(|c| c.data_type().clone()).collect());
+                }
+                let rows = columns.first().map_or(0, |c| c.len());
+                columns.push(Arc::new(arrow::array::StringArray::from(vec![session.as_str(); rows])));
+                batches.push(RecordBatch::try_new(schema.clone(), columns).at(&path)?);
+            }
+        }
+        Ok((schema, batches))
+    }
+
     /// The descriptor methods the index holds: `toporec` (when it has a codebook, or
     /// TopoRec descriptors files) and those of the manifest, sorted by name.
     pub fn methods(&self) -> Result<Vec<String>> {
@@ -428,6 +487,25 @@ pub struct FileInfo {
     pub rows: u64,
     /// Descriptors: the codebook id of every row (an error when they differ).
     pub codebook_id: Option<String>,
+}
+
+/// `column` with `declared`'s list item field when it is a fixed-size list whose items fit it
+/// (the reader's lists have nullable items; toporec writes them non-null), else unchanged.
+fn as_declared(column: ArrayRef, declared: &DataType) -> ArrayRef {
+    let (Some(list), DataType::FixedSizeList(item, size)) = (column.as_fixed_size_list_opt(), declared)
+    else {
+        return column;
+    };
+    if list.value_length() != *size || column.data_type() == declared {
+        return column;
+    }
+    arrow::array::FixedSizeListArray::try_new(
+        item.clone(),
+        *size,
+        list.values().clone(),
+        list.nulls().cloned(),
+    )
+    .map_or(column, |a| Arc::new(a) as ArrayRef)
 }
 
 /// Reads a whole table file, checking every column of `table`'s schema (types, nulls).

@@ -1,0 +1,686 @@
+//! `toporec._toporec`: the Python bindings of toporec's Rust core. The package `toporec`
+//! (python/toporec/) wraps these functions in its public API; nothing here is meant to be
+//! called directly.
+//!
+//! Conventions: the GIL is released around every computation (`Python::detach`), batch calls
+//! run on rayon's threads, bad input raises `ValueError` with toporec's message, and Arrow
+//! data crosses the boundary through the Arrow C stream interface (PyCapsules named
+//! `arrow_array_stream`), without copies.
+
+use arrow::array::{
+    ArrayRef, Float64Builder, RecordBatch, RecordBatchIterator, RecordBatchReader, StringBuilder,
+    UInt32Builder,
+};
+use arrow::datatypes::{DataType, Field, Schema, SchemaRef};
+use arrow::ffi_stream::{FFI_ArrowArrayStream, RecordBatchStreamReader};
+use numpy::ndarray::{Array1, Array2};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyCapsule, PyCapsuleMethods, PyDict};
+use rayon::prelude::*;
+use std::path::PathBuf;
+use std::sync::Arc;
+use toporec::homology::{Diagram, alpha_persistence as engine_persistence};
+use toporec::vectorize::atol::{Atol, Contrast, Weighting};
+use toporec::vectorize::codebook::{Codebook, CodebookPart, CodebookSpec, DimSelection};
+use toporec::vectorize::kmeans::{Algorithm, KMeansParams};
+
+/// The engine allocates and frees large buffers on every call; mimalloc keeps them warm between
+/// calls where the system allocator in a Python process returns them to the OS each time.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+const STREAM: &std::ffi::CStr = c"arrow_array_stream";
+
+fn value_error(e: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// toporec's errors: input/output problems as `OSError`, the rest as `ValueError`.
+fn toporec_error(e: toporec::Error) -> PyErr {
+    match e {
+        toporec::Error::Io { .. } => PyOSError::new_err(e.to_string()),
+        other => PyValueError::new_err(other.to_string()),
+    }
+}
+
+/// The rows of a float64 `(n, 3)` array, checked: finite, at least 4 points.
+fn cloud(points: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
+    let a = points.as_array();
+    if a.ncols() != 3 {
+        return Err(value_error(format!(
+            "{what}: expected an (n, 3) array of points, got shape {:?}",
+            a.shape()
+        )));
+    }
+    if a.nrows() < 4 {
+        return Err(value_error(format!(
+            "{what}: {} points; the 3D alpha complex needs at least 4",
+            a.nrows()
+        )));
+    }
+    let rows: Vec<[f64; 3]> = match a.as_slice() {
+        // C-contiguous (what the package passes): one pass over the buffer.
+        Some(flat) => flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        None => a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect(),
+    };
+    if let Some((i, p)) = rows.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
+        return Err(value_error(format!("{what}: point {i} is not finite: {p:?}")));
+    }
+    Ok(rows)
+}
+
+/// The diagram of one checked cloud, in squared radii or radii.
+fn diagram_of(points: &[[f64; 3]], squared: bool, what: &str) -> PyResult<Diagram> {
+    let d = engine_persistence(points).map_err(|e| value_error(format!("{what}: {e}")))?;
+    Ok(if squared { d } else { d.to_radii() })
+}
+
+/// `{dim: (k, 2) float64 array}` for each of `dims` (pairs in (birth, death) order).
+fn diagram_dict<'py>(py: Python<'py>, d: &Diagram, dims: &[u8]) -> PyResult<Bound<'py, PyDict>> {
+    let out = PyDict::new(py);
+    for &dim in dims {
+        let pairs = d.dimension(dim);
+        let flat: Vec<f64> = pairs.iter().flat_map(|p| [p.birth, p.death]).collect();
+        let array = Array2::from_shape_vec((pairs.len(), 2), flat).expect("k × 2 values");
+        out.set_item(dim, array.into_pyarray(py))?;
+    }
+    Ok(out)
+}
+
+/// Persistence pairs of the alpha complex of one cloud.
+#[pyfunction]
+#[pyo3(signature = (points, dims, squared))]
+fn alpha_persistence<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'py, f64>,
+    dims: Vec<u8>,
+    squared: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let pts = cloud(&points, "points")?;
+    let d = py.detach(|| diagram_of(&pts, squared, "points"))?;
+    diagram_dict(py, &d, &dims)
+}
+
+/// `alpha_persistence` with the seconds spent in the engine alone (the benchmark's measure of
+/// what crossing the boundary costs).
+#[pyfunction]
+#[pyo3(signature = (points, dims, squared))]
+fn alpha_persistence_timed<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'py, f64>,
+    dims: Vec<u8>,
+    squared: bool,
+) -> PyResult<(Bound<'py, PyDict>, f64)> {
+    let pts = cloud(&points, "points")?;
+    let (d, secs) = py.detach(|| {
+        let t = std::time::Instant::now();
+        let d = diagram_of(&pts, squared, "points");
+        (d, t.elapsed().as_secs_f64())
+    });
+    Ok((diagram_dict(py, &d?, &dims)?, secs))
+}
+
+/// Persistence of many clouds, in parallel.
+#[pyfunction]
+#[pyo3(signature = (clouds, dims, squared))]
+fn alpha_persistence_batch<'py>(
+    py: Python<'py>,
+    clouds: Vec<PyReadonlyArray2<'py, f64>>,
+    dims: Vec<u8>,
+    squared: bool,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    let pts: Vec<Vec<[f64; 3]>> =
+        clouds.iter().enumerate().map(|(i, c)| cloud(c, &format!("cloud {i}"))).collect::<PyResult<_>>()?;
+    let diagrams: Vec<PyResult<Diagram>> = py.detach(|| {
+        pts.par_iter().enumerate().map(|(i, p)| diagram_of(p, squared, &format!("cloud {i}"))).collect()
+    });
+    diagrams.into_iter().map(|d| diagram_dict(py, &d?, &dims)).collect()
+}
+
+/// Vertices, edges, triangles and tetrahedra of the Delaunay complex (duplicates merged).
+#[pyfunction]
+fn simplex_counts(py: Python<'_>, points: PyReadonlyArray2<'_, f64>) -> PyResult<[usize; 4]> {
+    let pts = cloud(&points, "points")?;
+    py.detach(|| {
+        toporec::homology::DelaunayComplex::new(&pts).map(|c| c.simplex_counts()).map_err(value_error)
+    })
+}
+
+fn contrast_of(s: &str) -> PyResult<Contrast> {
+    serde_json::from_value(serde_json::json!(s))
+        .map_err(|_| value_error(format!("contrast: expected gaussian, laplacian or indicator; got {s:?}")))
+}
+
+fn weighting_of(s: &str) -> PyResult<Weighting> {
+    serde_json::from_value(serde_json::json!(s))
+        .map_err(|_| value_error(format!("weighting: expected cloud or iidproba; got {s:?}")))
+}
+
+fn kmeans_of(s: &str) -> PyResult<KMeansParams> {
+    let algorithm = match s {
+        "minibatch" => Algorithm::MiniBatch,
+        "lloyd" | "full" => Algorithm::Lloyd,
+        other => return Err(value_error(format!("kmeans: expected minibatch or lloyd; got {other:?}"))),
+    };
+    Ok(KMeansParams { algorithm, ..KMeansParams::default() })
+}
+
+/// The `(k, 2)` points of each diagram, checked.
+fn measures(diagrams: &[PyReadonlyArray2<'_, f64>]) -> PyResult<Vec<Vec<[f64; 2]>>> {
+    diagrams
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let a = d.as_array();
+            if a.ncols() != 2 && a.nrows() > 0 {
+                return Err(value_error(format!(
+                    "diagram {i}: expected a (k, 2) array, got shape {:?}",
+                    a.shape()
+                )));
+            }
+            Ok(a.rows().into_iter().map(|r| [r[0], r[1]]).collect())
+        })
+        .collect()
+}
+
+/// Centres `(b, 2)`, inertias `(b,)` and the number of finite points fitted on.
+type FittedAtol<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, u64);
+
+/// Fits ATOL's centres and inertias on all points of `diagrams`.
+#[pyfunction]
+#[pyo3(signature = (diagrams, b, contrast, weighting, kmeans, seed))]
+fn atol_fit<'py>(
+    py: Python<'py>,
+    diagrams: Vec<PyReadonlyArray2<'py, f64>>,
+    b: usize,
+    contrast: &str,
+    weighting: &str,
+    kmeans: &str,
+    seed: u64,
+) -> PyResult<FittedAtol<'py>> {
+    let (contrast, weighting, params) =
+        (contrast_of(contrast)?, weighting_of(weighting)?, kmeans_of(kmeans)?);
+    let m = measures(&diagrams)?;
+    let points_seen = m.iter().flatten().filter(|p| p.iter().all(|v| v.is_finite())).count() as u64;
+    let atol = py.detach(|| {
+        let refs: Vec<&[[f64; 2]]> = m.iter().map(Vec::as_slice).collect();
+        Atol::fit(&refs, b, contrast, weighting, &params, seed)
+    });
+    let atol = atol.map_err(value_error)?;
+    let centers: Vec<f64> = atol.centers.iter().flatten().copied().collect();
+    let centers = Array2::from_shape_vec((atol.centers.len(), 2), centers).expect("b × 2 values");
+    Ok((centers.into_pyarray(py), Array1::from(atol.inertias).into_pyarray(py), points_seen))
+}
+
+fn atol_model(
+    centers: &PyReadonlyArray2<'_, f64>,
+    inertias: &PyReadonlyArray1<'_, f64>,
+    contrast: &str,
+    weighting: &str,
+) -> PyResult<Atol> {
+    let c = centers.as_array();
+    let s = inertias.as_slice()?.to_vec();
+    if c.ncols() != 2 || c.nrows() != s.len() || s.is_empty() {
+        return Err(value_error(format!(
+            "centers must be (b, 2) and inertias (b,), b ≥ 1; got {:?} and {}",
+            c.shape(),
+            s.len()
+        )));
+    }
+    let centers = c.rows().into_iter().map(|r| [r[0], r[1]]).collect();
+    Ok(Atol { centers, inertias: s, contrast: contrast_of(contrast)?, weighting: weighting_of(weighting)? })
+}
+
+/// ATOL vectors `(n, b)` of `diagrams` under given centres, in parallel.
+#[pyfunction]
+#[pyo3(signature = (diagrams, centers, inertias, contrast, weighting))]
+fn atol_transform<'py>(
+    py: Python<'py>,
+    diagrams: Vec<PyReadonlyArray2<'py, f64>>,
+    centers: PyReadonlyArray2<'py, f64>,
+    inertias: PyReadonlyArray1<'py, f64>,
+    contrast: &str,
+    weighting: &str,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let atol = atol_model(&centers, &inertias, contrast, weighting)?;
+    let m = measures(&diagrams)?;
+    let b = atol.len();
+    let flat: Vec<f64> = py.detach(|| m.par_iter().flat_map_iter(|x| atol.transform(x)).collect());
+    Ok(Array2::from_shape_vec((m.len(), b), flat).expect("n × b values").into_pyarray(py))
+}
+
+/// Writes a one-part codebook (the paper's layout) in the CLI's JSON format; returns its id.
+#[pyfunction]
+#[pyo3(signature = (path, centers, inertias, contrast, weighting, kmeans, seed, points_seen, squared))]
+#[allow(clippy::too_many_arguments)]
+fn codebook_save(
+    py: Python<'_>,
+    path: PathBuf,
+    centers: PyReadonlyArray2<'_, f64>,
+    inertias: PyReadonlyArray1<'_, f64>,
+    contrast: &str,
+    weighting: &str,
+    kmeans: &str,
+    seed: u64,
+    points_seen: u64,
+    squared: bool,
+) -> PyResult<String> {
+    let atol = atol_model(&centers, &inertias, contrast, weighting)?;
+    let spec = CodebookSpec {
+        dims: DimSelection::Paper,
+        b: atol.len(),
+        contrast: atol.contrast,
+        weighting: atol.weighting,
+        kmeans: kmeans_of(kmeans)?,
+        seed,
+        squared_radii: squared,
+        ..CodebookSpec::default()
+    };
+    let codebook = Codebook {
+        spec,
+        toporec_version: env!("CARGO_PKG_VERSION").into(),
+        parts: vec![CodebookPart { dim: None, points_seen, atol }],
+    };
+    py.detach(|| codebook.save(&path)).map_err(toporec_error)?;
+    Ok(codebook.id())
+}
+
+/// A codebook file, checked, as its JSON text (non-finite numbers as strings).
+#[pyfunction]
+fn codebook_load(py: Python<'_>, path: PathBuf) -> PyResult<String> {
+    let codebook = py.detach(|| Codebook::load(&path)).map_err(toporec_error)?;
+    Ok(serde_json::to_string(&codebook.to_json()).expect("JSON of plain values"))
+}
+
+/// Runs a pipeline file; returns the run summary as JSON text.
+#[pyfunction]
+#[pyo3(signature = (pipeline, threads, index, full))]
+fn run(
+    py: Python<'_>,
+    pipeline: PathBuf,
+    threads: usize,
+    index: Option<PathBuf>,
+    full: bool,
+) -> PyResult<String> {
+    let p = toporec::pipeline::config::Pipeline::load(&pipeline).map_err(value_error)?;
+    let mut opts = toporec::pipeline::RunOptions::new(threads.max(1));
+    opts.progress = false;
+    opts.index = index;
+    opts.full = full;
+    let summary = py.detach(|| toporec::pipeline::run(&p, &opts)).map_err(toporec_error)?;
+    Ok(summary.to_json().to_string())
+}
+
+/// Record batches handed to Python through the Arrow C stream interface
+/// (`__arrow_c_stream__`): pyarrow, Polars and DuckDB read it without a copy.
+#[pyclass(module = "toporec._toporec")]
+struct ArrowStream {
+    content: Option<(SchemaRef, Vec<RecordBatch>)>,
+}
+
+impl ArrowStream {
+    fn new(schema: SchemaRef, batches: Vec<RecordBatch>) -> Self {
+        ArrowStream { content: Some((schema, batches)) }
+    }
+}
+
+#[pymethods]
+impl ArrowStream {
+    /// The stream as a PyCapsule (consumed: a stream is read once).
+    #[pyo3(signature = (requested_schema=None))]
+    fn __arrow_c_stream__<'py>(
+        &mut self,
+        py: Python<'py>,
+        requested_schema: Option<Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyCapsule>> {
+        let _ = requested_schema;
+        let (schema, batches) =
+            self.content.take().ok_or_else(|| value_error("this Arrow stream was already consumed"))?;
+        let reader = RecordBatchIterator::new(batches.into_iter().map(Ok), schema);
+        let stream = FFI_ArrowArrayStream::new(Box::new(reader));
+        PyCapsule::new_with_value(py, stream, STREAM)
+    }
+}
+
+/// Reads an Arrow C stream capsule (from `__arrow_c_stream__`) into record batches.
+fn import_stream(capsule: &Bound<'_, PyCapsule>) -> PyResult<(SchemaRef, Vec<RecordBatch>)> {
+    let ptr = capsule.pointer_checked(Some(STREAM))?;
+    // SAFETY: a capsule named `arrow_array_stream` holds an `ArrowArrayStream` (Arrow PyCapsule
+    // interface); `from_raw` moves it out and marks the original released.
+    let stream = unsafe { FFI_ArrowArrayStream::from_raw(ptr.as_ptr().cast()) };
+    let reader = RecordBatchStreamReader::try_new(stream).map_err(value_error)?;
+    let schema = reader.schema();
+    let batches = reader.collect::<Result<Vec<_>, _>>().map_err(value_error)?;
+    Ok((schema, batches))
+}
+
+/// A table of an index as an Arrow stream (toporec's schema and `session`).
+#[pyfunction]
+#[pyo3(signature = (index, table, method))]
+fn index_table(py: Python<'_>, index: PathBuf, table: &str, method: Option<String>) -> PyResult<ArrowStream> {
+    let (schema, batches) = py
+        .detach(|| {
+            let reader = toporec::sinks::index::reader::IndexReader::open(&index)?;
+            reader.table(table, method.as_deref())
+        })
+        .map_err(toporec_error)?;
+    Ok(ArrowStream::new(schema, batches))
+}
+
+/// The descriptor methods an index holds.
+#[pyfunction]
+fn index_methods(py: Python<'_>, index: PathBuf) -> PyResult<Vec<String>> {
+    py.detach(|| toporec::sinks::index::reader::IndexReader::open(&index)?.methods()).map_err(toporec_error)
+}
+
+/// Answers queries against one method of an index.
+#[pyclass(module = "toporec._toporec")]
+struct QueryEngine {
+    engine: Arc<toporec::query::Engine>,
+}
+
+/// One query: its id and descriptor, or why it has none.
+type Described = Result<(String, Vec<f32>), String>;
+
+#[pymethods]
+impl QueryEngine {
+    #[new]
+    #[pyo3(signature = (index, method, sessions))]
+    fn new(py: Python<'_>, index: PathBuf, method: &str, sessions: Vec<String>) -> PyResult<Self> {
+        let engine =
+            py.detach(|| toporec::query::Engine::open(&index, &sessions, method)).map_err(toporec_error)?;
+        Ok(QueryEngine { engine: Arc::new(engine) })
+    }
+
+    /// Scans in the sensor frame, described as the index describes them.
+    fn query_points<'py>(
+        &self,
+        py: Python<'py>,
+        clouds: Vec<PyReadonlyArray2<'py, f64>>,
+        ids: Vec<String>,
+        k: usize,
+    ) -> PyResult<(ArrowStream, Vec<String>)> {
+        let scans: Vec<(String, Vec<[f64; 3]>)> = clouds
+            .iter()
+            .zip(ids)
+            .map(|(c, id)| {
+                let a = c.as_array();
+                if a.ncols() != 3 {
+                    return Err(value_error(format!(
+                        "{id}: expected an (n, 3) array, got shape {:?}",
+                        a.shape()
+                    )));
+                }
+                Ok((id, a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect()))
+            })
+            .collect::<PyResult<_>>()?;
+        let engine = self.engine.clone();
+        Ok(py.detach(move || {
+            let described: Vec<Described> = scans
+                .into_par_iter()
+                .map(|(id, points)| {
+                    let bytes: Vec<u8> = points.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+                    let scan = toporec::sources::Scan {
+                        id: id.clone(),
+                        fingerprint: toporec::fingerprint::of_bytes(&bytes),
+                        session: "query".into(),
+                        path: PathBuf::from(&id),
+                        message_index: None,
+                        utime: 0,
+                        raw_points: points.len(),
+                        points,
+                        intensity: None,
+                        ring: None,
+                        pose: None,
+                        no_pose: None,
+                    };
+                    engine.describe_scan(scan).map(|(v, _)| (id, v)).map_err(|e| e.to_string())
+                })
+                .collect();
+            answer(&engine, described, k)
+        }))
+    }
+
+    /// Scan files, clouds or logs, read as `toporec query` reads them.
+    fn query_paths(
+        &self,
+        py: Python<'_>,
+        paths: Vec<PathBuf>,
+        k: usize,
+    ) -> PyResult<(ArrowStream, Vec<String>)> {
+        let engine = self.engine.clone();
+        py.detach(move || {
+            let mut items = Vec::new();
+            for p in &paths {
+                items.extend(toporec::query::open_path(p, None).map_err(toporec_error)?);
+            }
+            let described: Vec<Described> = items
+                .into_par_iter()
+                .map(|item| {
+                    let scan = item.map_err(|f| f.error)?;
+                    let id = scan.id.clone();
+                    engine.describe_scan(scan).map(|(v, _)| (id, v)).map_err(|e| e.to_string())
+                })
+                .collect();
+            Ok(answer(&engine, described, k))
+        })
+    }
+}
+
+/// The query table (`toporec query`'s columns) of described queries, and the failures.
+fn answer(
+    engine: &toporec::query::Engine,
+    described: Vec<Described>,
+    k: usize,
+) -> (ArrowStream, Vec<String>) {
+    let flat: Vec<f32> = described.iter().flatten().flat_map(|(_, v)| v.iter().copied()).collect();
+    let mut found = engine.find_many(&flat, k).into_iter();
+    let (mut query, mut rank, mut scan, mut session) =
+        (StringBuilder::new(), UInt32Builder::new(), StringBuilder::new(), StringBuilder::new());
+    let mut distance = Float64Builder::new();
+    let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
+    let mut yaw = Float64Builder::new();
+    let mut failures = Vec::new();
+    for d in described {
+        let (id, _) = match d {
+            Ok(x) => x,
+            Err(e) => {
+                failures.push(e);
+                continue;
+            }
+        };
+        let (hits, _) = found.next().expect("one result per query");
+        for (r, f) in hits.iter().enumerate() {
+            let s = &engine.scans[f.row];
+            query.append_value(&id);
+            rank.append_value(r as u32 + 1);
+            scan.append_value(&s.scan_id);
+            session.append_value(&s.session);
+            distance.append_value(f.distance);
+            for (i, b) in pose.iter_mut().enumerate() {
+                b.append_option(s.pose.map(|p| p[i]));
+            }
+            yaw.append_option(f.yaw_degrees);
+        }
+    }
+    let f = |name: &str, t: DataType, nullable: bool| Field::new(name, t, nullable);
+    let schema = Arc::new(Schema::new(vec![
+        f("query_id", DataType::Utf8, false),
+        f("rank", DataType::UInt32, false),
+        f("scan_id", DataType::Utf8, false),
+        f("session", DataType::Utf8, false),
+        f("distance", DataType::Float64, false),
+        f("pose_x", DataType::Float64, true),
+        f("pose_y", DataType::Float64, true),
+        f("pose_z", DataType::Float64, true),
+        f("yaw_deg", DataType::Float64, true),
+    ]));
+    let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
+    let columns: Vec<ArrayRef> = vec![
+        Arc::new(query.finish()),
+        Arc::new(rank.finish()),
+        Arc::new(scan.finish()),
+        Arc::new(session.finish()),
+        Arc::new(distance.finish()),
+        px,
+        py,
+        pz,
+        Arc::new(yaw.finish()),
+    ];
+    let batch = RecordBatch::try_new(schema.clone(), columns).expect("columns of the schema");
+    (ArrowStream::new(schema, vec![batch]), failures)
+}
+
+/// Describes batches of scans for one index (`toporec.describe_batch`).
+#[pyclass(module = "toporec._toporec")]
+struct BatchDescriber {
+    inner: Arc<toporec::batch::BatchDescriber>,
+}
+
+#[pymethods]
+impl BatchDescriber {
+    #[new]
+    fn new(py: Python<'_>, index: PathBuf) -> PyResult<Self> {
+        let inner =
+            py.detach(|| toporec::batch::BatchDescriber::from_index(&index)).map_err(toporec_error)?;
+        Ok(BatchDescriber { inner: Arc::new(inner) })
+    }
+
+    /// The methods and descriptor lengths, in output order.
+    fn methods(&self) -> Vec<(String, usize)> {
+        self.inner.methods()
+    }
+
+    /// Describes the scans of an Arrow stream (normalized by the Python side: `path` utf8;
+    /// `content` binary or `points` list<float64>; optional `format`, `scan_id`, `session`
+    /// utf8, `seq` uint64, `utime` int64, `pose_x/y/z/yaw` float64).
+    #[allow(clippy::type_complexity)]
+    fn describe(
+        &self,
+        py: Python<'_>,
+        stream: Bound<'_, PyCapsule>,
+    ) -> PyResult<(ArrowStream, ArrowStream, Vec<(String, ArrowStream)>)> {
+        let (_, batches) = import_stream(&stream)?;
+        let inner = self.inner.clone();
+        let out = py.detach(move || -> PyResult<toporec::batch::BatchOutput> {
+            let mut inputs = Vec::new();
+            for b in &batches {
+                inputs.extend(batch_inputs(b, inputs.len() as u64)?);
+            }
+            inner.describe(inputs).map_err(toporec_error)
+        })?;
+        let stream = |b: RecordBatch| ArrowStream::new(b.schema(), vec![b]);
+        Ok((
+            stream(out.scans),
+            stream(out.diagrams),
+            out.descriptors.into_iter().map(|(m, b)| (m, stream(b))).collect(),
+        ))
+    }
+}
+
+/// The scans of one input batch (see [`BatchDescriber::describe`]); `offset`: rows before it.
+fn batch_inputs(b: &RecordBatch, offset: u64) -> PyResult<Vec<(u64, toporec::batch::ScanInput)>> {
+    use arrow::array::{Array, AsArray};
+    use arrow::datatypes::{Float64Type, Int64Type, UInt64Type};
+    use toporec::batch::{FileFormat, ScanInput};
+    let column = |name: &str| b.column_by_name(name);
+    let strings = |name: &str| -> PyResult<Option<arrow::array::StringArray>> {
+        match column(name) {
+            None => Ok(None),
+            Some(c) => c.as_string_opt::<i32>().cloned().map(Some).ok_or_else(|| {
+                value_error(format!("column `{name}`: expected utf8, found {}", c.data_type()))
+            }),
+        }
+    };
+    let floats = |name: &str| column(name).and_then(|c| c.as_primitive_opt::<Float64Type>().cloned());
+    let paths = strings("path")?.ok_or_else(|| value_error("the batch has no `path` column"))?;
+    let (formats, ids, sessions) = (strings("format")?, strings("scan_id")?, strings("session")?);
+    let seqs = column("seq").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned());
+    let utimes = column("utime").and_then(|c| c.as_primitive_opt::<Int64Type>().cloned());
+    let pose: Vec<_> = ["pose_x", "pose_y", "pose_z", "pose_yaw"].iter().map(|n| floats(n)).collect();
+    let content = column("content").map(|c| {
+        c.as_binary_opt::<i32>()
+            .cloned()
+            .ok_or_else(|| value_error(format!("column `content`: expected binary, found {}", c.data_type())))
+    });
+    let points = column("points").map(|c| {
+        c.as_list_opt::<i32>().cloned().ok_or_else(|| {
+            value_error(format!("column `points`: expected list<float64>, found {}", c.data_type()))
+        })
+    });
+    let content = content.transpose()?;
+    let points = points.transpose()?;
+    if content.is_none() && points.is_none() {
+        return Err(value_error("the batch has neither a `content` (file bytes) nor a `points` column"));
+    }
+    let get = |a: &Option<arrow::array::StringArray>, i: usize| {
+        a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i).to_string())
+    };
+    let mut out = Vec::with_capacity(b.num_rows());
+    for i in 0..b.num_rows() {
+        let seq = seqs.as_ref().filter(|s| s.is_valid(i)).map_or(offset + i as u64, |s| s.value(i));
+        let path = PathBuf::from(paths.value(i));
+        let input = match (&content, &points) {
+            (Some(c), _) if c.is_valid(i) => {
+                let format = match get(&formats, i) {
+                    None => None,
+                    Some(f) => Some(FileFormat::parse(&f).ok_or_else(|| {
+                        value_error(format!("row {i}: format {f:?}: expected nclt or kitti"))
+                    })?),
+                };
+                ScanInput::File { path, bytes: c.value(i).to_vec(), format }
+            }
+            (_, Some(p)) if p.is_valid(i) => {
+                let values = p.value(i);
+                let values = values
+                    .as_primitive_opt::<Float64Type>()
+                    .ok_or_else(|| value_error("column `points`: expected list<float64>"))?;
+                if values.len() % 3 != 0 {
+                    return Err(value_error(format!(
+                        "row {i}: {} point values, not a multiple of 3",
+                        values.len()
+                    )));
+                }
+                let pts = values.values().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+                let scan_id =
+                    get(&ids, i).ok_or_else(|| value_error(format!("row {i}: points need a `scan_id`")))?;
+                let session = get(&sessions, i)
+                    .unwrap_or_else(|| scan_id.split('/').next().unwrap_or_default().to_string());
+                let value = |k: usize| pose[k].as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
+                let pose = match (value(0), value(1), value(2)) {
+                    (Some(x), Some(y), Some(z)) => {
+                        Some(toporec::sources::Pose { x, y, z, yaw: value(3).unwrap_or(0.0) })
+                    }
+                    _ => None,
+                };
+                let utime = utimes.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
+                ScanInput::Points { scan_id, session, path, utime, pose, points: pts }
+            }
+            _ => return Err(value_error(format!("row {i}: neither content nor points"))),
+        };
+        out.push((seq, input));
+    }
+    Ok(out)
+}
+
+#[pymodule]
+fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(alpha_persistence, m)?)?;
+    m.add_function(wrap_pyfunction!(alpha_persistence_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(alpha_persistence_timed, m)?)?;
+    m.add_function(wrap_pyfunction!(simplex_counts, m)?)?;
+    m.add_function(wrap_pyfunction!(atol_fit, m)?)?;
+    m.add_function(wrap_pyfunction!(atol_transform, m)?)?;
+    m.add_function(wrap_pyfunction!(codebook_save, m)?)?;
+    m.add_function(wrap_pyfunction!(codebook_load, m)?)?;
+    m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(index_table, m)?)?;
+    m.add_function(wrap_pyfunction!(index_methods, m)?)?;
+    m.add_class::<ArrowStream>()?;
+    m.add_class::<QueryEngine>()?;
+    m.add_class::<BatchDescriber>()?;
+    Ok(())
+}

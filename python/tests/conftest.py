@@ -1,0 +1,41 @@
+"""Shared fixtures: the repository's GUDHI fixtures and a sample index made once per session."""
+
+import importlib
+import os
+import pathlib
+
+import pytest
+
+import toporec
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+FIXTURES = REPO / "tests" / "fixtures"
+
+
+@pytest.fixture(scope="session")
+def repo() -> pathlib.Path:
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def fixtures() -> pathlib.Path:
+    return FIXTURES
+
+
+@pytest.fixture(scope="session")
+def sample_index(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
+    """The sample job (pipelines/sample.toml) indexed into a fresh folder."""
+    index = tmp_path_factory.mktemp("sample") / "index"
+    summary = toporec.run(REPO / "pipelines" / "sample.toml", threads=2, index=index, full=True)
+    assert summary["scans"]["indexed"] == 64, summary
+    return index
+
+
+def require(module: str):
+    """The module, or a skip (a failure with TOPOREC_REQUIRE_DATA=1, as in CI)."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+            raise
+        pytest.skip(f"{module} is not installed")

@@ -1,0 +1,142 @@
+"""Index tables against pyarrow's own reading of the Parquet files; queries; describe_batch
+against the rows `toporec run` wrote."""
+
+import csv
+import io
+import os
+import pathlib
+import subprocess
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+import toporec
+from conftest import REPO
+
+
+def read_with_pyarrow(index: pathlib.Path, table: str, method: str = "") -> pa.Table:
+    folder = index / table / (f"method={method}" if method else "")
+    parts = []
+    for part in sorted(folder.glob("session=*/*.parquet")):
+        t = pq.read_table(part)
+        session = part.parent.name.removeprefix("session=")
+        parts.append(t.append_column(pa.field("session", pa.string(), nullable=False), pa.array([session] * t.num_rows, pa.string())))
+    return pa.concat_tables(parts)
+
+
+def same(ours: pa.Table, theirs: pa.Table, keys):
+    assert ours.schema.remove_metadata().equals(theirs.schema.remove_metadata()), (ours.schema, theirs.schema)
+    order = [(k, "ascending") for k in keys]
+    assert ours.sort_by(order).equals(theirs.sort_by(order))
+
+
+def test_tables_equal_pyarrow(sample_index):
+    index = toporec.Index(sample_index)
+    assert index.methods() == ["toporec"]
+    scans = index.scans()
+    assert scans.num_rows == 64
+    same(scans, read_with_pyarrow(sample_index, "scans"), ["scan_id"])
+    same(index.diagrams(), read_with_pyarrow(sample_index, "diagrams"), ["scan_id", "dim", "birth", "death"])
+    same(index.descriptors(), read_with_pyarrow(sample_index, "descriptors", "toporec"), ["scan_id"])
+
+
+def test_bad_index_raises(tmp_path):
+    with pytest.raises(ValueError, match="no such index"):
+        toporec.Index(tmp_path / "missing")
+    (tmp_path / "scans" / "session=a").mkdir(parents=True)
+    (tmp_path / "scans" / "session=a" / "part-000000.parquet").write_bytes(b"not parquet")
+    with pytest.raises(ValueError, match="part-000000.parquet"):
+        toporec.Index(tmp_path).scans()
+
+
+def sample_files():
+    root = REPO / "samples" / "town" / "velodyne_data"
+    return sorted(root.glob("*/velodyne_sync/*.bin"))
+
+
+def test_query_paths_match_the_cli(sample_index, tmp_path):
+    day2 = REPO / "samples" / "town" / "velodyne_data" / "2026-01-02"
+    table = toporec.Index(sample_index).query(day2, k=3)
+    assert table.column_names == "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z,yaw_deg".split(",")
+    first = table.filter(pa.compute.equal(table["rank"], 1))
+    assert first["query_id"].to_pylist() == first["scan_id"].to_pylist()
+    assert max(first["distance"].to_pylist()) == 0.0
+    binary = REPO / "target" / "release" / "toporec"
+    if not binary.exists():
+        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+            pytest.fail(f"{binary} is missing: build it with `cargo build --release`")
+        pytest.skip(f"{binary} is missing (cargo build --release)")
+    out = tmp_path / "hits.csv"
+    subprocess.run([binary, "query", "--index", sample_index, "-k", "3", "--out", out, day2], check=True, capture_output=True)
+    rows = list(csv.DictReader(io.StringIO(out.read_text())))
+    assert len(rows) == table.num_rows
+    for row, ours in zip(rows, table.to_pylist()):
+        assert row["query_id"] == ours["query_id"] and int(row["rank"]) == ours["rank"]
+        assert row["scan_id"] == ours["scan_id"] and row["session"] == ours["session"]
+        assert float(row["distance"]) == ours["distance"]
+
+
+def decode_nclt(path):
+    a = np.frombuffer(path.read_bytes(), dtype=[("x", "<u2"), ("y", "<u2"), ("z", "<u2"), ("i", "u1"), ("l", "u1")])
+    return np.stack([a[c] * 0.005 - 100.0 for c in "xyz"], axis=1)
+
+
+def test_query_points(sample_index):
+    path = sample_files()[40]
+    table = toporec.Index(sample_index).query([decode_nclt(path)], k=5)
+    assert table["query_id"].to_pylist() == ["query/0"] * 5
+    assert table["rank"].to_pylist() == [1, 2, 3, 4, 5]
+    d = table["distance"].to_pylist()
+    assert d == sorted(d)
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        toporec.Index(sample_index).query([np.zeros((5, 2))])
+
+
+def test_describe_batch_gives_the_rows_run_wrote(sample_index):
+    index = toporec.Index(sample_index)
+    scans = index.scans()
+    by_path = {p: s for p, s in zip(scans["source_path"].to_pylist(), scans["seq"].to_pylist())}
+    files = sample_files()
+    batch = pa.table(
+        {
+            "path": [str(f) for f in files],
+            "content": [f.read_bytes() for f in files],
+            "seq": pa.array([by_path[str(f)] for f in files], pa.uint64()),
+        }
+    )
+    out = toporec.describe_batch(batch, sample_index)
+    same(out["scans"], scans, ["scan_id"])
+    same(out["diagrams"], index.diagrams(), ["scan_id", "dim", "birth", "death"])
+    assert list(out["descriptors"]) == ["toporec"]
+    same(out["descriptors"]["toporec"], index.descriptors(), ["scan_id"])
+
+
+def test_describe_batch_bad_rows_become_error_rows(sample_index):
+    good = sample_files()[0]
+    batch = pa.table(
+        {
+            "path": [str(good), str(good.with_name("not-a-time.bin")), "somewhere/else.xyz"],
+            "content": [good.read_bytes()[:-3], good.read_bytes(), b"\x00" * 16],
+        }
+    )
+    out = toporec.describe_batch(batch, sample_index)
+    rows = out["scans"].to_pylist()
+    assert [r["status"] for r in rows] == ["error", "error", "error"]
+    assert "velodyne_sync/1767261600000000.bin" in rows[0]["error"]
+    assert "not a utime" in rows[1]["error"]
+    assert "unknown scan file format" in rows[2]["error"]
+    assert out["diagrams"].num_rows == 0 and out["descriptors"]["toporec"].num_rows == 0
+
+
+def test_describe_batch_points(sample_index):
+    path = sample_files()[3]
+    points = decode_nclt(path)
+    batch = pa.table({"path": ["mem"], "scan_id": ["drive/1"], "points": [points.ravel().tolist()]})
+    out = toporec.describe_batch(batch, sample_index)
+    row = out["scans"].to_pylist()[0]
+    assert row["status"] == "ok" and row["session"] == "drive" and row["raw_points"] == len(points)
+    assert out["descriptors"]["toporec"].num_rows == 1
+    with pytest.raises(ValueError, match="neither"):
+        toporec.describe_batch(pa.table({"path": ["x"]}), sample_index)

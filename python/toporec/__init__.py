@@ -1,0 +1,362 @@
+"""toporec: topological place descriptors from LiDAR, over toporec's Rust core.
+
+* :func:`alpha_persistence`, :class:`AlphaComplex`: persistence diagrams of the 3D alpha
+  complex, equal to GUDHI's ``AlphaComplex(points).create_simplex_tree().persistence()`` in its
+  ``exact`` precision (squared radii by default).
+* :class:`Atol`, :class:`PaperDescriptor`: ATOL vectorization as a scikit-learn estimator,
+  equal to ``gudhi.representations.Atol`` for given centres; the TopoRec paper's dimension
+  rule (H2, else H1, else H0).
+* :class:`Index`: a toporec index's tables as pyarrow Tables, and queries against it.
+* :func:`run`: runs a pipeline file, as ``toporec run`` does.
+* :func:`describe_batch`: an Arrow batch of scans to the index's rows (the unit distributed
+  engines call).
+
+The GIL is released around every computation; the batch functions use all cores.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import pyarrow as pa
+
+from . import _toporec
+from ._estimator import Atol, PaperDescriptor, paper_diagram
+
+__version__ = _toporec.__version__
+__all__ = [
+    "AlphaComplex",
+    "Atol",
+    "Index",
+    "PaperDescriptor",
+    "alpha_persistence",
+    "alpha_persistence_batch",
+    "describe_batch",
+    "paper_diagram",
+    "run",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _points(points: Any, what: str = "points") -> np.ndarray:
+    try:
+        a = np.ascontiguousarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what}: cannot be read as float64 coordinates ({e})") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{what}: expected an (n, 3) array of points, got shape {a.shape}")
+    return a
+
+
+def _dims(dims: Iterable[int]) -> List[int]:
+    out = [int(d) for d in dims]
+    if not out or any(d not in (0, 1, 2) for d in out):
+        raise ValueError(f"dims: expected a non-empty list of 0, 1, 2; got {list(dims)}")
+    return out
+
+
+def alpha_persistence(
+    points: Any, dims: Sequence[int] = (0, 1, 2), squared: bool = True
+) -> Dict[int, np.ndarray]:
+    """Persistence diagram of the 3D alpha complex of ``points``.
+
+    Args:
+        points: a float64 ``(n, 3)`` array, or anything numpy turns into one (n ≥ 4).
+        dims: the homology dimensions wanted.
+        squared: squared radii (GUDHI's default) or radii.
+
+    Returns:
+        ``{dim: (k, 2) float64 array of (birth, death)}`` for each of ``dims``, rows sorted by
+        (birth, death); the essential H0 class dies at ``inf``. Zero-length pairs are dropped,
+        as GUDHI's ``persistence()`` does by default.
+
+    Raises:
+        ValueError: NaN or infinite coordinates, a shape other than ``(n, 3)``, fewer than 4
+            points, or a cloud the exact engine refuses (distinct points closer than 2⁻¹⁰⁰ of
+            its extent).
+    """
+    return _toporec.alpha_persistence(_points(points), _dims(dims), bool(squared))
+
+
+def alpha_persistence_batch(
+    clouds: Iterable[Any], dims: Sequence[int] = (0, 1, 2), squared: bool = True
+) -> List[Dict[int, np.ndarray]]:
+    """:func:`alpha_persistence` of many clouds, computed in parallel on all cores.
+
+    A bad cloud raises ``ValueError`` naming its position (``cloud 3: ...``).
+    """
+    arrays = [_points(c, f"cloud {i}") for i, c in enumerate(clouds)]
+    return _toporec.alpha_persistence_batch(arrays, _dims(dims), bool(squared))
+
+
+class AlphaSimplexTree:
+    """The persistence side of ``gudhi.SimplexTree`` for an alpha complex: what GUDHI code
+    calls after ``AlphaComplex(points).create_simplex_tree()``."""
+
+    def __init__(self, points: np.ndarray, squared: bool) -> None:
+        self._points = points
+        self._squared = squared
+        self._diagram: Optional[Dict[int, np.ndarray]] = None
+
+    def _pairs(self) -> Dict[int, np.ndarray]:
+        if self._diagram is None:
+            self._diagram = alpha_persistence(self._points, (0, 1, 2), self._squared)
+        return self._diagram
+
+    def compute_persistence(
+        self, homology_coeff_field: int = 11, min_persistence: float = 0.0, persistence_dim_max: bool = False
+    ) -> "AlphaSimplexTree":
+        """Computes the diagram (GUDHI's signature; only ``min_persistence=0`` is supported:
+        zero-length pairs are dropped)."""
+        if min_persistence != 0:
+            raise ValueError("min_persistence: only 0 is supported (zero-length pairs dropped, as GUDHI's default)")
+        self._pairs()
+        return self
+
+    def persistence(
+        self, homology_coeff_field: int = 11, min_persistence: float = 0.0, persistence_dim_max: bool = False
+    ) -> List[Tuple[int, Tuple[float, float]]]:
+        """GUDHI's list of ``(dim, (birth, death))``: dimension descending, then length
+        ``death − birth`` descending (the essential class first)."""
+        self.compute_persistence(homology_coeff_field, min_persistence, persistence_dim_max)
+        out = [
+            (dim, (float(b), float(d)))
+            for dim in (2, 1, 0)
+            for b, d in self._pairs()[dim]
+        ]
+        out.sort(key=lambda x: (-x[0], -(x[1][1] - x[1][0])))
+        return out
+
+    def persistence_intervals_in_dimension(self, dimension: int) -> np.ndarray:
+        """The ``(k, 2)`` array of dimension ``dimension``'s pairs (``(0, 2)`` when none).
+
+        Rows are sorted by (birth, death); GUDHI returns the same rows in the order of its
+        internal pairing."""
+        if dimension not in (0, 1, 2):
+            return np.empty((0, 2))
+        return self._pairs()[dimension].copy()
+
+    def betti_numbers(self) -> List[int]:
+        """Betti numbers of the complete complex (the Delaunay triangulation: ``[1, 0, 0]``)."""
+        return [int(np.isinf(self._pairs()[d][:, 1]).sum()) for d in (0, 1, 2)]
+
+    def num_vertices(self) -> int:
+        """Vertices of the Delaunay complex (duplicate points merged)."""
+        return int(_toporec.simplex_counts(self._points)[0])
+
+    def num_simplices(self) -> int:
+        """Simplices of the Delaunay complex, all dimensions."""
+        return int(sum(_toporec.simplex_counts(self._points)))
+
+    def dimension(self) -> int:
+        """Dimension of the complex (3, or less for flat clouds)."""
+        counts = _toporec.simplex_counts(self._points)
+        return max(i for i, c in enumerate(counts) if c > 0)
+
+
+class AlphaComplex:
+    """Drop-in for ``gudhi.AlphaComplex`` in 3D: ``AlphaComplex(points).create_simplex_tree()``
+    then ``.persistence()`` / ``.persistence_intervals_in_dimension(d)``, as in GUDHI, or
+    ``AlphaComplex(points).persistence()`` directly.
+
+    Results are those of GUDHI's ``exact`` precision whatever ``precision`` says (toporec's
+    engine is exact and faster than GUDHI's ``safe``). Weighted alpha complexes are not
+    supported.
+    """
+
+    def __init__(self, points: Any = None, weights: Any = None, precision: str = "safe") -> None:
+        if weights is not None:
+            raise ValueError("weights: weighted alpha complexes are not supported")
+        if precision not in ("fast", "safe", "exact"):
+            raise ValueError(f"precision: expected 'fast', 'safe' or 'exact'; got {precision!r}")
+        self._points = _points([] if points is None else points)
+        if len(self._points) < 4:
+            raise ValueError(f"points: {len(self._points)} points; the 3D alpha complex needs at least 4")
+
+    def get_point(self, vertex: int) -> List[float]:
+        """The coordinates of input point ``vertex``."""
+        return [float(x) for x in self._points[vertex]]
+
+    def create_simplex_tree(
+        self,
+        max_alpha_square: float = float("inf"),
+        default_filtration_value: bool = False,
+        output_squared_values: bool = True,
+    ) -> AlphaSimplexTree:
+        """The filtered complex (only the full complex: ``max_alpha_square=inf``)."""
+        if max_alpha_square != float("inf") or default_filtration_value:
+            raise ValueError("only the full filtered complex is supported (max_alpha_square=inf, default_filtration_value=False)")
+        return AlphaSimplexTree(self._points, bool(output_squared_values))
+
+    def persistence(self, **kwargs: Any) -> List[Tuple[int, Tuple[float, float]]]:
+        """``create_simplex_tree().persistence()``."""
+        return self.create_simplex_tree().persistence(**kwargs)
+
+    def persistence_intervals_in_dimension(self, dimension: int) -> np.ndarray:
+        """``create_simplex_tree().persistence_intervals_in_dimension(dimension)``."""
+        return self.create_simplex_tree().persistence_intervals_in_dimension(dimension)
+
+
+def _table(stream: Any) -> pa.Table:
+    """A pyarrow Table from an object with ``__arrow_c_stream__`` (buffers shared, not copied)."""
+    reader = pa.RecordBatchReader._import_from_c_capsule(stream.__arrow_c_stream__())
+    return reader.read_all()
+
+
+class Index:
+    """A toporec index folder (what ``toporec run`` writes).
+
+    Tables come as pyarrow Tables in toporec's schemas (``schemas/`` of the repository), with
+    the Hive partition column ``session`` last; their buffers are handed over through the
+    Arrow C Data Interface, without a copy.
+    """
+
+    def __init__(self, path: PathLike) -> None:
+        self.path = os.fspath(path)
+        if not os.path.isdir(self.path):
+            raise ValueError(f"{self.path}: no such index folder")
+        self._engines: Dict[Tuple[str, Tuple[str, ...]], Any] = {}
+
+    def __repr__(self) -> str:
+        return f"toporec.Index({self.path!r})"
+
+    def methods(self) -> List[str]:
+        """The descriptor methods the index holds (``toporec``, ``scancontext``, ...)."""
+        return list(_toporec.index_methods(self.path))
+
+    def scans(self) -> pa.Table:
+        """One row per scan read: ok, skipped or error."""
+        return _table(_toporec.index_table(self.path, "scans", None))
+
+    def diagrams(self) -> pa.Table:
+        """One row per persistence pair."""
+        return _table(_toporec.index_table(self.path, "diagrams", None))
+
+    def descriptors(self, method: str = "toporec") -> pa.Table:
+        """One row per ok scan: the descriptor of ``method`` (a fixed-size list of float32)."""
+        return _table(_toporec.index_table(self.path, "descriptors", method))
+
+    def query(
+        self,
+        scans: Union[Any, PathLike, Sequence[Union[Any, PathLike]]],
+        k: int = 25,
+        method: str = "toporec",
+        sessions: Sequence[str] = (),
+    ) -> pa.Table:
+        """The ``k`` nearest indexed scans of each query, laid out as ``toporec query``'s CSV:
+        ``query_id, rank, scan_id, session, distance, pose_x, pose_y, pose_z, yaw_deg``.
+
+        ``scans``: an ``(n, 3)`` array of points in the sensor frame (described as the index
+        describes its scans), a path (scan file, cloud, folder or log, as ``toporec query``
+        reads it), or a list of either. Array queries are named ``query/<i>``. A query that
+        cannot be described is left out with a warning.
+        """
+        if k < 1:
+            raise ValueError(f"k: expected ≥ 1, got {k}")
+        key = (method, tuple(sessions))
+        engine = self._engines.get(key)
+        if engine is None:
+            engine = _toporec.QueryEngine(self.path, method, list(sessions))
+            self._engines[key] = engine
+        items = [scans] if isinstance(scans, (str, os.PathLike, np.ndarray)) else list(scans)
+        paths = [os.fspath(s) for s in items if isinstance(s, (str, os.PathLike))]
+        arrays = [s for s in items if not isinstance(s, (str, os.PathLike))]
+        if paths and arrays:
+            raise ValueError("scans: give either points or paths, not both")
+        if paths:
+            stream, failures = engine.query_paths(paths, int(k))
+        else:
+            clouds = [_points(a, f"query {i}") for i, a in enumerate(arrays)]
+            ids = [f"query/{i}" for i in range(len(clouds))]
+            stream, failures = engine.query_points(clouds, ids, int(k))
+        for f in failures:
+            warnings.warn(f"toporec query: {f}", stacklevel=2)
+        return _table(stream)
+
+
+def run(
+    pipeline: PathLike,
+    threads: Optional[int] = None,
+    index: Optional[PathLike] = None,
+    full: bool = False,
+) -> Dict[str, Any]:
+    """Runs a pipeline file as ``toporec run`` does and returns its summary.
+
+    Args:
+        pipeline: the pipeline file (TOML; see docs/pipeline-files.md).
+        threads: worker threads (default: all cores).
+        index: write the index here instead of the file's ``output.index``.
+        full: rebuild the index from scratch instead of updating it.
+    """
+    threads = (os.cpu_count() or 1) if threads is None else int(threads)
+    text = _toporec.run(os.fspath(pipeline), threads, None if index is None else os.fspath(index), bool(full))
+    return json.loads(text)
+
+
+_describers: Dict[str, Any] = {}
+
+_INPUT_TYPES = {
+    "path": pa.string(),
+    "content": pa.binary(),
+    "format": pa.string(),
+    "points": pa.list_(pa.float64()),
+    "scan_id": pa.string(),
+    "session": pa.string(),
+    "seq": pa.uint64(),
+    "utime": pa.int64(),
+    "pose_x": pa.float64(),
+    "pose_y": pa.float64(),
+    "pose_z": pa.float64(),
+    "pose_yaw": pa.float64(),
+}
+
+
+def describe_batch(batch: Union[pa.RecordBatch, pa.Table], config: PathLike) -> Dict[str, Any]:
+    """Describes a batch of scans with an index's settings, frozen codebook and methods.
+
+    Args:
+        batch: a pyarrow RecordBatch or Table with a ``path`` column and either ``content``
+            (the bytes of a scan file: NCLT ``velodyne_sync/<utime>.bin`` or KITTI
+            ``velodyne/<frame>.bin``, as Spark's ``binaryFile`` source reads them; its id,
+            session, time and pose come from the path, as ``toporec run`` makes them) or
+            ``points`` (list<float64> of x, y, z, x, y, z ...; with ``scan_id``, and optionally
+            ``session``, ``utime``, ``pose_x/y/z/yaw``). Optional: ``format`` (``nclt`` or
+            ``kitti``; default: from the path) and ``seq`` (the scan's position in the job;
+            default: its row).
+        config: the index folder whose settings and codebook are used.
+
+    Returns:
+        ``{"scans": Table, "diagrams": Table, "descriptors": {method: Table}}`` in the index's
+        schemas with ``session`` last: the rows ``toporec run`` writes for those scans. A scan
+        that cannot be read or described is an ``error`` (or ``skipped``) row.
+    """
+    key = os.path.abspath(os.fspath(config))
+    describer = _describers.get(key)
+    if describer is None:
+        describer = _toporec.BatchDescriber(key)
+        _describers[key] = describer
+    table = pa.Table.from_batches([batch]) if isinstance(batch, pa.RecordBatch) else batch
+    if not isinstance(table, pa.Table):
+        raise ValueError(f"batch: expected a pyarrow RecordBatch or Table, got {type(batch).__name__}")
+    columns, names = [], []
+    for name in table.column_names:
+        if name in _INPUT_TYPES:
+            column = table.column(name)
+            try:
+                column = column.cast(_INPUT_TYPES[name])
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
+                raise ValueError(f"column `{name}`: cannot be read as {_INPUT_TYPES[name]} ({e})") from None
+            columns.append(column)
+            names.append(name)
+    table = pa.Table.from_arrays(columns, names=names).combine_chunks()
+    scans, diagrams, descriptors = describer.describe(table.__arrow_c_stream__())
+    return {
+        "scans": _table(scans),
+        "diagrams": _table(diagrams),
+        "descriptors": {m: _table(s) for m, s in descriptors},
+    }

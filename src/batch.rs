@@ -1,0 +1,316 @@
+//! Describing a batch of scans handed over in memory — the bytes of scan files, or points —
+//! into the rows of an index's tables, exactly as `toporec run` makes them for that index
+//! (its settings, its frozen codebook, its methods). The unit that the Python package's
+//! `describe_batch` and the distributed engines (Spark `mapInArrow`, Ray `map_batches`)
+//! call: batches in, Arrow record batches out, nothing written.
+//!
+//! A file's scan id, session, time and pose come from its path as the sources make them:
+//! `<session>/velodyne_sync/<utime>.bin` (NCLT, pose joined from the session's ground-truth
+//! CSV found as the NCLT source finds it) and `<sequence>/velodyne/<frame>.bin` (KITTI, time
+//! and pose from the sequence's `times.txt` and `poses`). A scan that cannot be read or
+//! described becomes an `error` (or `skipped`) row, never a failed batch.
+
+use crate::describe::Describer;
+use crate::error::{Error, Result, ResultExt};
+use crate::pipeline::config::Pipeline;
+use crate::pipeline::{ScanResult, computed_ids, describe_scan};
+use crate::sinks::index::reader::IndexReader;
+use crate::sinks::parquet::{DiagramColumns, descriptor_columns, scan_columns};
+use crate::sinks::schema::{self, columns as C};
+use crate::sources::groundtruth::GroundTruth;
+use crate::sources::kitti::Sequence;
+use crate::sources::{Pose, Scan, ScanFailure, SourceSpec};
+use crate::types::Point;
+use arrow::array::{ArrayRef, RecordBatch, StringArray};
+use arrow::datatypes::{DataType, Field, Schema};
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+/// The file formats a batch may carry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FileFormat {
+    /// NCLT `velodyne_sync/<utime>.bin`.
+    NcltSync,
+    /// KITTI `velodyne/<frame>.bin`.
+    Kitti,
+}
+
+impl FileFormat {
+    /// Parses `nclt` (or `velodyne_sync`) and `kitti`.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "nclt" | "velodyne_sync" => Some(FileFormat::NcltSync),
+            "kitti" => Some(FileFormat::Kitti),
+            _ => None,
+        }
+    }
+
+    /// The format a path's layout names: a `velodyne_sync` or `velodyne` parent folder.
+    pub fn of_path(path: &Path) -> Option<Self> {
+        let parent = path.parent()?.file_name()?.to_str()?;
+        match parent {
+            "velodyne_sync" => Some(FileFormat::NcltSync),
+            "velodyne" => Some(FileFormat::Kitti),
+            _ => None,
+        }
+    }
+}
+
+/// One scan of a batch.
+#[derive(Clone, Debug)]
+pub enum ScanInput {
+    /// A scan file's bytes, with the path it was read from.
+    File {
+        /// The file (names the scan and its session).
+        path: PathBuf,
+        /// Its bytes.
+        bytes: Vec<u8>,
+        /// Its format (`None`: from the path).
+        format: Option<FileFormat>,
+    },
+    /// Points in the sensor frame (metres, z up).
+    Points {
+        /// The scan id.
+        scan_id: String,
+        /// Its session.
+        session: String,
+        /// Where it came from (the `source_path` column).
+        path: PathBuf,
+        /// Timestamp (µs).
+        utime: Option<i64>,
+        /// Ground-truth pose.
+        pose: Option<Pose>,
+        /// The points.
+        points: Vec<Point>,
+    },
+}
+
+/// A batch's rows: `scans`, `diagrams` and each method's `descriptors`, in the index's
+/// schemas with the `session` partition column appended.
+#[derive(Clone, Debug)]
+pub struct BatchOutput {
+    /// One row per scan.
+    pub scans: RecordBatch,
+    /// One row per persistence pair of the ok scans.
+    pub diagrams: RecordBatch,
+    /// Per method (TopoRec first, then the computed ones): one row per ok scan.
+    pub descriptors: Vec<(String, RecordBatch)>,
+}
+
+/// What the sources read beside a file: a session's ground truth, a sequence's times and poses.
+enum Context {
+    Nclt { gt: Option<GroundTruth>, tolerance_us: i64 },
+    Kitti(Result<Sequence, String>),
+}
+
+/// Describes batches of scans for one index (see the module doc).
+pub struct BatchDescriber {
+    pipeline: Pipeline,
+    describer: Describer,
+    settings: String,
+    dims: Vec<u8>,
+    codebook_id: Option<String>,
+    computed: Vec<(String, String)>,
+    contexts: Mutex<HashMap<PathBuf, Arc<Context>>>,
+}
+
+impl BatchDescriber {
+    /// A describer with `index`'s settings, frozen codebook and methods. The index must have
+    /// its codebook when it holds TopoRec descriptors (`toporec fit` or a first `toporec run`
+    /// makes it).
+    pub fn from_index(index: &Path) -> Result<Self> {
+        let reader = IndexReader::open(index)?;
+        let manifest = reader
+            .manifest()
+            .ok_or_else(|| Error::index(index, "no manifest: not an index `toporec run` wrote"))?;
+        let settings = manifest.settings_hash.clone();
+        let pipeline = Pipeline::of_index(index).map_err(|e| Error::index(index, e.to_string()))?;
+        let codebook = if pipeline.methods.toporec {
+            Some(manifest.codebook(index)?.ok_or_else(|| {
+                Error::index(index, "no codebook yet: fit one first (`toporec fit` or `toporec run`)")
+            })?)
+        } else {
+            None
+        };
+        let describer = Describer {
+            preprocess: pipeline.preprocess.clone(),
+            squared: pipeline.persistence.squared,
+            codebook,
+            topological: pipeline.methods.toporec,
+            computed: pipeline.methods.computed.clone(),
+        };
+        Ok(BatchDescriber {
+            settings,
+            dims: pipeline.persistence.dims.clone(),
+            codebook_id: describer.codebook.as_ref().map(|c| c.id()),
+            computed: computed_ids(&describer),
+            describer,
+            pipeline,
+            contexts: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The descriptor methods and their lengths, in output order.
+    pub fn methods(&self) -> Vec<(String, usize)> {
+        let mut out = Vec::new();
+        if let Some(cb) = &self.describer.codebook {
+            out.push((crate::baselines::TOPOREC.to_string(), cb.len()));
+        }
+        out.extend(self.describer.computed.iter().map(|m| (m.name.clone(), m.len())));
+        out
+    }
+
+    /// Describes `inputs`, each with its position in the job's input (the `seq` column), on
+    /// rayon's threads.
+    pub fn describe(&self, inputs: Vec<(u64, ScanInput)>) -> Result<BatchOutput> {
+        let results: Vec<ScanResult> = inputs
+            .into_par_iter()
+            .map(|(position, input)| {
+                describe_scan(self.scan(input), position, &self.describer, &self.settings)
+            })
+            .collect();
+        self.output(&results)
+    }
+
+    /// The scan of one input, as the sources would make it.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
+    fn scan(&self, input: ScanInput) -> std::result::Result<Scan, ScanFailure> {
+        let (path, bytes, format) = match input {
+            ScanInput::Points { scan_id, session, path, utime, pose, points } => {
+                let bytes: Vec<u8> = points.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+                return Ok(Scan {
+                    id: scan_id,
+                    fingerprint: crate::fingerprint::of_bytes(&bytes),
+                    session,
+                    path,
+                    message_index: None,
+                    utime: utime.unwrap_or(0),
+                    raw_points: points.len(),
+                    points,
+                    intensity: None,
+                    ring: None,
+                    no_pose: pose.is_none().then_some(crate::sources::NoPose::NoGroundTruth),
+                    pose,
+                });
+            }
+            ScanInput::File { path, bytes, format } => (path, bytes, format),
+        };
+        let dir = path.parent().and_then(Path::parent).unwrap_or(Path::new("")).to_owned();
+        let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let Some(format) = format.or_else(|| FileFormat::of_path(&path)) else {
+            let error = format!(
+                "{}: unknown scan file format (give `format`: nclt or kitti; or the layout's velodyne_sync/ or velodyne/ folder)",
+                path.display()
+            );
+            return Err(ScanFailure::of_file(format!("{session}/{name}"), &session, &path, None, error));
+        };
+        let context = self.context(&dir, &session, format);
+        match (&*context, format) {
+            (Context::Nclt { gt, tolerance_us }, _) => {
+                crate::sources::nclt::sync_scan_bytes(&path, &bytes, &session, gt.as_ref(), *tolerance_us)
+            }
+            (Context::Kitti(Ok(seq)), _) => {
+                crate::sources::kitti::frame_scan_bytes(&path, &bytes, &session, seq)
+            }
+            (Context::Kitti(Err(e)), _) => {
+                Err(ScanFailure::of_file(format!("{session}/{name}"), &session, &path, None, e.clone()))
+            }
+        }
+    }
+
+    /// The context of a session folder, read once.
+    fn context(&self, dir: &Path, session: &str, format: FileFormat) -> Arc<Context> {
+        let mut contexts = self.contexts.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = contexts.get(dir) {
+            return c.clone();
+        }
+        let context = match format {
+            FileFormat::NcltSync => {
+                let (gt_path, tolerance_ms) = self.nclt_groundtruth(dir, session);
+                // A ground truth that cannot be read leaves the scans without a pose, as a
+                // missing one does; the sources refuse the session instead.
+                let gt = gt_path.and_then(|p| GroundTruth::read(&p).ok());
+                Context::Nclt { gt, tolerance_us: (tolerance_ms * 1000.0).round() as i64 }
+            }
+            FileFormat::Kitti => Context::Kitti(Sequence::read(dir).map_err(|e| e.to_string())),
+        };
+        let context = Arc::new(context);
+        contexts.insert(dir.to_owned(), context.clone());
+        context
+    }
+
+    /// The ground-truth file and join tolerance of an NCLT session folder: the pipeline's
+    /// NCLT source that lists it, else the file found beside it, with the default tolerance.
+    fn nclt_groundtruth(&self, dir: &Path, session: &str) -> (Option<PathBuf>, f64) {
+        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
+        let wanted = canonical(dir);
+        for source in &self.pipeline.sources {
+            let SourceSpec::Nclt(spec) = source else { continue };
+            let lists = spec.session_dirs().is_ok_and(|dirs| dirs.iter().any(|d| canonical(d) == wanted));
+            if lists {
+                let gt = spec
+                    .groundtruth
+                    .clone()
+                    .or_else(|| crate::sources::groundtruth::find_for_session(dir, session));
+                return (gt, spec.tolerance_ms);
+            }
+        }
+        let default = crate::sources::nclt::NcltSpec::sessions(Vec::new());
+        (crate::sources::groundtruth::find_for_session(dir, session), default.tolerance_ms)
+    }
+
+    /// The output batches of described scans.
+    fn output(&self, results: &[ScanResult]) -> Result<BatchOutput> {
+        let here = Path::new("describe_batch");
+        let sessions = |ids: Vec<&str>| -> ArrayRef { Arc::new(StringArray::from(ids)) };
+        let with_session = |table: schema::Table, mut columns: Vec<ArrayRef>, session: ArrayRef| {
+            let mut fields: Vec<Field> =
+                table.columns.iter().map(|c| Field::new(c.name, c.data_type.clone(), c.nullable)).collect();
+            fields.push(Field::new(C::SESSION, DataType::Utf8, false));
+            columns.push(session);
+            RecordBatch::try_new(Arc::new(Schema::new(fields)), columns).at(here)
+        };
+        let rows: Vec<_> = results.iter().map(|r| r.row.clone()).collect();
+        let scans = with_session(
+            schema::scans(),
+            scan_columns(&rows),
+            sessions(rows.iter().map(|r| r.session.as_str()).collect()),
+        )?;
+        let mut diagram_columns = DiagramColumns::default();
+        let mut diagram_sessions = Vec::new();
+        for r in results {
+            if let Some(d) = &r.diagram {
+                let n = diagram_columns.push(&r.row.scan_id, d, &self.dims);
+                diagram_sessions.extend(std::iter::repeat_n(r.row.session.as_str(), n));
+            }
+        }
+        let diagrams =
+            with_session(schema::diagrams(), diagram_columns.finish(), sessions(diagram_sessions))?;
+        let mut per_method: Vec<(String, usize, String, Vec<_>, Vec<&str>)> = Vec::new();
+        if let Some(cb) = &self.describer.codebook {
+            let id = self.codebook_id.clone().unwrap_or_default();
+            per_method.push((crate::baselines::TOPOREC.into(), cb.len(), id, Vec::new(), Vec::new()));
+        }
+        for (m, (name, id)) in self.describer.computed.iter().zip(&self.computed) {
+            per_method.push((name.clone(), m.len(), id.clone(), Vec::new(), Vec::new()));
+        }
+        for r in results {
+            for d in r.method_descriptors(self.codebook_id.as_deref(), &self.computed) {
+                if let Some(entry) = per_method.iter_mut().find(|e| e.0 == d.method) {
+                    entry.3.push(d.row);
+                    entry.4.push(r.row.session.as_str());
+                }
+            }
+        }
+        let mut descriptors = Vec::new();
+        for (name, length, id, rows, row_sessions) in per_method {
+            let columns = descriptor_columns(&rows, length, &id);
+            descriptors
+                .push((name, with_session(schema::descriptors(length), columns, sessions(row_sessions))?));
+        }
+        Ok(BatchOutput { scans, diagrams, descriptors })
+    }
+}
