@@ -113,6 +113,10 @@ struct RunArgs {
     /// Commit after this many seconds: (0, ∞).
     #[arg(long, default_value_t = 60.0, value_parser = toporec::ranges::positive)]
     commit_seconds: f64,
+    /// Index only shard I of N (I from 0: `0/4` .. `3/4`), then merge it into the index; the
+    /// shards of one job may run at once. Needs the index's codebook (`toporec fit --pipeline`).
+    #[arg(long, value_parser = toporec::pipeline::Shard::parse)]
+    shard: Option<toporec::pipeline::Shard>,
 }
 
 /// `toporec eval` protocols.
@@ -317,6 +321,7 @@ fn run(args: RunArgs) -> Result<Done> {
         prune: args.prune,
         commit_every: args.commit_every,
         commit_seconds: args.commit_seconds,
+        shard: args.shard,
         ..RunOptions::new(threads(args.threads))
     };
     let summary = toporec::pipeline::run(&pipeline, &opts)?;
@@ -447,13 +452,27 @@ fn mcap_cloud(args: &DiagramArgs) -> Result<Vec<toporec::types::Point>> {
 }
 
 fn fit(args: FitArgs) -> Result<()> {
+    if let (Some(path), Some(fraction)) = (&args.pipeline, args.sample) {
+        let pipeline = Pipeline::load(path)?;
+        let index = args.index.clone().unwrap_or_else(|| pipeline.index.clone());
+        let (codebook, scans) =
+            toporec::pipeline::shard::fit_sample(&pipeline, &index, fraction, threads(None))?;
+        eprintln!(
+            "codebook {} (dims {}, length {}) fitted on {scans} scans, frozen in {}",
+            codebook.id(),
+            codebook.spec.dims,
+            codebook.len(),
+            index.display()
+        );
+        return Ok(());
+    }
     let codebook = toporec::offline::fit(&args)?;
     eprintln!(
         "codebook {} (dims {}, length {}) written to {}",
         codebook.id(),
         codebook.spec.dims,
         codebook.len(),
-        args.out.display()
+        args.out.as_deref().unwrap_or(std::path::Path::new("-")).display()
     );
     Ok(())
 }

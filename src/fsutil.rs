@@ -76,6 +76,18 @@ pub struct StagedFile {
 }
 
 impl StagedFile {
+    /// Stages the existing file `source` to be published as `path`: hard-linked under the
+    /// temporary name (copied where links are not possible), so `source` stays as it is.
+    pub fn link(source: &Path, path: &Path) -> Result<StagedFile> {
+        create_parent(path)?;
+        let temp = temp_path(path);
+        if std::fs::hard_link(source, &temp).is_err() {
+            std::fs::copy(source, &temp).at(source)?;
+            std::fs::File::open(&temp).and_then(|f| f.sync_all()).at(&temp)?;
+        }
+        Ok(StagedFile { path: path.to_owned(), temp, published: false })
+    }
+
     /// The final path.
     pub fn path(&self) -> &Path {
         &self.path

@@ -21,11 +21,21 @@ use std::path::{Path, PathBuf};
 pub struct FitArgs {
     /// Diagram CSV files (dim,birth,death) as `toporec diagram` writes them, or index folders
     /// (their diagrams tables).
-    #[arg(required = true)]
+    #[arg(required_unless_present = "pipeline", conflicts_with = "pipeline")]
     pub diagrams: Vec<PathBuf>,
     /// Where to write the codebook (JSON).
-    #[arg(long, short)]
-    pub out: PathBuf,
+    #[arg(long, short, required_unless_present = "pipeline")]
+    pub out: Option<PathBuf>,
+    /// Instead of diagram files: fit the pipeline's codebook (its `[vectorize]` settings) on a
+    /// sample of its scans and freeze it in its index, before a sharded run.
+    #[arg(long, requires = "sample")]
+    pub pipeline: Option<PathBuf>,
+    /// With --pipeline: the fraction of scans, (0, 1], chosen by a hash of the scan id.
+    #[arg(long, requires = "pipeline")]
+    pub sample: Option<f64>,
+    /// With --pipeline: the index to freeze the codebook in (default: the file's).
+    #[arg(long, requires = "pipeline")]
+    pub index: Option<PathBuf>,
     /// The codebook's settings.
     #[command(flatten)]
     pub codebook: CodebookArgs,
@@ -113,12 +123,12 @@ pub fn fit(args: &FitArgs) -> Result<Codebook> {
         fitter.add(&diagram, &id);
     }
     let start = std::time::Instant::now();
-    let codebook = fitter.finish().map_err(|e| Error::Codebook {
-        path: args.out.clone(),
-        message: format!("fitting the codebook: {e}"),
-    })?;
+    let out = args.out.clone().ok_or_else(|| Error::invalid("fit: --out is required with diagram inputs"))?;
+    let codebook = fitter
+        .finish()
+        .map_err(|e| Error::Codebook { path: out.clone(), message: format!("fitting the codebook: {e}") })?;
     tracing::info!(elapsed = ?start.elapsed(), "codebook fitted");
-    codebook.save(&args.out)?;
+    codebook.save(&out)?;
     Ok(codebook)
 }
 

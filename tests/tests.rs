@@ -11,6 +11,7 @@ mod incremental;
 mod index;
 mod pipeline;
 mod pointnetvlad;
+mod shard;
 mod simulate;
 mod sources;
 mod util;

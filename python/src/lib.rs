@@ -313,6 +313,44 @@ fn run(
     Ok(summary.to_json().to_string())
 }
 
+/// `toporec fit --pipeline`: fits the pipeline's codebook on a hash sample of its scans and
+/// freezes it in `index`; returns the codebook id and the number of scans fitted on.
+#[pyfunction]
+#[pyo3(signature = (pipeline, index, fraction, threads))]
+fn fit_sample(
+    py: Python<'_>,
+    pipeline: PathBuf,
+    index: Option<PathBuf>,
+    fraction: f64,
+    threads: usize,
+) -> PyResult<(String, u64)> {
+    let p = toporec::pipeline::config::Pipeline::load(&pipeline).map_err(value_error)?;
+    let index = index.unwrap_or_else(|| p.index.clone());
+    let (codebook, scans) = py
+        .detach(|| toporec::pipeline::shard::fit_sample(&p, &index, fraction, threads))
+        .map_err(toporec_error)?;
+    Ok((codebook.id(), scans))
+}
+
+/// Merges table files written by another tool in the index's layout under `folder` (a Spark
+/// job's output) into `index`, in one commit under the index's lock; returns the scans taken in.
+#[pyfunction]
+fn merge_written(py: Python<'_>, index: PathBuf, folder: PathBuf) -> PyResult<u64> {
+    py.detach(|| -> toporec::Result<u64> {
+        let manifest = toporec::sinks::index::manifest::Manifest::load(
+            &index.join(toporec::sinks::index::MANIFEST_FILE),
+        )?
+        .ok_or_else(|| {
+            toporec::Error::index(&index, "no manifest: fit its codebook first (`toporec fit --pipeline`)")
+        })?;
+        let mut writer = toporec::sinks::index::IndexWriter::open_waiting(&index, &manifest.settings_hash)?;
+        let taken = writer.absorb(&folder)?;
+        writer.commit()?;
+        Ok(taken)
+    })
+    .map_err(toporec_error)
+}
+
 /// Record batches handed to Python through the Arrow C stream interface
 /// (`__arrow_c_stream__`): pyarrow, Polars and DuckDB read it without a copy.
 #[pyclass(module = "toporec._toporec")]
@@ -677,6 +715,8 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(codebook_save, m)?)?;
     m.add_function(wrap_pyfunction!(codebook_load, m)?)?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(fit_sample, m)?)?;
+    m.add_function(wrap_pyfunction!(merge_written, m)?)?;
     m.add_function(wrap_pyfunction!(index_table, m)?)?;
     m.add_function(wrap_pyfunction!(index_methods, m)?)?;
     m.add_class::<ArrowStream>()?;

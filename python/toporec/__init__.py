@@ -36,6 +36,7 @@ __all__ = [
     "alpha_persistence",
     "alpha_persistence_batch",
     "describe_batch",
+    "fit",
     "paper_diagram",
     "run",
 ]
@@ -296,6 +297,27 @@ def run(
     threads = (os.cpu_count() or 1) if threads is None else int(threads)
     text = _toporec.run(os.fspath(pipeline), threads, None if index is None else os.fspath(index), bool(full))
     return json.loads(text)
+
+
+def fit(
+    pipeline: PathLike, sample: float, index: Optional[PathLike] = None, threads: Optional[int] = None
+) -> Tuple[str, int]:
+    """Fits the pipeline's codebook on a sample of its scans and freezes it in the index, as
+    ``toporec fit --pipeline FILE --sample F`` does: the first step of a sharded or Spark job.
+
+    Args:
+        pipeline: the pipeline file.
+        sample: the fraction of scans, (0, 1], chosen by a hash of the scan id (deterministic).
+        index: the index folder (default: the file's ``output.index``).
+        threads: worker threads (default: all cores).
+
+    Returns:
+        ``(codebook id, scans fitted on)``.
+    """
+    threads = (os.cpu_count() or 1) if threads is None else int(threads)
+    return tuple(
+        _toporec.fit_sample(os.fspath(pipeline), None if index is None else os.fspath(index), float(sample), threads)
+    )
 
 
 _describers: Dict[str, Any] = {}

@@ -16,10 +16,12 @@
 //! last commit. Channels are bounded (crossbeam), and the source may run at most a window of
 //! scans ahead of the writer, so memory is bounded whatever the session length. Outcomes are
 //! written in input order, so the index does not depend on the thread count. One bad scan is
-//! one `error` row; a panic in a stage is caught and recorded the same way.
+//! one `error` row; a panic in a stage is caught and recorded the same way. [`shard`] splits
+//! a run across processes (`--shard I/N`).
 
 pub mod config;
 mod progress;
+pub mod shard;
 mod stored;
 
 pub use stored::{fit_on_stored, stored_descriptors};
@@ -58,6 +60,17 @@ pub struct RunOptions {
     pub commit_every: u64,
     /// Commit after this many seconds.
     pub commit_seconds: f64,
+    /// Index only this shard's scans, then merge them into the index ([`shard`]).
+    pub shard: Option<Shard>,
+}
+
+/// One of `count` shards of a run (`--shard index/count`, index from 0).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    /// This shard, in 0..count.
+    pub index: u32,
+    /// How many shards.
+    pub count: u32,
 }
 
 impl RunOptions {
@@ -71,6 +84,7 @@ impl RunOptions {
             prune: false,
             commit_every: 500,
             commit_seconds: 60.0,
+            shard: None,
         }
     }
 }
@@ -235,6 +249,15 @@ impl std::fmt::Display for RunSummary {
 
 /// Runs a pipeline; the summary says what happened (check [`RunSummary::partial`]).
 pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
+    match opts.shard {
+        Some(s) => shard::run(p, opts, s),
+        None => run_index(p, opts, None),
+    }
+}
+
+/// A run into `opts.index` (or the file's); for a shard, with the main index's codebook and
+/// what it holds up to date, indexing only the shard's scans.
+fn run_index(p: &Pipeline, opts: &RunOptions, main: Option<&shard::MainIndex>) -> Result<RunSummary> {
     let start = Instant::now();
     let index = opts.index.clone().unwrap_or_else(|| p.index.clone());
     let threads = opts.threads.max(1);
@@ -244,7 +267,11 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
     if indexed_before && writer.manifest().settings_hash != settings {
         return Err(Error::index(&index, settings_change(&writer, p)));
     }
-    let codebook = if p.methods.toporec { frozen_codebook(&writer, p, &index)? } else { None };
+    let codebook = match main {
+        Some(m) => m.codebook.clone(),
+        None if p.methods.toporec => frozen_codebook(&writer, p, &index)?,
+        None => None,
+    };
     let mut methods = writer.manifest().methods.clone();
     methods.retain(|_, e| e.kind == crate::baselines::IMPORTED);
     methods.extend(crate::sinks::index::manifest::MethodEntry::of_computed(&p.methods));
@@ -264,7 +291,7 @@ pub fn run(p: &Pipeline, opts: &RunOptions) -> Result<RunSummary> {
     };
     let mut summary = RunSummary { index: index.clone(), threads, ..Default::default() };
 
-    let pass = index_scans(p, &describer, &settings, opts, &mut writer, &mut summary)?;
+    let pass = index_scans(p, &describer, &settings, opts, main, &mut writer, &mut summary)?;
     let mut stages = pass.stages;
 
     // Scans the sources no longer yield.
@@ -448,7 +475,7 @@ pub fn computed_ids(describer: &Describer) -> Vec<(String, String)> {
 }
 
 /// What the index holds for a scan, as the source thread needs it.
-type Known = HashMap<String, CommittedScan>;
+pub(crate) type Known = HashMap<String, CommittedScan>;
 
 /// What pass 1 leaves for the rest of the run.
 struct IndexedPass {
@@ -480,6 +507,7 @@ fn index_scans(
     describer: &Describer,
     settings: &str,
     opts: &RunOptions,
+    main: Option<&shard::MainIndex>,
     writer: &mut IndexWriter,
     summary: &mut RunSummary,
 ) -> Result<IndexedPass> {
@@ -490,11 +518,14 @@ fn index_scans(
     let (out_tx, out_rx) = bounded::<Outcome>(2 * threads);
     let (credit_tx, credit_rx) = bounded::<()>(window);
     (0..window).for_each(|_| credit_tx.send(()).expect("capacity"));
-    let known: Arc<Known> = Arc::new(writer.committed().clone());
+    let mut known = main.map(|m| m.known.clone()).unwrap_or_default();
+    known.extend(writer.committed().iter().map(|(k, v)| (k.clone(), v.clone())));
+    let known: Arc<Known> = Arc::new(known);
+    let shard = main.map(|m| m.shard);
     let mut ordered = OrderedWriter::new(writer, summary, describer, &p.persistence.dims, opts);
     let report = std::thread::scope(|scope| -> Result<SourceReport> {
         let known = known.clone();
-        let reader = scope.spawn(move || read_sources(p, settings, &known, job_tx, credit_rx));
+        let reader = scope.spawn(move || read_sources(p, settings, &known, shard, job_tx, credit_rx));
         for _ in 0..threads {
             let (rx, tx) = (job_rx.clone(), out_tx.clone());
             scope.spawn(move || {
@@ -552,43 +583,57 @@ fn read_sources(
     p: &Pipeline,
     settings: &str,
     known: &Known,
+    shard: Option<Shard>,
     jobs: Sender<Job>,
     credits: Receiver<()>,
 ) -> SourceReport {
     let t = ThreadTime::now();
     let mut report = SourceReport::default();
     let (mut seq, mut position) = (0u64, 0u64);
-    let mut consider = |item: std::result::Result<Scan, ScanFailure>, report: &mut SourceReport| -> bool {
-        let (id, fingerprint, error) = match &item {
-            Ok(s) => (s.id.clone(), Some(s.fingerprint), None),
-            Err(f) => (f.id.clone(), f.fingerprint, Some(f.error.clone())),
-        };
-        if let Ok(Scan { no_pose: Some(why), .. }) = &item {
-            *report.no_pose.entry(why.to_string()).or_default() += 1;
-        }
-        position += 1;
-        if !report.seen.insert(id.clone()) {
-            tracing::warn!("scan {id} came twice; the later one is left out");
-            report.duplicates += 1;
-            return true;
-        }
-        let fingerprint = fingerprint.map(crate::fingerprint::hex);
-        match known.get(&id) {
-            Some(c)
-                if c.settings_hash == settings
-                    && c.fingerprint == fingerprint
-                    && (error.is_none() || c.error == error) =>
-            {
-                report.up_to_date.push((c.status, c.error.clone()));
+    let mut consider =
+        |item: std::result::Result<Scan, ScanFailure>, by_file: bool, report: &mut SourceReport| -> bool {
+            let (id, fingerprint, error) = match &item {
+                Ok(s) => (s.id.clone(), Some(s.fingerprint), None),
+                Err(f) => (f.id.clone(), f.fingerprint, Some(f.error.clone())),
+            };
+            if let Some(shard) = shard {
+                let key = match (&item, by_file) {
+                    (Ok(s), true) => &s.session,
+                    (Err(f), true) => &f.session,
+                    _ => &id,
+                };
+                if !shard.owns(key) {
+                    // Another shard's: it keeps its place in the input.
+                    position += 1;
+                    return true;
+                }
+            }
+            if let Ok(Scan { no_pose: Some(why), .. }) = &item {
+                *report.no_pose.entry(why.to_string()).or_default() += 1;
+            }
+            position += 1;
+            if !report.seen.insert(id.clone()) {
+                tracing::warn!("scan {id} came twice; the later one is left out");
+                report.duplicates += 1;
                 return true;
             }
-            Some(_) => report.replaced += 1,
-            None => report.added += 1,
-        }
-        let ok = credits.recv().is_ok() && jobs.send(Job { seq, position: position - 1, item }).is_ok();
-        seq += 1;
-        ok
-    };
+            let fingerprint = fingerprint.map(crate::fingerprint::hex);
+            match known.get(&id) {
+                Some(c)
+                    if c.settings_hash == settings
+                        && c.fingerprint == fingerprint
+                        && (error.is_none() || c.error == error) =>
+                {
+                    report.up_to_date.push((c.status, c.error.clone()));
+                    return true;
+                }
+                Some(_) => report.replaced += 1,
+                None => report.added += 1,
+            }
+            let ok = credits.recv().is_ok() && jobs.send(Job { seq, position: position - 1, item }).is_ok();
+            seq += 1;
+            ok
+        };
     'all: for (i, spec) in p.sources.iter().enumerate() {
         let stream = match spec.open() {
             Ok(s) => s,
@@ -602,14 +647,15 @@ fn read_sources(
                     fingerprint: None,
                     error: e.to_string(),
                 };
-                if !consider(Err(failure), &mut report) {
+                if !consider(Err(failure), false, &mut report) {
                     break 'all;
                 }
                 continue;
             }
         };
+        let by_file = matches!(spec, crate::sources::SourceSpec::Mcap(_));
         for item in stream {
-            if !consider(item, &mut report) {
+            if !consider(item, by_file, &mut report) {
                 break 'all;
             }
         }

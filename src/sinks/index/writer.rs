@@ -115,8 +115,18 @@ impl IndexWriter {
     /// Opens (or creates) the index at `root` for writing. `full`: delete what it holds first.
     /// Fails at once when another writer holds the index.
     pub fn open(root: &Path, settings_hash: &str, full: bool) -> Result<Self> {
+        Self::open_with(root, settings_hash, full, false)
+    }
+
+    /// [`IndexWriter::open`], waiting for another writer to finish instead of failing (the
+    /// merge step of a sharded run: shards take turns at the manifest).
+    pub fn open_waiting(root: &Path, settings_hash: &str) -> Result<Self> {
+        Self::open_with(root, settings_hash, false, true)
+    }
+
+    fn open_with(root: &Path, settings_hash: &str, full: bool, wait: bool) -> Result<Self> {
         std::fs::create_dir_all(root).at(root)?;
-        let lock = take_lock(root)?;
+        let lock = take_lock(root, wait)?;
         if full {
             for table in tables::ALL {
                 let dir = root.join(table);
@@ -197,6 +207,160 @@ impl IndexWriter {
             self.chunk.insert(session.to_string(), SessionFiles::default());
         }
         self.chunk.get_mut(session).expect("inserted")
+    }
+
+    /// Takes in the committed content of another index with the same settings and codebook
+    /// (a shard of a sharded run): its files are linked in under this index's part numbers
+    /// and its scans replace any this index holds, at the next [`IndexWriter::commit`]. The
+    /// other index is left as it is. Returns the number of scans taken in.
+    pub fn absorb(&mut self, other: &Path) -> Result<u64> {
+        let (files, scans) = match Manifest::load(&other.join(MANIFEST_FILE))? {
+            Some(theirs) => {
+                if theirs.settings_hash != self.manifest.settings_hash {
+                    return Err(Error::index(
+                        other,
+                        format!(
+                            "made with settings {}, the index {} with {}",
+                            theirs.settings_hash,
+                            self.root.display(),
+                            self.manifest.settings_hash
+                        ),
+                    ));
+                }
+                if theirs.codebook_id.is_some() && theirs.codebook_id != self.manifest.codebook_id {
+                    return Err(Error::index(
+                        other,
+                        "made with another codebook than the index it merges into",
+                    ));
+                }
+                let scans = committed_scans(other, &theirs)?;
+                (theirs.files, scans)
+            }
+            None => self.written_elsewhere(other)?,
+        };
+        for f in &files {
+            let table = tables::ALL
+                .into_iter()
+                .find(|t| *t == f.table)
+                .ok_or_else(|| Error::index(other, format!("unknown table `{}` in its manifest", f.table)))?;
+            let method = (table == tables::DESCRIPTORS).then(|| f.method_name().to_string());
+            let target = self.next_part(table, method.as_deref(), &f.session);
+            let file = StagedFile::link(&other.join(&f.path), &target)?;
+            self.compacted.push(Staged { table, method, session: f.session.clone(), file, rows: f.rows });
+        }
+        let taken = scans.len() as u64;
+        for (id, scan) in scans {
+            if self.committed.contains_key(&id) {
+                self.removals.insert(id.clone());
+            }
+            self.chunk_scans.push((id, scan));
+        }
+        Ok(taken)
+    }
+
+    /// The table files another tool wrote in this index's layout (a folder with `scans/`,
+    /// `diagrams/`, `descriptors/method=<m>/`, each partitioned by `session=<s>/`, and no
+    /// manifest: a Spark job's output), every one checked against toporec's schema (types by
+    /// family), its scans made with this index's settings and its TopoRec descriptors with
+    /// its codebook.
+    fn written_elsewhere(&self, other: &Path) -> Result<(Vec<FileEntry>, HashMap<String, CommittedScan>)> {
+        let mut files = Vec::new();
+        let mut scans = HashMap::new();
+        let entry = |table: &str, method: Option<&str>, session: String, path: &Path, rows: u64| FileEntry {
+            table: table.to_string(),
+            method: method.map(str::to_string),
+            session,
+            path: path.strip_prefix(other).unwrap_or(path).to_string_lossy().replace('\\', "/"),
+            rows,
+            bytes: 0,
+            xxh3: String::new(),
+        };
+        let mut methods: Vec<String> = Vec::new();
+        if let Ok(entries) = std::fs::read_dir(other.join(tables::DESCRIPTORS)) {
+            for e in entries.flatten() {
+                if let Some(m) = e.file_name().to_string_lossy().strip_prefix("method=") {
+                    methods.push(m.to_string());
+                }
+            }
+        }
+        methods.sort();
+        for table in [tables::SCANS, tables::DIAGRAMS] {
+            let listed =
+                if other.join(table).is_dir() { super::table_files(other, table, None)? } else { Vec::new() };
+            for (session, path) in listed {
+                let info = super::reader::check_file(&path, table, None)?;
+                if table == tables::SCANS {
+                    for r in read_scans(&path, &session)? {
+                        if r.settings_hash != self.manifest.settings_hash {
+                            return Err(Error::table(
+                                &path,
+                                format!(
+                                    "scan {} was made with settings {}, the index {} has {}",
+                                    r.scan_id,
+                                    r.settings_hash,
+                                    self.root.display(),
+                                    self.manifest.settings_hash
+                                ),
+                            ));
+                        }
+                        let record = CommittedScan {
+                            session: r.session,
+                            fingerprint: r.fingerprint,
+                            settings_hash: r.settings_hash,
+                            status: r.status,
+                            error: r.error,
+                            has_descriptor: false,
+                            utime: r.utime,
+                            pose: r.pose,
+                        };
+                        scans.insert(r.scan_id, record);
+                    }
+                }
+                files.push(entry(table, None, session, &path, info.rows));
+            }
+        }
+        for method in &methods {
+            let length = match self.manifest.methods.get(method) {
+                Some(m) => Some(m.length),
+                None if method == TOPOREC => self.manifest.descriptor_length,
+                None => None,
+            };
+            let expected = match self.manifest.methods.get(method) {
+                Some(m) => Some(m.id.clone()),
+                None if method == TOPOREC => self.manifest.codebook_id.clone(),
+                None => None,
+            };
+            let Some(expected) = expected else {
+                return Err(Error::index(
+                    other,
+                    format!(
+                        "descriptors of `{method}`, a method the index {} does not have",
+                        self.root.display()
+                    ),
+                ));
+            };
+            for (session, path) in super::table_files(other, tables::DESCRIPTORS, Some(method))? {
+                let info = super::reader::check_file(&path, tables::DESCRIPTORS, length)?;
+                if info.codebook_id.as_ref().is_some_and(|id| *id != expected) {
+                    return Err(Error::table(
+                        &path,
+                        format!(
+                            "made by {}, the index's `{method}` by {expected}",
+                            info.codebook_id.unwrap_or_default()
+                        ),
+                    ));
+                }
+                if method == TOPOREC {
+                    for id in scan_ids(&path)? {
+                        if let Some(c) = scans.get_mut(&id) {
+                            c.has_descriptor = true;
+                        }
+                    }
+                }
+                files.push(entry(tables::DESCRIPTORS, Some(method), session, &path, info.rows));
+            }
+        }
+        Ok((files, scans))
     }
 
     /// Adds one scan to the open chunk: its row, its pairs in `dims` (ok scans), its
@@ -541,7 +705,7 @@ fn count(c: &mut Counts, status: Status, delta: i64) {
 }
 
 /// Takes the writer's lock, or explains who holds it.
-fn take_lock(root: &Path) -> Result<std::fs::File> {
+fn take_lock(root: &Path, wait: bool) -> Result<std::fs::File> {
     use std::io::{Read, Seek, Write};
     let path = root.join(LOCK_FILE);
     let mut file = std::fs::OpenOptions::new()
@@ -551,7 +715,8 @@ fn take_lock(root: &Path) -> Result<std::fs::File> {
         .truncate(false)
         .open(&path)
         .at(&path)?;
-    match file.try_lock() {
+    let attempt = if wait { file.lock().map_err(std::fs::TryLockError::Error) } else { file.try_lock() };
+    match attempt {
         Ok(()) => {}
         Err(std::fs::TryLockError::WouldBlock) => {
             let mut holder = String::new();
@@ -608,7 +773,8 @@ fn remove_empty_dirs(dir: &Path) {
 }
 
 /// Every committed scan, by id, from the manifest's `scans` and `descriptors` files.
-fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
+/// What the index at `root` with `manifest` holds for each committed scan.
+pub fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
     let mut out = HashMap::new();
     for f in manifest.files_of(tables::SCANS) {
         for r in read_scans(&root.join(&f.path), &f.session)? {

@@ -1,0 +1,99 @@
+"""The Spark job (toporec.spark, local[2]) against `toporec run` with the same codebook: the
+same scan and diagram rows, descriptors within 1e-6, the same query answers and Recall@N."""
+
+import json
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import toporec
+from conftest import REPO, require
+
+
+@pytest.fixture(scope="module")
+def spark():
+    require("pyspark")
+    if shutil.which("java") is None:
+        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+            pytest.fail("java is not on PATH (Spark needs Java 17)")
+        pytest.skip("java is not on PATH")
+    from pyspark.sql import SparkSession
+
+    session = (
+        SparkSession.builder.master("local[2]")
+        .appName("toporec-test")
+        .config("spark.ui.enabled", "false")
+        .config("spark.sql.shuffle.partitions", "2")
+        .getOrCreate()
+    )
+    session.sparkContext.setLogLevel("ERROR")
+    yield session
+    session.stop()
+
+
+def test_spark_index_equals_toporec_run(spark, tmp_path):
+    from toporec.spark import index_files
+
+    pipeline = REPO / "pipelines" / "sample.toml"
+    by_run, by_spark = tmp_path / "run", tmp_path / "spark"
+    toporec.fit(pipeline, sample=0.5, index=by_run)
+    toporec.run(pipeline, index=by_run)
+    result = index_files(spark, [REPO / "samples" / "town" / "velodyne_data"], by_spark, pipeline=pipeline, sample=0.5)
+    assert result["scans"] == 64 and result["ok"] == 64, result
+    assert not list(by_spark.glob(".spark-*")), "the staging folder is removed"
+
+    a, b = toporec.Index(by_run), toporec.Index(by_spark)
+    key = [("scan_id", "ascending")]
+    assert a.scans().sort_by(key).equals(b.scans().sort_by(key))
+    pairs = key + [("dim", "ascending"), ("birth", "ascending"), ("death", "ascending")]
+    assert a.diagrams().sort_by(pairs).equals(b.diagrams().sort_by(pairs))
+    da, db = a.descriptors().sort_by(key), b.descriptors().sort_by(key)
+    assert da.drop(["descriptor"]).equals(db.drop(["descriptor"]))
+    va = np.stack(da["descriptor"].to_numpy(zero_copy_only=False))
+    vb = np.stack(db["descriptor"].to_numpy(zero_copy_only=False))
+    np.testing.assert_allclose(vb, va, rtol=0, atol=1e-6)
+
+    day2 = REPO / "samples" / "town" / "velodyne_data" / "2026-01-02"
+    assert a.query(day2, k=5).equals(b.query(day2, k=5))
+
+    binary = REPO / "target" / "release" / "toporec"
+    if not binary.exists():
+        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+            pytest.fail(f"{binary} is missing: build it with `cargo build --release`")
+        pytest.skip(f"{binary} is missing (cargo build --release)")
+    verify = subprocess.run([binary, "verify", "--index", by_spark], capture_output=True, text=True)
+    assert verify.returncode == 0, verify.stderr
+    reports = []
+    for index in (by_run, by_spark):
+        out = tmp_path / f"eval-{index.name}"
+        args = ["eval", "places", "--db", index, "--db-session", "2026-01-01", "--query-session", "2026-01-02", "-o", out]
+        subprocess.run([binary, *args], check=True, capture_output=True)
+        report = json.loads((out / "report.json").read_text())
+        reports.append(report["methods"])
+    assert reports[0] == reports[1] or _same_recalls(*reports)
+
+
+def _same_recalls(a, b):
+    strip = lambda methods: [{k: v for k, v in m.items() if "time" not in k and "ms" not in k} for m in methods]  # noqa: E731
+    return strip(a) == strip(b)
+
+
+def test_a_bad_file_is_an_error_row(spark, tmp_path):
+    from toporec.spark import index_files
+
+    pipeline = REPO / "pipelines" / "sample.toml"
+    drive = tmp_path / "drive" / "2026-01-01" / "velodyne_sync"
+    drive.mkdir(parents=True)
+    files = sorted((REPO / "samples" / "town" / "velodyne_data" / "2026-01-01" / "velodyne_sync").glob("*.bin"))[:3]
+    for f in files:
+        shutil.copy(f, drive / f.name)
+    (drive / files[1].name).write_bytes(files[1].read_bytes()[:-5])
+    index = tmp_path / "index"
+    result = index_files(spark, [tmp_path / "drive"], index, pipeline=pipeline, sample=1.0)
+    assert result["scans"] == 3 and result["errors"] == 1, result
+    rows = {r["scan_id"]: r for r in toporec.Index(index).scans().to_pylist()}
+    bad = rows[f"2026-01-01/{files[1].stem}"]
+    assert bad["status"] == "error" and files[1].name in bad["error"]
