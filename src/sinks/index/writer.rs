@@ -52,6 +52,24 @@ pub struct CommittedScan {
     pub pose: Option<crate::types::Pose>,
 }
 
+impl CommittedScan {
+    /// A committed `scans` row as the writer keeps it, with its id (no TopoRec descriptor
+    /// known yet).
+    fn of_row(r: ScanRow) -> (String, CommittedScan) {
+        let record = CommittedScan {
+            session: r.session,
+            fingerprint: r.fingerprint,
+            settings_hash: r.settings_hash,
+            status: r.status,
+            error: r.error,
+            has_descriptor: false,
+            utime: r.utime,
+            pose: r.pose,
+        };
+        (r.scan_id, record)
+    }
+}
+
 /// The files of the open chunk, per session.
 #[derive(Default)]
 struct SessionFiles {
@@ -303,17 +321,8 @@ impl IndexWriter {
                                 ),
                             ));
                         }
-                        let record = CommittedScan {
-                            session: r.session,
-                            fingerprint: r.fingerprint,
-                            settings_hash: r.settings_hash,
-                            status: r.status,
-                            error: r.error,
-                            has_descriptor: false,
-                            utime: r.utime,
-                            pose: r.pose,
-                        };
-                        scans.insert(r.scan_id, record);
+                        let (id, record) = CommittedScan::of_row(r);
+                        scans.insert(id, record);
                     }
                 }
                 files.push(entry(table, None, session, &path, info.rows));
@@ -777,21 +786,7 @@ fn remove_empty_dirs(dir: &Path) {
 pub fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
     let mut out = HashMap::new();
     for f in manifest.files_of(tables::SCANS) {
-        for r in read_scans(&root.join(&f.path), &f.session)? {
-            out.insert(
-                r.scan_id,
-                CommittedScan {
-                    session: r.session,
-                    fingerprint: r.fingerprint,
-                    settings_hash: r.settings_hash,
-                    status: r.status,
-                    error: r.error,
-                    has_descriptor: false,
-                    utime: r.utime,
-                    pose: r.pose,
-                },
-            );
-        }
+        out.extend(read_scans(&root.join(&f.path), &f.session)?.into_iter().map(CommittedScan::of_row));
     }
     for f in manifest.descriptor_files_of(TOPOREC) {
         for id in scan_ids(&root.join(&f.path))? {
