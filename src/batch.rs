@@ -179,21 +179,9 @@ impl BatchDescriber {
     fn scan(&self, input: ScanInput) -> std::result::Result<Scan, ScanFailure> {
         let (path, bytes, format) = match input {
             ScanInput::Points { scan_id, session, path, utime, pose, points } => {
-                let bytes: Vec<u8> = points.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
-                return Ok(Scan {
-                    id: scan_id,
-                    fingerprint: crate::fingerprint::of_bytes(&bytes),
-                    session,
-                    path,
-                    message_index: None,
-                    utime: utime.unwrap_or(0),
-                    raw_points: points.len(),
-                    points,
-                    intensity: None,
-                    ring: None,
-                    no_pose: pose.is_none().then_some(crate::sources::NoPose::NoGroundTruth),
-                    pose,
-                });
+                let scan = Scan::of_points(scan_id, session, path, points);
+                let no_pose = pose.is_none().then_some(crate::sources::NoPose::NoGroundTruth);
+                return Ok(Scan { utime: utime.unwrap_or(0), pose, no_pose, ..scan });
             }
             ScanInput::File { path, bytes, format } => (path, bytes, format),
         };

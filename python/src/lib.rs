@@ -459,21 +459,12 @@ impl QueryEngine {
             let described: Vec<Described> = scans
                 .into_par_iter()
                 .map(|(id, points)| {
-                    let bytes: Vec<u8> = points.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
-                    let scan = toporec::sources::Scan {
-                        id: id.clone(),
-                        fingerprint: toporec::fingerprint::of_bytes(&bytes),
-                        session: "query".into(),
-                        path: PathBuf::from(&id),
-                        message_index: None,
-                        utime: 0,
-                        raw_points: points.len(),
+                    let scan = toporec::sources::Scan::of_points(
+                        id.clone(),
+                        "query".into(),
+                        PathBuf::from(&id),
                         points,
-                        intensity: None,
-                        ring: None,
-                        pose: None,
-                        no_pose: None,
-                    };
+                    );
                     engine.describe_scan(scan).map(|(v, _)| (id, v)).map_err(|e| e.to_string())
                 })
                 .collect();

@@ -57,6 +57,29 @@ pub struct Scan {
     pub no_pose: Option<NoPose>,
 }
 
+impl Scan {
+    /// A scan of points handed over in memory rather than read from a file (the Python
+    /// package, `describe_batch`): fingerprinted by the points' bytes, so its random choices
+    /// are seeded from its content; no time (0) and no pose.
+    pub fn of_points(id: String, session: String, path: PathBuf, points: Vec<Point>) -> Scan {
+        let bytes: Vec<u8> = points.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+        Scan {
+            id,
+            fingerprint: crate::fingerprint::of_bytes(&bytes),
+            session,
+            path,
+            message_index: None,
+            utime: 0,
+            raw_points: points.len(),
+            points,
+            intensity: None,
+            ring: None,
+            pose: None,
+            no_pose: Some(NoPose::NoGroundTruth),
+        }
+    }
+}
+
 /// Why a scan has no pose.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum NoPose {
