@@ -7,18 +7,20 @@
 //! A file's scan id, session, time and pose come from its path as the sources make them:
 //! `<session>/velodyne_sync/<utime>.bin` (NCLT, pose joined from the session's ground-truth
 //! CSV found as the NCLT source finds it) and `<sequence>/velodyne/<frame>.bin` (KITTI, time
-//! and pose from the sequence's `times.txt` and `poses`). A scan that cannot be read or
-//! described becomes an `error` (or `skipped`) row, never a failed batch.
+//! and pose from the sequence's `times.txt` and `poses`). An MCAP file is handed over as a
+//! range of message indices and read from its path. A scan that cannot be read or described
+//! becomes an `error` (or `skipped`) row, never a failed batch.
 
 use crate::describe::Describer;
 use crate::error::{Error, Result, ResultExt};
 use crate::pipeline::config::Pipeline;
 use crate::pipeline::{ScanResult, computed_ids, describe_scan};
 use crate::sinks::index::reader::IndexReader;
-use crate::sinks::parquet::{DiagramColumns, descriptor_columns, scan_columns};
+use crate::sinks::parquet::{DiagramColumns, DiagramsFile, descriptor_columns, scan_columns};
 use crate::sinks::schema::{self, columns as C};
 use crate::sources::groundtruth::GroundTruth;
 use crate::sources::kitti::Sequence;
+use crate::sources::mcap::McapSpec;
 use crate::sources::{Pose, Scan, ScanFailure, SourceSpec};
 use crate::types::Point;
 use arrow::array::{ArrayRef, RecordBatch, StringArray};
@@ -69,6 +71,18 @@ pub enum ScanInput {
         bytes: Vec<u8>,
         /// Its format (`None`: from the path).
         format: Option<FileFormat>,
+    },
+    /// The scans of an MCAP file whose message index (among its point-cloud topic's messages)
+    /// lies in `first..first + count`, read from the file, as the pipeline's MCAP source that
+    /// lists the file reads it (its topic, poses, session), else with the defaults. Its
+    /// position is that of the range's first scan; the others follow.
+    McapRange {
+        /// The MCAP file.
+        path: PathBuf,
+        /// The first message index.
+        first: u64,
+        /// How many.
+        count: u64,
     },
     /// Points in the sensor frame (metres, z up).
     Points {
@@ -165,13 +179,98 @@ impl BatchDescriber {
     /// Describes `inputs`, each with its position in the job's input (the `seq` column), on
     /// rayon's threads.
     pub fn describe(&self, inputs: Vec<(u64, ScanInput)>) -> Result<BatchOutput> {
-        let results: Vec<ScanResult> = inputs
+        let results = self.results(inputs);
+        self.output(&results, true)
+    }
+
+    /// Every scan of `inputs`, read and described on rayon's threads, in input order.
+    fn results(&self, inputs: Vec<(u64, ScanInput)>) -> Vec<ScanResult> {
+        let scans: Vec<(u64, std::result::Result<Scan, ScanFailure>)> = inputs
             .into_par_iter()
-            .map(|(position, input)| {
-                describe_scan(self.scan(input), position, &self.describer, &self.settings)
+            .flat_map_iter(|(position, input)| match input {
+                ScanInput::McapRange { path, first, count } => self.mcap_range(&path, first, count, position),
+                other => vec![(position, self.scan(other))],
             })
             .collect();
-        self.output(&results)
+        scans
+            .into_par_iter()
+            .map(|(position, scan)| describe_scan(scan, position, &self.describer, &self.settings))
+            .collect()
+    }
+
+    /// The scans of an MCAP message range (see [`ScanInput::McapRange`]) with their positions.
+    fn mcap_range(
+        &self,
+        path: &Path,
+        first: u64,
+        count: u64,
+        position: u64,
+    ) -> Vec<(u64, std::result::Result<Scan, ScanFailure>)> {
+        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
+        let wanted = canonical(path);
+        let spec = self
+            .pipeline
+            .sources
+            .iter()
+            .find_map(|s| match s {
+                SourceSpec::Mcap(m) if m.files.iter().any(|f| canonical(f) == wanted) => Some(m.clone()),
+                _ => None,
+            })
+            .unwrap_or_else(|| McapSpec::file(path));
+        let end = first.saturating_add(count);
+        match spec.open_range(path, first..end) {
+            Ok(stream) => stream
+                .map(|item| {
+                    let index = match &item {
+                        Ok(s) => s.message_index,
+                        Err(f) => f.message_index,
+                    };
+                    (position + index.map_or(0, |i| i.saturating_sub(first)), item)
+                })
+                .collect(),
+            Err(e) => {
+                let session = spec.session.clone().unwrap_or_else(|| {
+                    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+                });
+                let id = format!("{session}/messages_{first}-{end}");
+                vec![(position, Err(ScanFailure::of_file(id, &session, path, None, e.to_string())))]
+            }
+        }
+    }
+
+    /// Like [`BatchDescriber::describe`], but the diagrams are written, not returned: one
+    /// file per session of the batch, `folder/diagrams/session=<s>/<name>.parquet`, by
+    /// toporec's own writer (its layout and page sizes), each appearing only once complete.
+    /// The same `name` again (a retried task) replaces the files. The returned `diagrams`
+    /// batch is empty. A distributed job's tasks call this: the diagrams, nearly all of a
+    /// job's rows, go straight from the engine to Parquet.
+    pub fn describe_into(
+        &self,
+        inputs: Vec<(u64, ScanInput)>,
+        folder: &Path,
+        name: &str,
+    ) -> Result<BatchOutput> {
+        let results = self.results(inputs);
+        let mut sessions: Vec<&str> =
+            results.iter().filter(|r| r.diagram.is_some()).map(|r| r.row.session.as_str()).collect();
+        sessions.sort_unstable();
+        sessions.dedup();
+        for session in sessions {
+            let path = folder
+                .join(schema::tables::DIAGRAMS)
+                .join(format!("{}={session}", C::SESSION))
+                .join(format!("{name}.parquet"));
+            let mut file = DiagramsFile::create(&path)?;
+            for r in results.iter().filter(|r| r.row.session == session) {
+                if let Some(d) = &r.diagram {
+                    file.push(&r.row.scan_id, d, &self.dims)?;
+                }
+            }
+            file.finish()?.0.publish()?;
+        }
+        let mut out = self.output(&results, false)?;
+        out.diagrams = out.diagrams.slice(0, 0);
+        Ok(out)
     }
 
     /// The scan of one input, as the sources would make it.
@@ -184,6 +283,15 @@ impl BatchDescriber {
                 return Ok(Scan { utime: utime.unwrap_or(0), pose, no_pose, ..scan });
             }
             ScanInput::File { path, bytes, format } => (path, bytes, format),
+            ScanInput::McapRange { path, first, .. } => {
+                return Err(ScanFailure::of_file(
+                    format!("{}/{first}", path.display()),
+                    "",
+                    &path,
+                    None,
+                    "an MCAP range is read by BatchDescriber::describe".into(),
+                ));
+            }
         };
         let dir = path.parent().and_then(Path::parent).unwrap_or(Path::new("")).to_owned();
         let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -251,7 +359,7 @@ impl BatchDescriber {
     }
 
     /// The output batches of described scans.
-    fn output(&self, results: &[ScanResult]) -> Result<BatchOutput> {
+    fn output(&self, results: &[ScanResult], diagrams: bool) -> Result<BatchOutput> {
         let here = Path::new("describe_batch");
         let sessions = |ids: Vec<&str>| -> ArrayRef { Arc::new(StringArray::from(ids)) };
         let with_session = |table: schema::Table, mut columns: Vec<ArrayRef>, session: ArrayRef| {
@@ -269,7 +377,7 @@ impl BatchDescriber {
         )?;
         let mut diagram_columns = DiagramColumns::default();
         let mut diagram_sessions = Vec::new();
-        for r in results {
+        for r in results.iter().filter(|_| diagrams) {
             if let Some(d) = &r.diagram {
                 let n = diagram_columns.push(&r.row.scan_id, d, &self.dims);
                 diagram_sessions.extend(std::iter::repeat_n(r.row.session.as_str(), n));

@@ -122,8 +122,8 @@ struct RunArgs {
 /// `toporec eval` protocols.
 #[derive(Subcommand, Debug)]
 enum EvalCommand {
-    /// Database scans vs query scans, true matches within R metres.
-    Places(PlacesArgs),
+    /// Database scans vs query scans, true matches within R metres, under conditions.
+    Places(Box<PlacesArgs>),
     /// The paper's object protocol: perturbed index scans must find themselves.
     Perturbation(PerturbationArgs),
 }

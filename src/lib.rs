@@ -59,6 +59,7 @@ pub mod search;
 pub mod simulate;
 pub mod sinks;
 pub mod sources;
+pub mod toporec_plus;
 pub mod types;
 pub mod vectorize;
 

@@ -131,6 +131,46 @@ pub fn recall_curves(stem: &Path, title: &str, series: &[(String, Vec<f64>)]) ->
     render(stem, (800, 560), &Curves { title, series })
 }
 
+struct PrCurves<'a> {
+    title: &'a str,
+    series: &'a [(String, Vec<(f64, f64)>)],
+}
+
+impl Figure for PrCurves<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0f64..101f64, 0f64..101f64)
+            .map_err(e)?;
+        chart.configure_mesh().x_desc("recall (%)").y_desc("precision (%)").draw().map_err(e)?;
+        for (i, (name, points)) in self.series.iter().enumerate() {
+            let color = PALETTE[i % PALETTE.len()];
+            chart
+                .draw_series(LineSeries::new(points.iter().copied(), color.stroke_width(2)))
+                .map_err(e)?
+                .label(name.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+        }
+        legend(&mut chart, SeriesLabelPosition::LowerLeft)?;
+        Ok(())
+    }
+}
+
+/// Precision–recall curves, one line per named series of (recall, precision) points in percent.
+pub fn precision_recall(
+    stem: &Path,
+    title: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+) -> Result<Vec<PathBuf>> {
+    render(stem, (800, 560), &PrCurves { title, series })
+}
+
 struct DiagramFigure<'a> {
     title: &'a str,
     diagram: &'a Diagram,

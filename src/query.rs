@@ -65,6 +65,7 @@ pub struct Loaded {
 enum Search {
     Vectors(Database),
     ScanContext(Searcher),
+    Plus(crate::toporec_plus::Searcher),
 }
 
 impl Search {
@@ -73,6 +74,9 @@ impl Search {
         let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
         match &method.kind {
             MethodKind::ScanContext(p) => Search::ScanContext(Searcher::new(vectors, p.clone())),
+            MethodKind::ToporecPlus(p) => {
+                Search::Plus(crate::toporec_plus::Searcher::new(vectors, p.clone()))
+            }
             _ => Search::Vectors(Database::new(vectors, length)),
         }
     }
@@ -111,7 +115,9 @@ impl StepTimes {
     /// The search steps a method has, with their times (of a stored descriptor).
     pub fn search_steps(&self, method: &Method) -> Vec<(&'static str, f64)> {
         match method.kind {
-            MethodKind::ScanContext(_) => vec![("candidates", self.search), ("rerank", self.rerank)],
+            MethodKind::ScanContext(_) | MethodKind::ToporecPlus(_) => {
+                vec![("candidates", self.search), ("rerank", self.rerank)]
+            }
             _ => vec![("search", self.search)],
         }
     }
@@ -126,7 +132,7 @@ impl StepTimes {
                     ("search", self.search),
                 ]
             }
-            MethodKind::ScanContext(_) => {
+            MethodKind::ScanContext(_) | MethodKind::ToporecPlus(_) => {
                 vec![("describe", self.describe), ("candidates", self.search), ("rerank", self.rerank)]
             }
             MethodKind::M2dp(_) => vec![("describe", self.describe), ("search", self.search)],
@@ -283,6 +289,21 @@ impl Engine {
                     )
                 })
                 .collect(),
+            Search::Plus(plus) => queries
+                .par_chunks(plus.params().len())
+                .map(|q| {
+                    let (hits, t) = plus.search(q, k);
+                    let found = hits.into_iter().map(|(row, distance, yaw)| Found {
+                        row,
+                        distance,
+                        yaw_degrees: Some(yaw),
+                    });
+                    (
+                        found.collect(),
+                        StepTimes { search: t.candidates, rerank: t.rerank, ..Default::default() },
+                    )
+                })
+                .collect(),
         }
     }
 }
@@ -372,6 +393,10 @@ pub fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Lo
             ),
         ));
     }
+    // Rows in scan order, whatever the files' layout (a merged or a Spark-written index holds
+    // the same rows in other files): ties in a search go to the lower row, so the answers
+    // depend on the rows alone.
+    scans.sort_by(|a, b| (&a.session, &a.scan_id).cmp(&(&b.session, &b.scan_id)));
     Ok(Loaded { method: m, id, length, codebook, scans })
 }
 

@@ -173,7 +173,7 @@ fn baselines_match_the_reference_transcription_on_real_scans() {
 }
 
 /// The committed sample indexed with every method (pipelines/compare.toml asks for TopoRec,
-/// ScanContext and M2DP): the index layout, `verify`, `query --method` (with ScanContext's yaw),
+/// toporec-plus, ScanContext and M2DP): the index layout, `verify`, `query --method` (with ScanContext's yaw),
 /// `eval places` side by side, and a methods change refused.
 #[test]
 fn one_run_indexes_every_method_and_query_and_eval_take_each() {
@@ -186,10 +186,10 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert!(said.contains("scancontext (length 1200), m2dp (length 192)"), "{said}");
     let manifest: serde_json::Value = read_json(&index.join("manifest.json"));
     let methods = manifest["methods"].as_object().unwrap();
-    assert_eq!(methods.keys().collect::<Vec<_>>(), ["m2dp", "scancontext"]);
+    assert_eq!(methods.keys().collect::<Vec<_>>(), ["m2dp", "scancontext", "toporec-plus"]);
     assert_eq!(methods["scancontext"]["length"], 1200);
     assert_eq!(methods["m2dp"]["length"], 192);
-    for m in ["toporec", "scancontext", "m2dp"] {
+    for m in ["toporec", "toporec-plus", "scancontext", "m2dp"] {
         for s in ["2026-01-01", "2026-01-02"] {
             assert!(index.join(format!("descriptors/method={m}/session={s}")).is_dir(), "{m} {s}");
         }
@@ -239,7 +239,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(o.status.code(), Some(2));
     assert!(
         text(&o.stderr)
-            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext)"),
+            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext, toporec-plus)"),
         "{}",
         text(&o.stderr)
     );
@@ -259,7 +259,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     };
     let names: Vec<&str> =
         report["methods"].as_array().unwrap().iter().map(|m| m["method"].as_str().unwrap()).collect();
-    assert_eq!(names, ["toporec", "m2dp", "scancontext"]);
+    assert_eq!(names, ["toporec", "m2dp", "scancontext", "toporec-plus"]);
     // Regression values (toporec's own output on the committed sample): R@1 at 5, 10, 20,
     // 50 m, in 32nds of the queries.
     assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
@@ -283,7 +283,10 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let text_of = std::fs::read_to_string(root().join("pipelines/compare.toml")).unwrap();
     let base = root().join("pipelines").display().to_string();
     let edited = text_of
-        .replace("methods = [\"toporec\", \"scancontext\", \"m2dp\"]", "methods = [\"toporec\", \"m2dp\"]")
+        .replace(
+            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"m2dp\"]",
+            "methods = [\"toporec\", \"m2dp\"]",
+        )
         .replace("\"../", &format!("\"{base}/../"));
     std::fs::write(&toporec_only, edited).unwrap();
     let o = run_pipeline(&toporec_only, &index, 2);

@@ -206,7 +206,7 @@ fn perturbation_protocol_on_kitti() {
     // Regression values (toporec's own output): R@1 per perturbation, in 48ths.
     let methods: Vec<&str> =
         report["methods"].as_array().unwrap().iter().map(|m| m["method"].as_str().unwrap()).collect();
-    assert_eq!(methods, ["toporec", "m2dp", "scancontext"]);
+    assert_eq!(methods, ["toporec", "m2dp", "scancontext", "toporec-plus"]);
     let r1 = |m: usize| -> Vec<f64> {
         report["methods"][m]["results"]
             .as_array()
@@ -220,6 +220,9 @@ fn perturbation_protocol_on_kitti() {
     // ScanContext: turns are column shifts (exact for 90 deg, half a sector off for 45 and
     // 135 deg); a shift of 0.2 normalized units is metres of sensor motion.
     assert_eq!(r1(2), [48.0, 48.0, 48.0, 48.0, 1.0, 34.0, 48.0, 34.0], "ScanContext R@1");
+    // toporec-plus: turns are shifts and sub-sector rotations; rings shared linearly keep a 5 %
+    // scaling in place; a shift of metres moves the sensor, as for ScanContext.
+    assert_eq!(r1(3), [48.0, 48.0, 48.0, 48.0, 2.0, 48.0, 48.0, 48.0], "toporec-plus R@1");
     for k in ["describe", "search"] {
         assert!(report["methods"][1]["timing_ms"][k]["p95"].as_f64().unwrap() > 0.0, "m2dp {k}");
     }

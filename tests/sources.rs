@@ -449,6 +449,28 @@ fn mcap_zstd_lz4_plain_and_summaryless_files_read_alike() {
 }
 
 #[test]
+fn mcap_message_ranges_partition_the_file() {
+    let dir = scratch_dir("mcap_ranges");
+    let path = dir.join("ranges.mcap");
+    write_mcap(
+        &path,
+        &test_clouds(7),
+        &McapOptions { compression: Some(mcap::Compression::Zstd), summary: true, chunk_size: Some(600) },
+    );
+    let spec = McapSpec { session: Some("s".into()), ..McapSpec::file(&path) };
+    let (whole, bad) = collect(SourceSpec::Mcap(spec.clone()));
+    assert!(bad.is_empty());
+    assert_eq!(toporec::sources::mcap::count_scans(&path, None).unwrap(), ("/points".to_string(), 7));
+    let mut pieces = Vec::new();
+    for first in (0..9).step_by(3) {
+        let part: Vec<Scan> = spec.open_range(&path, first..first + 3).unwrap().map(|s| s.unwrap()).collect();
+        assert_eq!(part.len(), (7 - first.min(7)).min(3) as usize, "range {first}..{}", first + 3);
+        pieces.extend(part);
+    }
+    assert_eq!(pieces, whole, "the ranges' scans are the file's, ids, times and indices included");
+}
+
+#[test]
 fn corrupt_and_truncated_mcap_lose_only_the_bad_chunk() {
     let dir = scratch_dir("mcap_corrupt");
     let clouds = test_clouds(6);

@@ -14,4 +14,5 @@ mod pointnetvlad;
 mod shard;
 mod simulate;
 mod sources;
+mod toporec_plus;
 mod util;

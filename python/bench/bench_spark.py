@@ -1,12 +1,13 @@
 """Spark local[2] against `toporec run --threads 2` on the same simulated drive, in scans/s.
 
-    python3 python/bench/bench_spark.py [--scans 1000] [--sessions 2]
+    python3 python/bench/bench_spark.py [--scans 1000] [--sessions 2] [--driver-java-options OPTS]
 
 Simulates the drive (`toporec simulate`, NCLT format), freezes one codebook (`toporec fit
 --pipeline --sample 0.1`) in two index folders, then times `toporec run --threads 2` into one
 and `toporec.spark.index_files` on a `local[2]` session into the other (the session is started
 before the clock, as a cluster's would be). Prints a Markdown table. Needs the release binary
-(`cargo build --release`).
+(`cargo build --release`). `--driver-java-options` goes to the local JVM (for example
+`-XX:TieredStopAtLevel=1`: no C2 compilation, which on two cores competes with the tasks).
 """
 
 import argparse
@@ -25,6 +26,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scans", type=int, default=1000, help="scans per session")
     ap.add_argument("--sessions", type=int, default=2)
+    ap.add_argument("--driver-java-options", default="", help="options of the local Spark JVM")
     args = ap.parse_args()
     binary = REPO / "target" / "release" / "toporec"
     work = pathlib.Path(tempfile.mkdtemp(prefix="toporec-spark-bench-"))
@@ -50,7 +52,10 @@ def main():
 
         from toporec.spark import index_files
 
-        spark = SparkSession.builder.master("local[2]").config("spark.ui.enabled", "false").getOrCreate()
+        builder = SparkSession.builder.master("local[2]").config("spark.ui.enabled", "false")
+        if args.driver_java_options:
+            builder = builder.config("spark.driver.extraJavaOptions", args.driver_java_options)
+        spark = builder.getOrCreate()
         spark.sparkContext.setLogLevel("ERROR")
         t = time.perf_counter()
         result = index_files(spark, [drive / "velodyne_data"], by_spark)

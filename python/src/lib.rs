@@ -122,6 +122,29 @@ fn alpha_persistence_timed<'py>(
     Ok((diagram_dict(py, &d?, &dims)?, secs))
 }
 
+/// A float64 numpy matrix handed to Python.
+type PyMatrix<'py> = Bound<'py, numpy::PyArray2<f64>>;
+
+/// The pairs of a cloud with where each dies (`toporec::homology::alpha_persistence_located`):
+/// an (n, 3) array of `dim, birth, death` (squared radii) and an (n, 3) array of locations
+/// (NaN for the essential class).
+#[pyfunction]
+fn alpha_persistence_located<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'py, f64>,
+) -> PyResult<(PyMatrix<'py>, PyMatrix<'py>)> {
+    let pts = cloud(&points, "points")?;
+    let located = py
+        .detach(|| toporec::homology::alpha_persistence_located(&pts))
+        .map_err(|e| value_error(format!("points: {e}")))?;
+    let pairs: Vec<Vec<f64>> =
+        located.iter().map(|l| vec![l.pair.dim as f64, l.pair.birth, l.pair.death]).collect();
+    let at: Vec<Vec<f64>> = located.iter().map(|l| l.at.unwrap_or([f64::NAN; 3]).to_vec()).collect();
+    let pairs = numpy::PyArray2::from_vec2(py, &pairs).map_err(value_error)?;
+    let at = numpy::PyArray2::from_vec2(py, &at).map_err(value_error)?;
+    Ok((pairs, at))
+}
+
 /// Persistence of many clouds, in parallel.
 #[pyfunction]
 #[pyo3(signature = (clouds, dims, squared))]
@@ -330,6 +353,15 @@ fn fit_sample(
         .detach(|| toporec::pipeline::shard::fit_sample(&p, &index, fraction, threads))
         .map_err(toporec_error)?;
     Ok((codebook.id(), scans))
+}
+
+/// The number of scans of an MCAP file and its point-cloud topic (`topic`, or the file's
+/// only one): a pass that decodes no cloud.
+#[pyfunction]
+#[pyo3(signature = (path, topic=None))]
+fn mcap_scan_count(py: Python<'_>, path: PathBuf, topic: Option<String>) -> PyResult<(String, u64)> {
+    py.detach(|| toporec::sources::mcap::count_scans(&path, topic.as_deref()))
+        .map_err(|e| value_error(e.to_string()))
 }
 
 /// Merges table files written by another tool in the index's layout under `folder` (a Spark
@@ -584,12 +616,15 @@ impl BatchDescriber {
 
     /// Describes the scans of an Arrow stream (normalized by the Python side: `path` utf8;
     /// `content` binary or `points` list<float64>; optional `format`, `scan_id`, `session`
-    /// utf8, `seq` uint64, `utime` int64, `pose_x/y/z/yaw` float64).
+    /// utf8, `seq` uint64, `utime` int64, `pose_x/y/z/yaw` float64). With `diagrams_to`
+    /// (a folder, and a file name), the diagrams are written there instead of returned.
     #[allow(clippy::type_complexity)]
+    #[pyo3(signature = (stream, diagrams_to=None))]
     fn describe(
         &self,
         py: Python<'_>,
         stream: Bound<'_, PyCapsule>,
+        diagrams_to: Option<(PathBuf, String)>,
     ) -> PyResult<(ArrowStream, ArrowStream, Vec<(String, ArrowStream)>)> {
         let (_, batches) = import_stream(&stream)?;
         let inner = self.inner.clone();
@@ -598,7 +633,11 @@ impl BatchDescriber {
             for b in &batches {
                 inputs.extend(batch_inputs(b, inputs.len() as u64)?);
             }
-            inner.describe(inputs).map_err(toporec_error)
+            match &diagrams_to {
+                Some((folder, name)) => inner.describe_into(inputs, folder, name),
+                None => inner.describe(inputs),
+            }
+            .map_err(toporec_error)
         })?;
         let stream = |b: RecordBatch| ArrowStream::new(b.schema(), vec![b]);
         Ok((
@@ -641,8 +680,14 @@ fn batch_inputs(b: &RecordBatch, offset: u64) -> PyResult<Vec<(u64, toporec::bat
     });
     let content = content.transpose()?;
     let points = points.transpose()?;
-    if content.is_none() && points.is_none() {
-        return Err(value_error("the batch has neither a `content` (file bytes) nor a `points` column"));
+    let ranges = (
+        column("first_message").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned()),
+        column("message_count").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned()),
+    );
+    if content.is_none() && points.is_none() && formats.is_none() {
+        return Err(value_error(
+            "the batch has neither a `content` (file bytes) nor a `points` column, nor `format` = mcap rows",
+        ));
     }
     let get = |a: &Option<arrow::array::StringArray>, i: usize| {
         a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i).to_string())
@@ -652,11 +697,22 @@ fn batch_inputs(b: &RecordBatch, offset: u64) -> PyResult<Vec<(u64, toporec::bat
         let seq = seqs.as_ref().filter(|s| s.is_valid(i)).map_or(offset + i as u64, |s| s.value(i));
         let path = PathBuf::from(paths.value(i));
         let input = match (&content, &points) {
+            _ if get(&formats, i).as_deref() == Some("mcap") => {
+                let value = |a: &Option<arrow::array::UInt64Array>| {
+                    a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i))
+                };
+                let (Some(first), Some(count)) = (value(&ranges.0), value(&ranges.1)) else {
+                    return Err(value_error(format!(
+                        "row {i}: an mcap row needs `first_message` and `message_count`"
+                    )));
+                };
+                ScanInput::McapRange { path, first, count }
+            }
             (Some(c), _) if c.is_valid(i) => {
                 let format = match get(&formats, i) {
                     None => None,
                     Some(f) => Some(FileFormat::parse(&f).ok_or_else(|| {
-                        value_error(format!("row {i}: format {f:?}: expected nclt or kitti"))
+                        value_error(format!("row {i}: format {f:?}: expected nclt, kitti or mcap"))
                     })?),
                 };
                 ScanInput::File { path, bytes: c.value(i).to_vec(), format }
@@ -699,6 +755,7 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(alpha_persistence, m)?)?;
     m.add_function(wrap_pyfunction!(alpha_persistence_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(alpha_persistence_located, m)?)?;
     m.add_function(wrap_pyfunction!(alpha_persistence_timed, m)?)?;
     m.add_function(wrap_pyfunction!(simplex_counts, m)?)?;
     m.add_function(wrap_pyfunction!(atol_fit, m)?)?;
@@ -708,6 +765,7 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(fit_sample, m)?)?;
     m.add_function(wrap_pyfunction!(merge_written, m)?)?;
+    m.add_function(wrap_pyfunction!(mcap_scan_count, m)?)?;
     m.add_function(wrap_pyfunction!(index_table, m)?)?;
     m.add_function(wrap_pyfunction!(index_methods, m)?)?;
     m.add_class::<ArrowStream>()?;

@@ -16,6 +16,7 @@ The GIL is released around every computation; the batch functions use all cores.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import warnings
@@ -335,10 +336,18 @@ _INPUT_TYPES = {
     "pose_y": pa.float64(),
     "pose_z": pa.float64(),
     "pose_yaw": pa.float64(),
+    "first_message": pa.uint64(),
+    "message_count": pa.uint64(),
 }
 
 
-def describe_batch(batch: Union[pa.RecordBatch, pa.Table], config: PathLike) -> Dict[str, Any]:
+def describe_batch(
+    batch: Union[pa.RecordBatch, pa.Table],
+    config: PathLike,
+    *,
+    diagrams_to: Optional[PathLike] = None,
+    part_name: Optional[str] = None,
+) -> Dict[str, Any]:
     """Describes a batch of scans with an index's settings, frozen codebook and methods.
 
     Args:
@@ -347,10 +356,19 @@ def describe_batch(batch: Union[pa.RecordBatch, pa.Table], config: PathLike) -> 
             ``velodyne/<frame>.bin``, as Spark's ``binaryFile`` source reads them; its id,
             session, time and pose come from the path, as ``toporec run`` makes them) or
             ``points`` (list<float64> of x, y, z, x, y, z ...; with ``scan_id``, and optionally
-            ``session``, ``utime``, ``pose_x/y/z/yaw``). Optional: ``format`` (``nclt`` or
-            ``kitti``; default: from the path) and ``seq`` (the scan's position in the job;
-            default: its row).
+            ``session``, ``utime``, ``pose_x/y/z/yaw``), or ``format`` = ``mcap`` with
+            ``first_message`` and ``message_count``: the scans of that MCAP file whose index
+            among its point-cloud messages lies in the range, read from the file (with the
+            topic, poses and session of the index's MCAP source that lists it). Optional:
+            ``format`` (``nclt``, ``kitti`` or ``mcap``; default: from the path) and ``seq``
+            (the position of the row's first scan in the job; default: its row).
         config: the index folder whose settings and codebook are used.
+        diagrams_to: a folder to write the diagrams to instead of returning them (a
+            distributed job's task: ``diagrams/session=<s>/<name>.parquet`` under it, one file
+            per session, toporec's own layout, each complete or absent; ``diagrams`` is then
+            empty). The same ``part_name`` again replaces the files.
+        part_name: the file name (without ``.parquet``) with ``diagrams_to``; default: a hash of
+            the batch's paths and scan ids, so that a retried task rewrites its own files.
 
     Returns:
         ``{"scans": Table, "diagrams": Table, "descriptors": {method: Table}}`` in the index's
@@ -376,7 +394,13 @@ def describe_batch(batch: Union[pa.RecordBatch, pa.Table], config: PathLike) -> 
             columns.append(column)
             names.append(name)
     table = pa.Table.from_arrays(columns, names=names).combine_chunks()
-    scans, diagrams, descriptors = describer.describe(table.__arrow_c_stream__())
+    target = None
+    if diagrams_to is not None:
+        if part_name is None:
+            key = "\n".join(str(v) for c in ("path", "scan_id", "first_message") if c in table.column_names for v in table.column(c).to_pylist())
+            part_name = "part-" + hashlib.sha1(key.encode()).hexdigest()[:16]
+        target = (os.fspath(diagrams_to), part_name)
+    scans, diagrams, descriptors = describer.describe(table.__arrow_c_stream__(), target)
     return {
         "scans": _table(scans),
         "diagrams": _table(diagrams),

@@ -10,17 +10,27 @@
    hash sample of the pipeline's scans (``toporec fit --pipeline``) and frozen in the index.
    Executors read it from the index folder, which they must see (a shared file system).
 2. Scan files are read with ``spark.read.format("binaryFile")`` (NCLT ``velodyne_sync/*.bin``,
-   KITTI ``velodyne/*.bin``); each keeps its position in the sorted file list as its ``seq``.
+   KITTI ``velodyne/*.bin``). MCAP files are listed the same way and split by message ranges
+   (``messages_per_task`` scans a task, counted by a first pass on the executors); a task
+   reads its range from the file's path, decoding only its own messages. Each scan keeps its
+   position in the sorted file list (an MCAP file's scans in message order) as its ``seq``.
 3. ``mapInArrow`` calls :func:`toporec.describe_batch` on each Arrow batch (a scan that fails
-   is an ``error`` row, never a failed task) and returns the rows of the three tables.
-4. They are written with ``write.partitionBy("session").parquet(...)`` into a staging folder
-   inside the index (``.spark-<id>``), in toporec's layout, then merged into the index in one
-   commit under its lock: manifest, checksums and counts, so ``toporec query``, ``eval`` and
-   ``verify`` accept it. A job that dies before the merge leaves the index as it was.
+   is an ``error`` row, never a failed task) and returns one row per scan: its ``scans``
+   columns and each method's descriptor.
+4. The rows are written with ``write.partitionBy("session").parquet(...)`` as the ``scans``
+   and ``descriptors/method=<m>`` tables of a staging folder inside the index
+   (``.spark-<id>``). The diagrams (thousands of rows per scan, nearly all of a job's rows)
+   are written by the tasks themselves into the same folder, by toporec's own Parquet writer,
+   one file per batch and session under a name fixed by the batch's files: a retried or
+   recomputed task replaces its own files. Passing them through Spark's row-wise writer would
+   cost more than describing the scans (docs/distributed.md gives the figures).
+5. The staging folder is merged into the index in one commit under its lock: manifest,
+   checksums and counts, so ``toporec query``, ``eval`` and ``verify`` accept it. A job that
+   dies before the merge leaves the index as it was.
 
 Spark has no unsigned integers: ``seq``, ``raw_points``, ``kept_points``, ``message_index``
-are written as int64, ``dim`` and ``dim_used`` as int8 (Spark's byte), and descriptors as a
-list of float32; toporec's readers cast them back to its own types.
+are written as int64, ``dim_used`` as int8 (Spark's byte), and descriptors as a list of
+float32; toporec's readers cast them back to its own types.
 """
 
 from __future__ import annotations
@@ -30,6 +40,7 @@ import shutil
 import uuid
 from typing import Any, Dict, List, Optional, Sequence, Union
 
+import numpy as np
 import pyarrow as pa
 
 import toporec
@@ -53,21 +64,23 @@ _SCAN_COLUMNS = [
     ("status", pa.string(), "string"),
     ("error", pa.string(), "string"),
 ]
-_DIAGRAM_COLUMNS = [("dim", pa.int8(), "tinyint"), ("birth", pa.float64(), "double"), ("death", pa.float64(), "double")]
-_DESCRIPTOR_COLUMNS = [
-    ("method", pa.string(), "string"),
-    ("dim_used", pa.int8(), "tinyint"),
-    ("descriptor", pa.list_(pa.float32()), "array<float>"),
-    ("codebook_id", pa.string(), "string"),
-]
-# One row type for all three tables (mapInArrow returns one schema): `kind` says which.
-_UNION = [("kind", pa.string(), "string"), ("session", pa.string(), "string")] + _SCAN_COLUMNS + _DIAGRAM_COLUMNS + _DESCRIPTOR_COLUMNS
-UNION_SCHEMA = pa.schema([pa.field(n, t) for n, t, _ in _UNION])
-UNION_DDL = ", ".join(f"{n} {d}" for n, _, d in _UNION)
-
 SCAN_FIELDS = [n for n, _, _ in _SCAN_COLUMNS]
-DIAGRAM_FIELDS = ["scan_id", "dim", "birth", "death"]
 DESCRIPTOR_FIELDS = ["scan_id", "utime", "pose_x", "pose_y", "pose_z", "dim_used", "descriptor", "codebook_id"]
+
+
+def scan_row_schema(methods: Sequence[str]) -> List[Any]:
+    """The columns of the rows ``mapInArrow`` returns: one row per scan, with its session, its
+    ``scans`` columns and, per method, ``d<i>_dim_used``, ``d<i>_descriptor`` and
+    ``d<i>_codebook_id`` (null for a scan without a descriptor). The diagrams do not pass
+    through Spark: each task writes them (see the module doc)."""
+    columns = [("session", pa.string(), "string")] + list(_SCAN_COLUMNS)
+    for i, _ in enumerate(methods):
+        columns += [
+            (f"d{i}_dim_used", pa.int8(), "tinyint"),
+            (f"d{i}_descriptor", pa.list_(pa.float32()), "array<float>"),
+            (f"d{i}_codebook_id", pa.string(), "string"),
+        ]
+    return columns
 
 
 def local_path(path: str) -> str:
@@ -79,36 +92,91 @@ def local_path(path: str) -> str:
     return path
 
 
-def _union(kind: str, table: pa.Table, method: Optional[str] = None) -> pa.Table:
-    n = table.num_rows
-    columns = []
-    for name, typ, _ in _UNION:
-        if name == "kind":
-            columns.append(pa.array([kind] * n, pa.string()))
-        elif name == "method" and method is not None:
-            columns.append(pa.array([method] * n, pa.string()))
-        elif name in table.column_names:
-            column = table.column(name)
+def scan_rows(out: Dict[str, Any], methods: Sequence[str]) -> pa.Table:
+    """The per-scan rows (:func:`scan_row_schema`) of one :func:`toporec.describe_batch` result."""
+    scans = out["scans"]
+    schema = pa.schema([pa.field(n, t) for n, t, _ in scan_row_schema(methods)])
+    ids = scans.column("scan_id").to_pylist()
+    data: Dict[str, Any] = {"session": scans.column("session")}
+    for name, typ, _ in _SCAN_COLUMNS:
+        data[name] = scans.column(name).cast(typ)
+    for i, method in enumerate(methods):
+        table = out["descriptors"].get(method)
+        rows = {s: r for r, s in enumerate(table.column("scan_id").to_pylist())} if table is not None else {}
+        pick = pa.array([rows.get(s) for s in ids], pa.int64())
+        for suffix, typ in (("dim_used", pa.int8()), ("descriptor", pa.list_(pa.float32())), ("codebook_id", pa.string())):
+            if table is None:
+                data[f"d{i}_{suffix}"] = pa.nulls(len(ids), typ)
+                continue
+            column = table.column(suffix).combine_chunks()
             if pa.types.is_fixed_size_list(column.type):
                 column = column.cast(pa.list_(pa.float32()))
-            columns.append(column.cast(typ))
-        else:
-            columns.append(pa.nulls(n, typ))
-    return pa.Table.from_arrays(columns, schema=UNION_SCHEMA)
+            data[f"d{i}_{suffix}"] = column.take(pick).cast(typ)
+    return pa.Table.from_pydict(data, schema=schema)
 
 
-def describe_partition(batches, index: str):
-    """The ``mapInArrow`` function: Arrow batches of ``binaryFile`` rows (with ``seq``) in,
-    union rows of the three tables out."""
+def _task_threads() -> None:
+    """A Spark task has ``spark.task.cpus`` cores: the engine's thread pool, made at its first
+    use in this worker process, takes as many (unless ``RAYON_NUM_THREADS`` says otherwise)."""
+    from pyspark import TaskContext
+
+    context = TaskContext.get()
+    os.environ.setdefault("RAYON_NUM_THREADS", str(context.cpus() if context is not None else 1))
+
+
+def describe_partition(batches, index: str, seqs: Dict[str, int], methods: Sequence[str], staging: str):
+    """The ``mapInArrow`` function: Arrow batches of ``binaryFile`` rows in, one row per scan
+    (:func:`scan_row_schema`) out; each batch's diagrams are written under ``staging``.
+    ``seqs``: each file's place in the job (the ``seq`` ``toporec run`` gives it)."""
+    _task_threads()
     for batch in batches:
         if batch.num_rows == 0:
             continue
-        paths = [local_path(p) for p in batch.column("path").to_pylist()]
-        scans = pa.table({"path": paths, "content": batch.column("content"), "seq": batch.column("seq").cast(pa.uint64())})
-        out = toporec.describe_batch(scans, index)
-        parts = [_union("scan", out["scans"]), _union("pair", out["diagrams"])]
-        parts += [_union("descriptor", t, m) for m, t in out["descriptors"].items()]
-        yield from pa.concat_tables(parts).to_batches()
+        uris = batch.column("path").to_pylist()
+        scans = pa.table({
+            "path": [local_path(p) for p in uris],
+            "content": batch.column("content"),
+            "seq": pa.array([seqs[p] for p in uris], pa.uint64()),
+        })
+        out = toporec.describe_batch(scans, index, diagrams_to=staging)
+        yield from scan_rows(out, methods).to_batches()
+
+
+def describe_ranges(batches, index: str, methods: Sequence[str], staging: str):
+    """The ``mapInArrow`` function of MCAP files: rows of message ranges (``path``,
+    ``first_message``, ``message_count``, ``seq``) in, one row per scan out (as
+    :func:`describe_partition`)."""
+    _task_threads()
+    for batch in batches:
+        if batch.num_rows == 0:
+            continue
+        ranges = pa.table({
+            "path": [local_path(p) for p in batch.column("path").to_pylist()],
+            "format": pa.array(["mcap"] * batch.num_rows, pa.string()),
+            "first_message": batch.column("first_message").cast(pa.uint64()),
+            "message_count": batch.column("message_count").cast(pa.uint64()),
+            "seq": batch.column("seq").cast(pa.uint64()),
+        })
+        out = toporec.describe_batch(ranges, index, diagrams_to=staging)
+        yield from scan_rows(out, methods).to_batches()
+
+
+def _count_scans(batches):
+    """The ``mapInArrow`` function that counts each MCAP file's scans (and names its topic)."""
+    for batch in batches:
+        paths = batch.column("path").to_pylist()
+        counted = [toporec._toporec.mcap_scan_count(local_path(p)) for p in paths]
+        yield pa.RecordBatch.from_pydict({
+            "path": paths,
+            "topic": [t for t, _ in counted],
+            "scans": pa.array([n for _, n in counted], pa.int64()),
+        })
+
+
+def _listing(spark: Any, inputs: Sequence[str], glob: str) -> Any:
+    """The files under ``inputs`` matching ``glob`` as a ``binaryFile`` DataFrame."""
+    reader = spark.read.format("binaryFile").option("pathGlobFilter", glob).option("recursiveFileLookup", "true")
+    return reader.load(list(inputs))
 
 
 def index_files(
@@ -120,6 +188,8 @@ def index_files(
     sample: float = 0.1,
     partitions: Optional[int] = None,
     glob: str = "*.bin",
+    mcap_glob: Optional[str] = "*.mcap",
+    messages_per_task: int = 64,
 ) -> Dict[str, Any]:
     """Indexes the scan files under ``inputs`` into ``index`` with Spark (see the module doc).
 
@@ -131,56 +201,110 @@ def index_files(
         pipeline: the pipeline file whose settings the index takes, needed when the index has
             no codebook yet (then fitted on ``sample`` of its scans on the driver).
         sample: the fraction of the pipeline's scans the codebook is fitted on.
-        partitions: repartition the files into this many tasks (default: Spark's split).
-        glob: the scan files' name pattern.
+        partitions: repartition the scan files into this many tasks (default: Spark's split).
+        glob: the scan files' name pattern (NCLT ``velodyne_sync`` and KITTI ``velodyne``
+            files, one scan each).
+        mcap_glob: the MCAP files' name pattern (``None``: no MCAP). Each file is split into
+            tasks of ``messages_per_task`` scans; a task reads its file from the path (on a
+            file system every executor mounts), decoding only its own messages.
+        messages_per_task: scans per MCAP task.
 
     Returns:
-        ``{"scans": n, "ok": n, "errors": n, "index": path}``.
+        ``{"scans": n, "ok": n, "skipped": n, "errors": n, "index": path}``.
     """
     from pyspark import StorageLevel
-    from pyspark.sql import Window
     from pyspark.sql import functions as F
 
+    if messages_per_task < 1:
+        raise ValueError(f"messages_per_task: must be >= 1; found {messages_per_task}")
     index = os.path.abspath(os.fspath(index))
     if not _has_codebook(index):
         if pipeline is None:
             raise ValueError(f"{index}: no codebook yet; give `pipeline` to fit one on a sample of its scans")
         toporec.fit(pipeline, sample=sample, index=index)
-    files = (
-        spark.read.format("binaryFile")
-        .option("pathGlobFilter", glob)
-        .option("recursiveFileLookup", "true")
-        .load([os.fspath(p) for p in inputs])
-    )
-    # Each file's place in the sorted list: the `seq` toporec run gives it.
-    order = files.select("path").withColumn("seq", F.row_number().over(Window.orderBy("path")) - F.lit(1))
-    scans = files.select("path", "content").join(order, "path")
+    inputs = [os.fspath(p) for p in inputs]
+    files = _listing(spark, inputs, glob)
+    # One listing job for both kinds (no file content is read: Spark prunes the column).
+    listing = files.select("path", "length", F.lit(False).alias("mcap"))
+    if mcap_glob:
+        logs = _listing(spark, inputs, mcap_glob)
+        listing = listing.unionByName(logs.select("path", "length", F.lit(True).alias("mcap")))
+    listed = listing.collect()
+    # Scan counts of the MCAP files (one pass over each, on the executors).
+    counts: Dict[str, int] = {}
+    logs_listed = [r["path"] for r in listed if r["mcap"]]
+    if logs_listed:
+        paths_df = spark.createDataFrame([(p,) for p in logs_listed], "path string").repartition(len(logs_listed))
+        counted = paths_df.mapInArrow(_count_scans, "path string, topic string, scans bigint").collect()
+        counts = {r["path"]: r["scans"] for r in counted}
+    # Each scan's place in the sorted file list (an MCAP file's scans in message order) is
+    # the `seq` toporec run gives it; the map travels with the task closure.
+    listed = [r for r in listed if not r["mcap"]]
+    paths = sorted([r["path"] for r in listed] + list(counts))
+    seqs, position = {}, 0
+    for p in paths:
+        seqs[p] = position
+        position += counts.get(p, 1)
+    methods = [m for m, _ in toporec._toporec.BatchDescriber(index).methods()]
+    ddl = ", ".join(f"{n} {d}" for n, _, d in scan_row_schema(methods))
+    staging = os.path.join(index, f".spark-{uuid.uuid4().hex[:12]}")
+    scans = files.select("path", "content")
     if partitions:
         scans = scans.repartition(partitions)
-    rows = scans.mapInArrow(lambda batches: describe_partition(batches, index), UNION_DDL)
-    rows = rows.persist(StorageLevel.DISK_ONLY)
-    staging = os.path.join(index, f".spark-{uuid.uuid4().hex[:12]}")
+    # Spark packs files into tasks of up to 128 MB counting 4 MB per file: a few dozen scans
+    # a task, and its per-task cost (a second or so of a core per 10 tasks) would add up.
+    # Tasks of about a sixth of a core's share keep the cores busy to the end.
+    slots = max(1, spark.sparkContext.defaultParallelism)
+    split = max(sum(r["length"] for r in listed) // (6 * slots), 1 << 20)
+    conf = {"spark.sql.files.maxPartitionBytes": str(split), "spark.sql.files.openCostInBytes": "0"}
+    saved = {k: spark.conf.get(k, None) for k in conf}
+    rows = scans.mapInArrow(lambda batches: describe_partition(batches, index, seqs, methods, staging), ddl)
+    ranges = [
+        (p, first, min(messages_per_task, n - first), seqs[p] + first)
+        for p, n in sorted(counts.items())
+        for first in range(0, n, messages_per_task)
+    ]
+    if ranges:
+        tasks = spark.createDataFrame(ranges, "path string, first_message bigint, message_count bigint, seq bigint")
+        tasks = tasks.repartition(len(ranges))
+        rows = rows.unionByName(tasks.mapInArrow(lambda batches: describe_ranges(batches, index, methods, staging), ddl))
+    # Described once, written as scans and each method's descriptors: the rows are kept.
+    rows = rows.persist(StorageLevel.MEMORY_AND_DISK)
     try:
-        kind = F.col("kind")
+        for k, v in conf.items():
+            if not partitions:
+                spark.conf.set(k, v)
         write = lambda df, path: df.write.mode("overwrite").option("compression", "zstd").partitionBy("session").parquet(path)  # noqa: E731
-        write(rows.filter(kind == "scan").select(*SCAN_FIELDS, "session"), os.path.join(staging, "scans"))
-        write(rows.filter(kind == "pair").select(*DIAGRAM_FIELDS, "session"), os.path.join(staging, "diagrams"))
-        methods = [m for m, _ in toporec._toporec.BatchDescriber(index).methods()]
-        for method in methods:
-            chosen = rows.filter((kind == "descriptor") & (F.col("method") == method))
-            write(chosen.select(*DESCRIPTOR_FIELDS, "session"), os.path.join(staging, "descriptors", f"method={method}"))
-        counts = {r["status"]: r["count"] for r in rows.filter(kind == "scan").groupBy("status").count().collect()}
+        write(rows.select(*SCAN_FIELDS, "session"), os.path.join(staging, "scans"))
+        for i, method in enumerate(methods):
+            chosen = rows.filter(F.col(f"d{i}_descriptor").isNotNull())
+            renamed = [F.col(f"d{i}_{c}").alias(c) if c in ("dim_used", "descriptor", "codebook_id") else F.col(c) for c in DESCRIPTOR_FIELDS]
+            write(chosen.select(*renamed, "session"), os.path.join(staging, "descriptors", f"method={method}"))
+        status = _status_counts(os.path.join(staging, "scans"))
         toporec._toporec.merge_written(index, staging)
     finally:
+        for k, v in saved.items():
+            if v is None:
+                spark.conf.unset(k)
+            else:
+                spark.conf.set(k, v)
         rows.unpersist()
         shutil.rmtree(staging, ignore_errors=True)
     return {
         "index": index,
-        "scans": sum(counts.values()),
-        "ok": counts.get("ok", 0),
-        "skipped": counts.get("skipped", 0),
-        "errors": counts.get("error", 0),
+        "scans": sum(status.values()),
+        "ok": status.get("ok", 0),
+        "skipped": status.get("skipped", 0),
+        "errors": status.get("error", 0),
     }
+
+
+def _status_counts(scans: str) -> Dict[str, int]:
+    """Scans per status in a written ``scans`` folder (read locally: a few bytes a scan)."""
+    import pyarrow.dataset as ds
+
+    table = ds.dataset(scans, format="parquet", partitioning="hive").to_table(columns=["status"])
+    return {r["values"]: r["counts"] for r in table.column("status").value_counts().to_pylist()}
 
 
 def _has_codebook(index: str) -> bool:
@@ -204,14 +328,15 @@ def main(argv: Optional[List[str]] = None) -> None:
     ap.add_argument("--index", required=True, help="the index folder (shared by every executor)")
     ap.add_argument("--pipeline", help="the pipeline file (settings; needed when the index has no codebook)")
     ap.add_argument("--sample", type=float, default=0.1, help="fraction of scans the codebook is fitted on")
-    ap.add_argument("--partitions", type=int, help="tasks to split the files into")
+    ap.add_argument("--partitions", type=int, help="tasks to split the scan files into")
+    ap.add_argument("--messages-per-task", type=int, default=64, help="scans per MCAP task")
     ap.add_argument("--master", help="Spark master (default: spark-submit's)")
     args = ap.parse_args(argv)
     builder = SparkSession.builder.appName("toporec-index")
     if args.master:
         builder = builder.master(args.master)
     spark = builder.getOrCreate()
-    result = index_files(spark, args.inputs, args.index, pipeline=args.pipeline, sample=args.sample, partitions=args.partitions)
+    result = index_files(spark, args.inputs, args.index, pipeline=args.pipeline, sample=args.sample, partitions=args.partitions, messages_per_task=args.messages_per_task)
     print(result)
     spark.stop()
 

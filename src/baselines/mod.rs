@@ -11,6 +11,7 @@ pub mod m2dp;
 pub mod scancontext;
 
 use crate::preprocess::voxel_grid;
+use crate::toporec_plus::PlusParams;
 use crate::types::Point;
 use scancontext::ScanContextParams;
 
@@ -20,6 +21,8 @@ pub const TOPOREC: &str = "toporec";
 pub const SCANCONTEXT: &str = "scancontext";
 /// The name of M2DP.
 pub const M2DP: &str = "m2dp";
+/// The name of the topological scan context ([`crate::toporec_plus`]).
+pub const TOPOREC_PLUS: &str = crate::toporec_plus::NAME;
 
 /// M2DP settings (`[m2dp]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -55,6 +58,8 @@ pub enum MethodKind {
     ScanContext(ScanContextParams),
     /// M2DP.
     M2dp(M2dpParams),
+    /// toporec-plus, the topological scan context.
+    ToporecPlus(PlusParams),
     /// Vectors made elsewhere, imported (`toporec import`): stored, never computed.
     Imported {
         /// Their length.
@@ -87,12 +92,18 @@ impl Method {
         Method { name: M2DP.into(), kind: MethodKind::M2dp(p) }
     }
 
+    /// toporec-plus with these parameters.
+    pub fn toporec_plus(p: PlusParams) -> Self {
+        Method { name: TOPOREC_PLUS.into(), kind: MethodKind::ToporecPlus(p) }
+    }
+
     /// The kind's name (`scancontext`, `m2dp`, `imported`, `toporec`).
     pub fn kind_name(&self) -> &'static str {
         match self.kind {
             MethodKind::Toporec => TOPOREC,
             MethodKind::ScanContext(_) => SCANCONTEXT,
             MethodKind::M2dp(_) => M2DP,
+            MethodKind::ToporecPlus(_) => TOPOREC_PLUS,
             MethodKind::Imported { .. } => IMPORTED,
         }
     }
@@ -103,6 +114,7 @@ impl Method {
             MethodKind::Toporec => serde_json::json!({}),
             MethodKind::ScanContext(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::M2dp(p) => serde_json::to_value(p).expect("plain data"),
+            MethodKind::ToporecPlus(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::Imported { source, .. } => serde_json::json!({ "source": source }),
         }
     }
@@ -113,6 +125,7 @@ impl Method {
             MethodKind::Toporec => 0,
             MethodKind::ScanContext(p) => p.len(),
             MethodKind::M2dp(_) => m2dp::LEN,
+            MethodKind::ToporecPlus(p) => p.len(),
             MethodKind::Imported { length, .. } => *length,
         }
     }
@@ -129,9 +142,9 @@ impl Method {
         crate::fingerprint::hex(crate::fingerprint::of_bytes(text.as_bytes()))
     }
 
-    /// Whether the method is computed from raw scans (ScanContext, M2DP).
+    /// Whether the method is computed from raw scans (ScanContext, M2DP, toporec-plus).
     pub fn is_computed(&self) -> bool {
-        matches!(self.kind, MethodKind::ScanContext(_) | MethodKind::M2dp(_))
+        matches!(self.kind, MethodKind::ScanContext(_) | MethodKind::M2dp(_) | MethodKind::ToporecPlus(_))
     }
 
     /// The descriptor of a raw scan (sensor frame, metres) for ScanContext and M2DP, after the
@@ -141,6 +154,7 @@ impl Method {
         match &self.kind {
             MethodKind::ScanContext(p) => Some(scancontext::describe(&grid(p.voxel), p)),
             MethodKind::M2dp(p) => Some(m2dp::describe(&grid(p.voxel))),
+            MethodKind::ToporecPlus(p) => Some(crate::toporec_plus::describe(points, p)),
             _ => None,
         }
     }

@@ -1,7 +1,7 @@
 //! `toporec eval`: place-recognition protocols over indexes, each writing `report.json` (every
 //! number), a table on stdout, and plots beside the JSON.
 //!
-//! * [`places`]: a database index (or some of its sessions) against query descriptors (another
+//! * [`places()`]: a database index (or some of its sessions) against query descriptors (another
 //!   index made with the same codebook, or other sessions): true matches are database scans
 //!   within R metres (2D, poses), for each R; Recall@1..N and Recall@1 % under both
 //!   denominators. Optional RING-style distance subsampling of map and queries.
@@ -13,8 +13,12 @@
 //! one report, one table with a block per method, one Recall@N plot with a line per method
 //! (and threshold), and each method's time per query split into its steps.
 
+pub mod conditions;
 pub mod metrics;
+pub mod places;
 pub mod pointnetvlad;
+
+pub use places::{PlacesArgs, Protocol, places};
 
 /// Appends one formatted line to a report table (a `String`, which cannot fail to grow).
 macro_rules! line {
@@ -26,66 +30,12 @@ macro_rules! line {
 
 use crate::baselines::{Method, MethodKind, TOPOREC};
 use crate::error::{Error, Result, ResultExt};
-use crate::query::{Engine, Found, StepTimes, index_methods, load_method, step_stats, step_summary};
+use crate::query::{Engine, StepTimes, index_methods, step_stats, step_summary};
 use crate::rng::SplitMix64;
-use crate::sinks::index::IndexedScan;
-use metrics::{Denominator, Recall, first_hit, one_percent_k, recall};
+use metrics::{Denominator, first_hit, one_percent_k, recall};
 use rayon::prelude::*;
 use serde_json::json;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
-
-/// Settings of `eval places` (its command-line arguments).
-#[derive(clap::Args, Clone, Debug)]
-pub struct PlacesArgs {
-    /// The database index.
-    #[arg(long)]
-    pub db: PathBuf,
-    /// Database sessions (repeatable; default all).
-    #[arg(long = "db-session")]
-    pub db_sessions: Vec<String>,
-    /// The query index (default: the database index; must share its codebook).
-    #[arg(long)]
-    pub queries: Option<PathBuf>,
-    /// Query sessions (repeatable; default all).
-    #[arg(long = "query-session")]
-    pub query_sessions: Vec<String>,
-    /// Revisit thresholds R (m), each in (0, ∞).
-    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50", value_parser = crate::ranges::positive)]
-    pub thresholds: Vec<f64>,
-    /// Largest N of Recall@N: [1, ∞), clamped to the database size.
-    #[arg(long, default_value_t = 25, value_parser = crate::ranges::count)]
-    pub max_n: usize,
-    /// Keep a map scan only if farther than this (m, in (0, ∞)) from the last kept (RING).
-    #[arg(long, value_parser = crate::ranges::positive)]
-    pub map_every: Option<f64>,
-    /// Same for query scans.
-    #[arg(long, value_parser = crate::ranges::positive)]
-    pub query_every: Option<f64>,
-    /// Ignore database scans of the query's session closer in time than this (s, [0, ∞)); a
-    /// query never retrieves itself.
-    #[arg(long, default_value_t = 0.0, value_parser = crate::ranges::non_negative)]
-    pub min_time_gap: f64,
-    /// Descriptor methods to compare (repeatable; default: every method both indexes hold).
-    #[arg(long = "method")]
-    pub methods: Vec<String>,
-    /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
-    /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
-    #[arg(long, value_enum, default_value = "places")]
-    pub protocol: Protocol,
-    /// Output folder for report.json, report.txt and the plots.
-    #[arg(long, short)]
-    pub out: PathBuf,
-}
-
-/// The protocols of `eval places`.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Protocol {
-    /// Database and query sessions, true matches within each threshold.
-    Places,
-    /// The PointNetVLAD benchmark ([`pointnetvlad`]).
-    Pointnetvlad,
-}
 
 /// The methods to evaluate, as the first of `indexes` records them: those asked for, or every
 /// method all `indexes` hold (TopoRec first).
@@ -128,286 +78,8 @@ fn names(methods: &[Method]) -> Vec<String> {
     methods.iter().map(|m| m.name.clone()).collect()
 }
 
-fn xy(s: &IndexedScan) -> [f64; 2] {
-    let p = s.pose.expect("filtered to posed scans");
-    [p[0], p[1]]
-}
-
-fn subsample(scans: Vec<IndexedScan>, every: Option<f64>) -> Vec<IndexedScan> {
-    let Some(every) = every else { return scans };
-    let mut last: Option<[f64; 2]> = None;
-    scans
-        .into_iter()
-        .filter(|s| {
-            let p = xy(s);
-            let keep = last.is_none_or(|l| (p[0] - l[0]).hypot(p[1] - l[1]) > every);
-            if keep {
-                last = Some(p);
-            }
-            keep
-        })
-        .collect()
-}
-
-/// Runs the places protocol; returns the report text (also written beside the JSON).
-pub fn places(a: &PlacesArgs) -> Result<String> {
-    if a.protocol == Protocol::Pointnetvlad {
-        return pointnetvlad_places(a);
-    }
-    let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
-    let methods = names(&chosen_methods(&[&a.db, &queries_index], &a.methods)?);
-    let mut table = String::new();
-    line!(
-        table,
-        "places: database {}, queries {}; methods: {}",
-        a.db.display(),
-        queries_index.display(),
-        methods.join(", ")
-    );
-    let mut entries = Vec::new();
-    let mut curves = Vec::new();
-    let mut plots = Vec::new();
-    std::fs::create_dir_all(&a.out).at(&a.out)?;
-    for method in &methods {
-        let m = places_of(a, &queries_index, method, methods.len() > 1, &mut table)?;
-        let prefix = if methods.len() > 1 { format!("{method}, ") } else { String::new() };
-        curves.extend(m.curves.into_iter().map(|(name, v)| (format!("{prefix}{name}"), v)));
-        plots.extend(m.plots);
-        entries.push(m.json);
-    }
-    plots.extend(crate::plot::recall_curves(
-        &a.out.join("recall_at_n"),
-        "Recall@N (queries with a match)",
-        &curves,
-    )?);
-    let report = json!({
-        "protocol": "places",
-        "toporec_version": env!("CARGO_PKG_VERSION"),
-        "database": {"index": a.db, "sessions": a.db_sessions, "map_every_m": a.map_every},
-        "queries": {"index": queries_index, "sessions": a.query_sessions, "query_every_m": a.query_every},
-        "min_time_gap_s": a.min_time_gap,
-        "threads": rayon::current_num_threads(),
-        "methods": entries,
-        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
-    });
-    write_report(&a.out, &report, &table)?;
-    Ok(table)
-}
-
 /// A named Recall@N curve.
 pub(crate) type Curve = (String, Vec<f64>);
-
-/// `eval places --protocol pointnetvlad`: the benchmark's own database and query sets.
-fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
-    if a.queries.is_some() || !a.db_sessions.is_empty() || !a.query_sessions.is_empty() {
-        return Err(Error::invalid(
-            "--protocol pointnetvlad pairs the benchmark's own runs: --queries, --db-session and --query-session do not apply",
-        ));
-    }
-    let methods = names(&chosen_methods(&[&a.db], &a.methods)?);
-    let (table, report, curves) = pointnetvlad::evaluate(&a.db, &methods)?;
-    std::fs::create_dir_all(&a.out).at(&a.out)?;
-    let plots =
-        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
-    let mut report = report;
-    report["plots"] = json!(
-        plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>()
-    );
-    write_report(&a.out, &report, &table)?;
-    Ok(table)
-}
-
-/// One method's part of a places report.
-struct MethodPlaces {
-    json: serde_json::Value,
-    curves: Vec<Curve>,
-    plots: Vec<PathBuf>,
-}
-
-/// The places protocol with one method; appends its block to `table`.
-fn places_of(
-    a: &PlacesArgs,
-    queries_index: &Path,
-    method: &str,
-    several: bool,
-    table: &mut String,
-) -> Result<MethodPlaces> {
-    // Descriptors only: the search structure is built once, over the scans kept below.
-    let db_loaded = load_method(&a.db, method, &a.db_sessions)?;
-    let q_loaded = load_method(queries_index, method, &a.query_sessions)?;
-    if q_loaded.id != db_loaded.id {
-        let hint = if method == TOPOREC {
-            format!(
-                ": index the queries with `vectorize.codebook = \"{}\"`",
-                a.db.join("codebook.json").display()
-            )
-        } else {
-            format!(": index both with the same [{method}] parameters")
-        };
-        let what = if method == TOPOREC { "codebook" } else { "method id" };
-        return Err(Error::index(
-            queries_index,
-            format!(
-                "{method}: uses {what} {} but {} uses {}{hint}",
-                q_loaded.id,
-                a.db.display(),
-                db_loaded.id
-            ),
-        ));
-    }
-    let (id, length, method_def) = (db_loaded.id.clone(), db_loaded.length, db_loaded.method.clone());
-    let (db_all, queries) = (db_loaded.scans, q_loaded.scans);
-    let (db_unposed, query_unposed) = (
-        db_all.iter().filter(|s| s.pose.is_none()).count(),
-        queries.iter().filter(|s| s.pose.is_none()).count(),
-    );
-    let unposed = db_unposed + query_unposed;
-    let db_scans = subsample(db_all.into_iter().filter(|s| s.pose.is_some()).collect(), a.map_every);
-    let queries = subsample(queries.into_iter().filter(|s| s.pose.is_some()).collect(), a.query_every);
-    if db_scans.is_empty() || queries.is_empty() {
-        return Err(Error::invalid(format!(
-            "places needs poses: {} database and {} query scans have one ({unposed} without)",
-            db_scans.len(),
-            queries.len()
-        )));
-    }
-    let n_db = db_scans.len();
-    let k1 = one_percent_k(n_db);
-    let gap_us = a.min_time_gap * 1e6;
-    let is_excluded = |q: &IndexedScan, d: &IndexedScan| {
-        q.scan_id == d.scan_id
-            || (q.session == d.session
-                && q.utime.zip(d.utime).is_some_and(|(x, y)| ((x - y).abs() as f64) < gap_us))
-    };
-    let max_n = clamp_max_n(a.max_n, n_db);
-    let want = max_n.max(k1).min(n_db);
-    let skips: Vec<usize> =
-        queries.par_iter().map(|q| db_scans.iter().filter(|d| is_excluded(q, d)).count()).collect();
-    let k = (want + skips.iter().copied().max().unwrap_or(0)).min(n_db);
-    let loaded = crate::query::Loaded {
-        method: method_def.clone(),
-        id: id.clone(),
-        length,
-        codebook: None,
-        scans: db_scans,
-    };
-    let engine = Engine::search_only(loaded);
-    let db_scans = &engine.scans;
-    let start = Instant::now();
-    // Batched search (one matrix product per block); each query is charged its block's time.
-    let mut retrieved: Vec<(Vec<usize>, StepTimes)> = Vec::with_capacity(queries.len());
-    for block in queries.chunks(256) {
-        let flat: Vec<f32> = block.iter().flat_map(|q| q.descriptor.iter().copied()).collect();
-        for (q, (hits, t)) in block.iter().zip(engine.find_many(&flat, k)) {
-            let rows: Vec<usize> = hits
-                .into_iter()
-                .map(|h: Found| h.row)
-                .filter(|&r| !is_excluded(q, &db_scans[r]))
-                .take(want)
-                .collect();
-            retrieved.push((rows, t));
-        }
-    }
-    let wall = start.elapsed().as_secs_f64();
-    let search_times: Vec<StepTimes> = retrieved.iter().map(|r| r.1).collect();
-    let mut results = Vec::new();
-    let name = if several { format!("{method}: ") } else { String::new() };
-    line!(
-        table,
-        "{name}{} database scans, {} queries (length {length}); Recall@1% uses the top {k1}",
-        n_db,
-        queries.len()
-    );
-    if unposed > 0 {
-        line!(table, "left out, without a pose: {db_unposed} database and {query_unposed} query scans");
-    }
-    let (n5, n25) = (5.min(max_n), 25.min(max_n));
-    line!(
-        table,
-        "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} | {:>9} {:>9} {:>10}",
-        "R (m)",
-        "w/ match",
-        "R@1",
-        format!("R@{n5}"),
-        format!("R@{n25}"),
-        "R@1%",
-        "all: R@1",
-        format!("R@{n5}"),
-        "R@1%"
-    );
-    let mut curves = Vec::new();
-    let mut success_first = Vec::new();
-    let plan_distance = |q: &IndexedScan, row: usize| {
-        let (p, d) = (xy(q), xy(&db_scans[row]));
-        (p[0] - d[0]).hypot(p[1] - d[1])
-    };
-    // Distance from each query to its nearest eligible database scan: it has a true match
-    // within R iff this is ≤ R (one pass, not one per threshold).
-    let nearest: Vec<f64> = queries
-        .par_iter()
-        .map(|q| {
-            (0..n_db)
-                .filter(|&row| !is_excluded(q, &db_scans[row]))
-                .map(|row| plan_distance(q, row))
-                .fold(f64::INFINITY, f64::min)
-        })
-        .collect();
-    for &r in &a.thresholds {
-        let has: Vec<bool> = nearest.iter().map(|&d| d <= r).collect();
-        let hits: Vec<Option<usize>> = queries
-            .iter()
-            .zip(&retrieved)
-            .map(|(q, (rows, _))| first_hit(rows, |row| plan_distance(q, row) <= r))
-            .collect();
-        if success_first.is_empty() {
-            success_first = hits.iter().map(|h| *h == Some(0)).collect();
-        }
-        let with = recall(&hits, &has, max_n, n_db, Denominator::WithMatch);
-        let all = recall(&hits, &has, max_n, n_db, Denominator::All);
-        let at = |rc: &Recall, n: usize| rc.at_n[n - 1];
-        line!(
-            table,
-            "{r:>7} {:>10} {:>9.2} {:>9.2} {:>9.2} {:>10.2} | {:>9.2} {:>9.2} {:>10.2}",
-            with.evaluated,
-            at(&with, 1),
-            at(&with, n5),
-            at(&with, n25),
-            with.at_one_percent,
-            at(&all, 1),
-            at(&all, n5),
-            all.at_one_percent
-        );
-        curves.push((format!("R = {r} m"), with.at_n.clone()));
-        results.push(json!({"threshold_m": r, "queries_with_match": with.evaluated, "with_match": with, "all_queries": all}));
-    }
-    line!(
-        table,
-        "search per query (mean / p95 ms): {} ({} threads, {:.2} s wall)",
-        step_summary(&method_def, &search_times, true),
-        rayon::current_num_threads(),
-        wall
-    );
-    let qpts: Vec<([f64; 2], bool)> =
-        queries.iter().zip(&success_first).map(|(q, &ok)| (xy(q), ok)).collect();
-    let dpts: Vec<[f64; 2]> = db_scans.iter().map(xy).collect();
-    let title = format!("{name}top-1 within {} m", a.thresholds.first().copied().unwrap_or(0.0));
-    let stem = if several { format!("trajectory_{method}") } else { "trajectory".into() };
-    let plots = crate::plot::trajectory(&a.out.join(stem), &title, &dpts, &qpts)?;
-    let json = json!({
-        "method": method,
-        "id": id,
-        "descriptor_length": length,
-        "database_scans": n_db,
-        "database_without_pose": db_unposed,
-        "query_scans": queries.len(),
-        "queries_without_pose": query_unposed,
-        "one_percent_k": k1,
-        "max_n": max_n,
-        "results": results,
-        "timing_ms": timing_json(&method_def, &search_times, true),
-    });
-    Ok(MethodPlaces { json, curves, plots })
-}
 
 /// Mean and p95 (ms) of each step a method has (or of its search steps).
 fn timing_json(method: &Method, times: &[StepTimes], search_only: bool) -> serde_json::Value {

@@ -170,6 +170,55 @@ pub fn alpha_persistence(points: &[Point]) -> Result<Diagram, ComplexError> {
     Ok(diagram)
 }
 
+/// A persistence pair and where its class dies: the centroid of the simplex whose entrance
+/// kills it (H0: the merging edge's midpoint; H1: the triangle that fills the loop; H2: the
+/// tetrahedron that fills the void), in the input's coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LocatedPair {
+    /// The pair (squared radii).
+    pub pair: Pair,
+    /// Where it dies (`None` for the essential H0 class).
+    pub at: Option<Point>,
+}
+
+/// The pairs of [`alpha_persistence`] (the same multiset) with their locations, in no
+/// particular order.
+pub fn alpha_persistence_located(points: &[Point]) -> Result<Vec<LocatedPair>, ComplexError> {
+    if let Some((index, p)) = points.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
+        return Err(ComplexError::NonFinite { index, x: p[0], y: p[1], z: p[2] });
+    }
+    let extent = points.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
+    let e = if extent == 0.0 { 0 } else { exponent(extent) };
+    let scaled: Vec<Point> = points.iter().map(|p| p.map(|c| scale_pow2(c, -e))).collect();
+    let complex = DelaunayComplex::new(&scaled)?;
+    let filtration = Filtration::new(&complex);
+    let centroid = |vertices: &[u32]| -> Point {
+        let mut sum = [0.0; 3];
+        for &v in vertices {
+            let q = complex.points[v as usize];
+            for k in 0..3 {
+                sum[k] += q[k];
+            }
+        }
+        sum.map(|c| scale_pow2(c / vertices.len() as f64, e))
+    };
+    let located = persistence::located_pairs(&filtration)
+        .into_iter()
+        .map(|(p, killer)| {
+            let at = match killer {
+                persistence::Killer::Edge(i) => Some(centroid(&complex.edges[i as usize])),
+                persistence::Killer::Triangle(i) => Some(centroid(&complex.triangles[i as usize])),
+                persistence::Killer::Tet(i) => Some(centroid(&complex.tets[i as usize])),
+                persistence::Killer::Never => None,
+            };
+            let pair =
+                Pair { dim: p.dim, birth: scale_pow2(p.birth, 2 * e), death: scale_pow2(p.death, 2 * e) };
+            LocatedPair { pair, at }
+        })
+        .collect();
+    Ok(located)
+}
+
 /// The engine on points as given.
 fn raw_persistence(points: &[Point]) -> Result<Diagram, ComplexError> {
     let complex = DelaunayComplex::new(points)?;

@@ -16,12 +16,39 @@ use super::filtration::{Filtration, Value};
 use super::{Diagram, Pair};
 use std::cmp::Ordering;
 
+/// The simplex whose entrance kills a class: where the class "is" in space.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Killer {
+    /// An edge (H0: it merges two components).
+    Edge(u32),
+    /// A triangle (H1: it fills a loop).
+    Triangle(u32),
+    /// A tetrahedron (H2: it fills a void).
+    Tet(u32),
+    /// None: the essential H0 class.
+    Never,
+}
+
 /// Computes the persistence diagram (squared radii) of `f`.
 pub fn persistence(f: &Filtration) -> Diagram {
-    let c = f.complex;
     let mut pairs = Vec::new();
+    pairs_of(f, |pair, _| pairs.push(pair));
+    Diagram::new(pairs)
+}
+
+/// Every pair of `f` (zero-length pairs dropped, as in [`persistence`]) with the simplex that
+/// kills it, in the order the passes find them.
+pub fn located_pairs(f: &Filtration) -> Vec<(Pair, Killer)> {
+    let mut out = Vec::new();
+    pairs_of(f, |pair, killer| out.push((pair, killer)));
+    out
+}
+
+/// Runs the passes, handing each pair and its killer to `emit`.
+fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
+    let c = f.complex;
     if c.dim == 0 {
-        return Diagram::new(pairs);
+        return;
     }
     let nv = c.points.len();
     let ne = c.edges.len();
@@ -32,12 +59,12 @@ pub fn persistence(f: &Filtration) -> Diagram {
     for &e in &f.edge_order {
         let [u, v] = c.edges[e as usize];
         if uf.union(u, v) {
-            pairs.push(Pair { dim: 0, birth: 0.0, death: f.edges[e as usize].value });
+            emit(Pair { dim: 0, birth: 0.0, death: f.edges[e as usize].value }, Killer::Edge(e));
         } else {
             edge_positive[e as usize] = true;
         }
     }
-    pairs.push(Pair { dim: 0, birth: 0.0, death: f64::INFINITY });
+    emit(Pair { dim: 0, birth: 0.0, death: f64::INFINITY }, Killer::Never);
 
     match c.dim {
         2 => {
@@ -51,7 +78,14 @@ pub fn persistence(f: &Filtration) -> Diagram {
                 let [a, b] = c.edge_cofaces[e as usize];
                 if let Some(t) = dual.union(a, b) {
                     debug_assert!(edge_positive[e as usize], "duality: dual merges are positive edges");
-                    push_finite(f, &mut pairs, 1, f.edges[e as usize], f.triangles[t as usize]);
+                    push_finite(
+                        f,
+                        &mut emit,
+                        1,
+                        f.edges[e as usize],
+                        f.triangles[t as usize],
+                        Killer::Triangle(t),
+                    );
                 }
             }
         }
@@ -66,28 +100,41 @@ pub fn persistence(f: &Filtration) -> Diagram {
             for &t in f.triangle_order.iter().rev() {
                 let [a, b] = c.tri_cofaces[t as usize];
                 match dual.union(a, b) {
-                    Some(tet) => push_finite(f, &mut pairs, 2, f.triangles[t as usize], f.tets[tet as usize]),
+                    Some(tet) => push_finite(
+                        f,
+                        &mut emit,
+                        2,
+                        f.triangles[t as usize],
+                        f.tets[tet as usize],
+                        Killer::Tet(tet),
+                    ),
                     None => negative.push(t),
                 }
             }
             negative.reverse();
-            reduce_h1(f, &edge_positive, &negative, &mut pairs);
+            reduce_h1(f, &edge_positive, &negative, &mut emit);
         }
         _ => {}
     }
-    Diagram::new(pairs)
 }
 
 /// Records a finite pair unless it has zero length (see [`Filtration::pair_values`]).
-fn push_finite(f: &Filtration, pairs: &mut Vec<Pair>, dim: u8, birth: Value, death: Value) {
+fn push_finite(
+    f: &Filtration,
+    emit: &mut impl FnMut(Pair, Killer),
+    dim: u8,
+    birth: Value,
+    death: Value,
+    killer: Killer,
+) {
     if let Some((birth, death)) = f.pair_values(birth, death) {
-        pairs.push(Pair { dim, birth, death });
+        emit(Pair { dim, birth, death }, killer);
     }
 }
 
 /// H1 pairs: reduce the columns (positive edges, by rank) of the negative triangles, given
 /// in filtration order.
-fn reduce_h1(f: &Filtration, edge_positive: &[bool], negative: &[u32], pairs: &mut Vec<Pair>) {
+fn reduce_h1(f: &Filtration, edge_positive: &[bool], negative: &[u32], emit: &mut impl FnMut(Pair, Killer)) {
     let c = f.complex;
     let mut edge_rank = vec![0u32; c.edges.len()];
     for (r, &e) in f.edge_order.iter().enumerate() {
@@ -129,7 +176,7 @@ fn reduce_h1(f: &Filtration, edge_positive: &[bool], negative: &[u32], pairs: &m
                 store_start.push(store.len() as u32);
                 store.extend_from_slice(&col);
                 let e = f.edge_order[pivot as usize];
-                push_finite(f, pairs, 1, f.edges[e as usize], f.triangles[t as usize]);
+                push_finite(f, emit, 1, f.edges[e as usize], f.triangles[t as usize], Killer::Triangle(t));
                 break;
             }
             let s = store_start[k as usize] as usize;

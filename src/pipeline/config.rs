@@ -29,11 +29,12 @@
 //! ```
 
 use crate::baselines::{
-    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, TOPOREC, scancontext::ScanContextParams,
+    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, TOPOREC, TOPOREC_PLUS, scancontext::ScanContextParams,
 };
 pub use crate::error::ConfigErrors;
 use crate::preprocess::Preprocess;
 use crate::sources::SourceSpec;
+use crate::toporec_plus::PlusParams;
 use crate::vectorize::atol::{Contrast, Weighting};
 use crate::vectorize::codebook::{Codebook, CodebookSpec, DimSelection};
 use crate::vectorize::kmeans::{Algorithm, KMeansParams};
@@ -255,6 +256,7 @@ impl Pipeline {
             let params = match &m.kind {
                 crate::baselines::MethodKind::ScanContext(p) => Value::try_from(p),
                 crate::baselines::MethodKind::M2dp(p) => Value::try_from(p),
+                crate::baselines::MethodKind::ToporecPlus(p) => Value::try_from(p),
                 _ => continue,
             };
             doc.insert(m.name.clone(), params.expect("plain data"));
@@ -408,9 +410,10 @@ impl Parser {
         s.finish(&mut self.errors);
         let sc: ScanContextParams = self.method_section(root, SCANCONTEXT);
         let m2dp: M2dpParams = self.method_section(root, M2DP);
+        let plus: PlusParams = self.method_section(root, TOPOREC_PLUS);
         let mut methods = Methods { toporec: false, computed: Vec::new() };
         if names.is_empty() {
-            self.errors.push("descriptors.methods: empty (toporec, scancontext, m2dp)".into());
+            self.errors.push("descriptors.methods: empty (toporec, toporec-plus, scancontext, m2dp)".into());
         }
         for (i, name) in names.iter().enumerate() {
             if names[..i].contains(name) {
@@ -427,8 +430,12 @@ impl Parser {
                     self.errors.extend(m2dp.problems());
                     methods.computed.push(Method::m2dp(m2dp.clone()));
                 }
+                TOPOREC_PLUS => {
+                    self.errors.extend(plus.problems());
+                    methods.computed.push(Method::toporec_plus(plus.clone()));
+                }
                 other => self.errors.push(format!(
-                    "descriptors.methods: unknown method `{other}` (toporec, scancontext, m2dp; \
+                    "descriptors.methods: unknown method `{other}` (toporec, toporec-plus, scancontext, m2dp; \
                      vectors made elsewhere come in with `toporec import`)"
                 )),
             }

@@ -61,10 +61,50 @@ impl McapSpec {
             let messages =
                 McapMessages::open(path).map_err(|source| SourceError::Io { path: path.clone(), source })?;
             let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
-            streams.push(McapScans { messages, topic, session, poses: poses.clone(), tolerance, index: 0 });
+            streams.push(McapScans {
+                messages,
+                topic,
+                session,
+                poses: poses.clone(),
+                tolerance,
+                index: 0,
+                range: 0..u64::MAX,
+            });
         }
         Ok(Box::new(streams.into_iter().flatten()))
     }
+
+    /// The scans of `path` (one of the spec's files, or any file read with the spec's
+    /// settings) whose message index lies in `range`: what [`McapSpec::open`] yields for them,
+    /// ids, times and poses included. Messages before the range are passed over undecoded;
+    /// reading stops at its end. A corrupt chunk is reported by the range it falls in.
+    pub fn open_range(&self, path: &Path, range: std::ops::Range<u64>) -> Result<ScanStream, SourceError> {
+        let poses = match &self.poses {
+            Some(p) => Some(std::sync::Arc::new(GroundTruth::read(p)?)),
+            None => None,
+        };
+        let topic = resolve_topic(path, self.topic.as_deref())?;
+        let session = self.session.clone().unwrap_or_else(|| stem(path));
+        let messages =
+            McapMessages::open(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
+        Ok(Box::new(McapScans { messages, topic, session, poses, tolerance, index: 0, range }))
+    }
+}
+
+/// The number of scans (messages of the point-cloud topic, `topic` or the file's only one)
+/// in an MCAP file, and the topic: a pass over the file that decodes no cloud.
+pub fn count_scans(path: &Path, topic: Option<&str>) -> Result<(String, u64), SourceError> {
+    let topic = resolve_topic(path, topic)?;
+    let messages =
+        McapMessages::open(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+    let mut count = 0u64;
+    for m in messages.flatten() {
+        if m.channel.topic == topic && is_point_cloud(&m.channel) {
+            count += 1;
+        }
+    }
+    Ok((topic, count))
 }
 
 fn stem(path: &Path) -> String {
@@ -123,6 +163,8 @@ struct McapScans {
     poses: Option<std::sync::Arc<GroundTruth>>,
     tolerance: i64,
     index: u64,
+    /// The message indices wanted (all, for a whole file).
+    range: std::ops::Range<u64>,
 }
 
 impl Iterator for McapScans {
@@ -130,6 +172,9 @@ impl Iterator for McapScans {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
+            if self.index >= self.range.end {
+                return None;
+            }
             let path = self.messages.path().to_owned();
             let failure = |id: String, index: Option<u64>, error: String| ScanFailure {
                 id,
@@ -143,6 +188,9 @@ impl Iterator for McapScans {
             let message = match self.messages.next()? {
                 Ok(m) => m,
                 Err(fault) => {
+                    if !self.range.contains(&self.index) {
+                        continue;
+                    }
                     // A corrupt chunk: its messages are lost, the stream goes on.
                     let id = format!("{}/{}", self.session, fault.location.replace(' ', "_"));
                     let e = format!("{}: {}: {}", path.display(), fault.location, fault.message);
@@ -154,6 +202,9 @@ impl Iterator for McapScans {
             }
             let index = self.index;
             self.index += 1;
+            if index < self.range.start {
+                continue;
+            }
             let id = format!("{}/{index:06}", self.session);
             let fingerprint = crate::fingerprint::of_bytes(&message.data);
             let encoding = Encoding::of_channel(&message.channel.message_encoding);

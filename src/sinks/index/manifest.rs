@@ -5,7 +5,7 @@
 //! leaves such files behind, and the next writer deletes them. The format is documented as a
 //! JSON Schema in `schemas/manifest.json`.
 
-use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT};
+use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT, TOPOREC_PLUS};
 use crate::error::{Error, Result, ResultExt};
 use crate::vectorize::codebook::Codebook;
 use serde::{Deserialize, Serialize};
@@ -55,6 +55,7 @@ impl MethodEntry {
         let kind = match self.kind.as_str() {
             SCANCONTEXT => MethodKind::ScanContext(serde_json::from_value(self.params.clone()).ok()?),
             M2DP => MethodKind::M2dp(serde_json::from_value(self.params.clone()).ok()?),
+            TOPOREC_PLUS => MethodKind::ToporecPlus(serde_json::from_value(self.params.clone()).ok()?),
             IMPORTED => MethodKind::Imported {
                 length: self.length,
                 source: self.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),

@@ -1,0 +1,777 @@
+//! `eval places`: database scans against query scans with poses, every method of the index
+//! side by side, under real-world conditions.
+//!
+//! A query's true matches are the database scans within R metres (2D), for each R of
+//! `--thresholds`; Recall@N and Recall@1 % under both denominators. Beside them:
+//!
+//! * **nearest database scan**: the share of queries whose top-1 is the database scan closest
+//!   to them (ties within 1 µm count);
+//! * **loop closure** ([`super::metrics::loop_closure`]): a top-1 accepted when its descriptor
+//!   distance is under a threshold, true within `--revisit-radius`; the threshold swept, the
+//!   precision–recall curve plotted, F1 max and recall at 100 % precision reported.
+//!
+//! `--condition` ([`super::conditions`]) re-reads each query scan through the query index's
+//! sources, applies the condition to the raw scan, and lets each method describe it as the
+//! database index does (its preprocessing, codebook, parameters) before searching; without
+//! it (or with `as-recorded`) the stored descriptors are the queries. `--db-scan` and
+//! `--query-scan` choose scans by id; `--within-session` compares poses only inside a session
+//! (KITTI's sequences each have their own frame).
+
+use super::conditions::{Condition, NotApplicable};
+use super::metrics::{Denominator, LoopClosure, Recall, first_hit, loop_closure, one_percent_k, recall};
+use super::{Curve, chosen_methods, clamp_max_n, names, timing_json, write_report};
+use crate::baselines::TOPOREC;
+use crate::error::{Error, Result, ResultExt};
+use crate::query::{Engine, Found, StepTimes, load_method, step_summary};
+use crate::sinks::index::IndexedScan;
+use rayon::prelude::*;
+use serde_json::json;
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Appends one formatted line to a report table.
+macro_rules! line {
+    ($out:expr, $($arg:tt)*) => {{
+        $out.push_str(&format!($($arg)*));
+        $out.push('\n');
+    }};
+}
+
+/// Settings of `eval places` (its command-line arguments).
+#[derive(clap::Args, Clone, Debug)]
+pub struct PlacesArgs {
+    /// The database index.
+    #[arg(long)]
+    pub db: PathBuf,
+    /// Database sessions (repeatable; default all).
+    #[arg(long = "db-session")]
+    pub db_sessions: Vec<String>,
+    /// The query index (default: the database index; must share its codebook).
+    #[arg(long)]
+    pub queries: Option<PathBuf>,
+    /// Query sessions (repeatable; default all).
+    #[arg(long = "query-session")]
+    pub query_sessions: Vec<String>,
+    /// Database scans: only those whose id matches one of these patterns (`*` any run of
+    /// characters, `?` one; repeatable; default all).
+    #[arg(long = "db-scan")]
+    pub db_scans: Vec<String>,
+    /// Query scans likewise.
+    #[arg(long = "query-scan")]
+    pub query_scans: Vec<String>,
+    /// Poses of different sessions are in different frames (KITTI's sequences): a query's
+    /// true matches, and its nearest database scan, are in its own session only.
+    #[arg(long)]
+    pub within_session: bool,
+    /// Revisit thresholds R (m), each in (0, ∞).
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50", value_parser = crate::ranges::positive)]
+    pub thresholds: Vec<f64>,
+    /// Largest N of Recall@N: [1, ∞), clamped to the database size.
+    #[arg(long, default_value_t = 25, value_parser = crate::ranges::count)]
+    pub max_n: usize,
+    /// Keep a map scan only if farther than this (m, in (0, ∞)) from the last kept (RING).
+    #[arg(long, value_parser = crate::ranges::positive)]
+    pub map_every: Option<f64>,
+    /// Same for query scans.
+    #[arg(long, value_parser = crate::ranges::positive)]
+    pub query_every: Option<f64>,
+    /// Ignore database scans of the query's session closer in time than this (s, [0, ∞)); a
+    /// query never retrieves itself.
+    #[arg(long, default_value_t = 0.0, value_parser = crate::ranges::non_negative)]
+    pub min_time_gap: f64,
+    /// Conditions applied to each raw query scan before each method describes it
+    /// (repeatable): as-recorded, yaw[=DEG], occlusion[=DEG], drop[=F], beams[=N],
+    /// offset[=M], max-range[=M], paper. Default: as-recorded (the stored descriptors).
+    #[arg(long = "condition")]
+    pub conditions: Vec<String>,
+    /// Seed of the conditions' random choices (with each scan's id).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Loop closure: an accepted top-1 within this many metres is a true positive, (0, ∞).
+    #[arg(long, default_value_t = 5.0, value_parser = crate::ranges::positive)]
+    pub revisit_radius: f64,
+    /// Descriptor methods to compare (repeatable; default: every method both indexes hold).
+    #[arg(long = "method")]
+    pub methods: Vec<String>,
+    /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
+    /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
+    #[arg(long, value_enum, default_value = "places")]
+    pub protocol: Protocol,
+    /// Output folder for report.json, report.txt and the plots.
+    #[arg(long, short)]
+    pub out: PathBuf,
+}
+
+/// The protocols of `eval places`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Protocol {
+    /// Database and query sessions, true matches within each threshold.
+    Places,
+    /// The PointNetVLAD benchmark ([`super::pointnetvlad`]).
+    Pointnetvlad,
+}
+
+/// Whether `text` matches the glob `pattern` (`*`: any run of characters, `?`: one).
+pub fn glob_match(pattern: &str, text: &str) -> bool {
+    let (p, t): (Vec<char>, Vec<char>) = (pattern.chars().collect(), text.chars().collect());
+    let (mut i, mut j) = (0usize, 0usize);
+    let mut star: Option<(usize, usize)> = None;
+    while j < t.len() {
+        if i < p.len() && (p[i] == '?' || p[i] == t[j]) {
+            i += 1;
+            j += 1;
+        } else if i < p.len() && p[i] == '*' {
+            star = Some((i, j));
+            i += 1;
+        } else if let Some((si, sj)) = star {
+            i = si + 1;
+            j = sj + 1;
+            star = Some((si, sj + 1));
+        } else {
+            return false;
+        }
+    }
+    p[i..].iter().all(|&c| c == '*')
+}
+
+fn chosen(patterns: &[String], id: &str) -> bool {
+    patterns.is_empty() || patterns.iter().any(|p| glob_match(p, id))
+}
+
+fn xy(s: &IndexedScan) -> [f64; 2] {
+    let p = s.pose.expect("filtered to posed scans");
+    [p[0], p[1]]
+}
+
+fn subsample(scans: Vec<IndexedScan>, every: Option<f64>) -> Vec<IndexedScan> {
+    let Some(every) = every else { return scans };
+    let mut last: Option<[f64; 2]> = None;
+    scans
+        .into_iter()
+        .filter(|s| {
+            let p = xy(s);
+            let keep = last.is_none_or(|l| (p[0] - l[0]).hypot(p[1] - l[1]) > every);
+            if keep {
+                last = Some(p);
+            }
+            keep
+        })
+        .collect()
+}
+
+/// The conditions asked for (as-recorded when none), each once, in order.
+fn parse_conditions(asked: &[String]) -> Result<Vec<Condition>> {
+    let mut out: Vec<Condition> = Vec::new();
+    for text in asked {
+        for c in Condition::parse(text).map_err(|e| Error::invalid(format!("--condition {e}")))? {
+            if !out.contains(&c) {
+                out.push(c);
+            }
+        }
+    }
+    if out.is_empty() {
+        out.push(Condition::AsRecorded);
+    }
+    Ok(out)
+}
+
+/// Runs the places protocol; returns the report text (also written beside the JSON).
+pub fn places(a: &PlacesArgs) -> Result<String> {
+    if a.protocol == Protocol::Pointnetvlad {
+        return pointnetvlad_places(a);
+    }
+    let conditions = parse_conditions(&a.conditions)?;
+    let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
+    let methods = names(&chosen_methods(&[&a.db, &queries_index], &a.methods)?);
+    let mut table = String::new();
+    line!(
+        table,
+        "places: database {}, queries {}; methods: {}; conditions: {}",
+        a.db.display(),
+        queries_index.display(),
+        methods.join(", "),
+        conditions.iter().map(Condition::name).collect::<Vec<_>>().join(", ")
+    );
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
+    let prepared: Vec<Prepared> =
+        methods.iter().map(|m| Prepared::new(a, &queries_index, m)).collect::<Result<_>>()?;
+    let redescribed = if conditions.iter().any(|c| *c != Condition::AsRecorded) {
+        redescribe(a, &queries_index, &prepared, &conditions)?
+    } else {
+        HashMap::new()
+    };
+    let several = methods.len() > 1;
+    let (mut entries, mut curves, mut plots, mut pr, mut summary) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (mi, p) in prepared.iter().enumerate() {
+        let mut per_condition = Vec::new();
+        for (ci, condition) in conditions.iter().enumerate() {
+            let described = redescribed.get(&(ci, mi));
+            let r = p.evaluate(a, condition, described, several, ci == 0, &mut table)?;
+            let label = if several { format!("{}, {}", p.name, condition.name()) } else { condition.name() };
+            if let Some(lc) = &r.loop_closure {
+                pr.push((label.clone(), lc.curve.iter().map(|q| (q.recall, q.precision)).collect()));
+            }
+            if ci == 0 {
+                let prefix = if several { format!("{}, ", p.name) } else { String::new() };
+                curves.extend(r.curves.iter().map(|(name, v)| (format!("{prefix}{name}"), v.clone())));
+                plots.extend(r.plots.iter().cloned());
+            }
+            summary.push((condition.name(), p.name.clone(), r.summary.clone()));
+            per_condition.push(r.json);
+        }
+        let mut entry = p.json.clone();
+        entry["results"] = per_condition[0]["results"].clone();
+        entry["timing_ms"] = per_condition[0]["timing_ms"].clone();
+        entry["conditions"] = json!(per_condition);
+        entries.push(entry);
+    }
+    write_summary(&mut table, a, &summary);
+    plots.extend(crate::plot::recall_curves(
+        &a.out.join("recall_at_n"),
+        "Recall@N (queries with a match)",
+        &curves,
+    )?);
+    plots.extend(crate::plot::precision_recall(
+        &a.out.join("precision_recall"),
+        &format!("Loop closure: top-1 within {} m", a.revisit_radius),
+        &pr,
+    )?);
+    let report = json!({
+        "protocol": "places",
+        "toporec_version": env!("CARGO_PKG_VERSION"),
+        "database": {"index": a.db, "sessions": a.db_sessions, "scans": a.db_scans, "map_every_m": a.map_every},
+        "queries": {"index": queries_index, "sessions": a.query_sessions, "scans": a.query_scans, "query_every_m": a.query_every},
+        "within_session": a.within_session,
+        "min_time_gap_s": a.min_time_gap,
+        "revisit_radius_m": a.revisit_radius,
+        "seed": a.seed,
+        "conditions": conditions.iter().map(Condition::name).collect::<Vec<_>>(),
+        "threads": rayon::current_num_threads(),
+        "methods": entries,
+        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
+    });
+    write_report(&a.out, &report, &table)?;
+    Ok(table)
+}
+
+/// One (condition, method) line of the summary: R@1 per threshold, nearest, F1 max and
+/// recall at 100 % precision (`None`: not applicable).
+type SummaryRow = Option<(Vec<Option<f64>>, Option<f64>, f64, f64)>;
+
+fn write_summary(table: &mut String, a: &PlacesArgs, rows: &[(String, String, SummaryRow)]) {
+    line!(
+        table,
+        "\nsummary: R@1 (%) within R of the query, its nearest database scan, loop closure within {} m",
+        a.revisit_radius
+    );
+    let mut head = format!("{:<32} {:<14}", "condition", "method");
+    for r in &a.thresholds {
+        head.push_str(&format!(" {:>8}", format!("{r} m")));
+    }
+    head.push_str(&format!(" {:>8} {:>8} {:>8}", "nearest", "F1 max", "R@P100"));
+    line!(table, "{head}");
+    let cell = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
+    for (condition, method, row) in rows {
+        let mut text = format!("{condition:<32} {method:<14}");
+        match row {
+            None => text.push_str(" n/a"),
+            Some((r1, nearest, f1, rp)) => {
+                for v in r1 {
+                    text.push_str(&format!(" {:>8}", cell(*v)));
+                }
+                text.push_str(&format!(" {:>8} {:>8.1} {:>8.1}", cell(*nearest), f1, rp));
+            }
+        }
+        line!(table, "{text}");
+    }
+}
+
+/// A re-described query: its descriptor and step times, or why there is none.
+type Redescribed = Result<(Vec<f32>, StepTimes), String>;
+
+/// One method's database and queries, ready to be searched.
+struct Prepared {
+    name: String,
+    engine: Engine,
+    queries: Vec<IndexedScan>,
+    db_unposed: usize,
+    query_unposed: usize,
+    json: serde_json::Value,
+}
+
+/// One (method, condition)'s results.
+struct Evaluated {
+    json: serde_json::Value,
+    curves: Vec<Curve>,
+    plots: Vec<PathBuf>,
+    loop_closure: Option<LoopClosure>,
+    summary: SummaryRow,
+}
+
+impl Prepared {
+    fn new(a: &PlacesArgs, queries_index: &Path, method: &str) -> Result<Prepared> {
+        let db_loaded = load_method(&a.db, method, &a.db_sessions)?;
+        let q_loaded = load_method(queries_index, method, &a.query_sessions)?;
+        if q_loaded.id != db_loaded.id {
+            let hint = if method == TOPOREC {
+                format!(
+                    ": index the queries with `vectorize.codebook = \"{}\"`",
+                    a.db.join("codebook.json").display()
+                )
+            } else {
+                format!(": index both with the same [{method}] parameters")
+            };
+            let what = if method == TOPOREC { "codebook" } else { "method id" };
+            return Err(Error::index(
+                queries_index,
+                format!(
+                    "{method}: uses {what} {} but {} uses {}{hint}",
+                    q_loaded.id,
+                    a.db.display(),
+                    db_loaded.id
+                ),
+            ));
+        }
+        let mut db_loaded = db_loaded;
+        let db_all: Vec<IndexedScan> = std::mem::take(&mut db_loaded.scans)
+            .into_iter()
+            .filter(|s| chosen(&a.db_scans, &s.scan_id))
+            .collect();
+        let queries: Vec<IndexedScan> =
+            q_loaded.scans.into_iter().filter(|s| chosen(&a.query_scans, &s.scan_id)).collect();
+        let db_unposed = db_all.iter().filter(|s| s.pose.is_none()).count();
+        let query_unposed = queries.iter().filter(|s| s.pose.is_none()).count();
+        let db_scans = subsample(db_all.into_iter().filter(|s| s.pose.is_some()).collect(), a.map_every);
+        let queries = subsample(queries.into_iter().filter(|s| s.pose.is_some()).collect(), a.query_every);
+        if db_scans.is_empty() || queries.is_empty() {
+            return Err(Error::invalid(format!(
+                "places needs poses: {} database and {} query scans are chosen and have one ({} without)",
+                db_scans.len(),
+                queries.len(),
+                db_unposed + query_unposed
+            )));
+        }
+        let (id, length) = (db_loaded.id.clone(), db_loaded.length);
+        db_loaded.scans = db_scans;
+        let n_db = db_loaded.scans.len();
+        let engine = Engine::from_loaded(&a.db, db_loaded)?;
+        let json = json!({
+            "method": method,
+            "id": id,
+            "descriptor_length": length,
+            "database_scans": n_db,
+            "database_without_pose": db_unposed,
+            "query_scans": queries.len(),
+            "queries_without_pose": query_unposed,
+            "one_percent_k": one_percent_k(n_db),
+            "max_n": clamp_max_n(a.max_n, n_db),
+        });
+        Ok(Prepared { name: method.to_string(), engine, queries, db_unposed, query_unposed, json })
+    }
+
+    /// Whether database row `d` may not be retrieved for query `q` (itself, or too close in
+    /// time in its own session).
+    fn excluded(&self, a: &PlacesArgs, q: &IndexedScan, d: &IndexedScan) -> bool {
+        q.scan_id == d.scan_id
+            || (q.session == d.session
+                && q.utime.zip(d.utime).is_some_and(|(x, y)| ((x - y).abs() as f64) < a.min_time_gap * 1e6))
+    }
+
+    /// The distance (m, 2D) of query `q` to database row `row`; infinite across sessions with
+    /// `--within-session`.
+    fn distance(&self, a: &PlacesArgs, q: &IndexedScan, row: usize) -> f64 {
+        let d = &self.engine.scans[row];
+        if a.within_session && d.session != q.session {
+            return f64::INFINITY;
+        }
+        let (p, r) = (xy(q), xy(d));
+        (p[0] - r[0]).hypot(p[1] - r[1])
+    }
+
+    fn evaluate(
+        &self,
+        a: &PlacesArgs,
+        condition: &Condition,
+        described: Option<&HashMap<String, Redescribed>>,
+        several: bool,
+        detailed: bool,
+        table: &mut String,
+    ) -> Result<Evaluated> {
+        let db = &self.engine.scans;
+        let n_db = db.len();
+        let max_n = clamp_max_n(a.max_n, n_db);
+        let k1 = one_percent_k(n_db);
+        let want = max_n.max(k1).min(n_db);
+        // The queries' descriptors under this condition (`None`: not described).
+        let vectors: Vec<Option<&[f32]>> = match (condition, described) {
+            (Condition::AsRecorded, _) | (_, None) => {
+                self.queries.iter().map(|q| Some(&q.descriptor[..])).collect()
+            }
+            (_, Some(map)) => self
+                .queries
+                .iter()
+                .map(|q| map.get(&q.scan_id).and_then(|r| r.as_ref().ok()).map(|(v, _)| &v[..]))
+                .collect(),
+        };
+        let describe_times: Vec<StepTimes> = described
+            .filter(|_| *condition != Condition::AsRecorded)
+            .map(|map| {
+                self.queries
+                    .iter()
+                    .filter_map(|q| map.get(&q.scan_id)?.as_ref().ok().map(|(_, t)| *t))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let failures: Vec<&str> = match described {
+            Some(map) if *condition != Condition::AsRecorded => self
+                .queries
+                .iter()
+                .filter_map(|q| map.get(&q.scan_id)?.as_ref().err().map(|e| e.as_str()))
+                .collect(),
+            _ => Vec::new(),
+        };
+        let condition_json = |extra: serde_json::Value| {
+            let mut j = json!({"condition": condition.name(), "queries": self.queries.len()});
+            if let (Some(o), Some(e)) = (j.as_object_mut(), extra.as_object()) {
+                o.extend(e.clone());
+            }
+            j
+        };
+        if vectors.iter().all(Option::is_none) {
+            let why = failures.first().copied().unwrap_or("no query could be described");
+            let name = if several { format!("{}: ", self.name) } else { String::new() };
+            line!(table, "{name}{}: not applicable ({why})", condition.name());
+            return Ok(Evaluated {
+                json: condition_json(json!({"not_applicable": why})),
+                curves: Vec::new(),
+                plots: Vec::new(),
+                loop_closure: None,
+                summary: None,
+            });
+        }
+        let skips: Vec<usize> =
+            self.queries.par_iter().map(|q| db.iter().filter(|d| self.excluded(a, q, d)).count()).collect();
+        let k = (want + skips.iter().copied().max().unwrap_or(0)).min(n_db);
+        let start = Instant::now();
+        let length = vectors.iter().flatten().next().map_or(0, |v| v.len());
+        let mut retrieved: Vec<Option<(Vec<Found>, StepTimes)>> = vec![None; self.queries.len()];
+        let described_rows: Vec<usize> = (0..self.queries.len()).filter(|&i| vectors[i].is_some()).collect();
+        for block in described_rows.chunks(256) {
+            let flat: Vec<f32> = block.iter().flat_map(|&i| vectors[i].unwrap().iter().copied()).collect();
+            debug_assert_eq!(flat.len(), block.len() * length);
+            for (&i, (hits, t)) in block.iter().zip(self.engine.find_many(&flat, k)) {
+                let q = &self.queries[i];
+                let kept: Vec<Found> =
+                    hits.into_iter().filter(|h| !self.excluded(a, q, &db[h.row])).take(want).collect();
+                retrieved[i] = Some((kept, t));
+            }
+        }
+        let wall = start.elapsed().as_secs_f64();
+        let search_times: Vec<StepTimes> = retrieved.iter().flatten().map(|r| r.1).collect();
+        let rows_of = |i: usize| -> Vec<usize> {
+            retrieved[i].as_ref().map_or_else(Vec::new, |(h, _)| h.iter().map(|f| f.row).collect())
+        };
+        // Each query's distance to its nearest eligible database scan.
+        let nearest: Vec<f64> = self
+            .queries
+            .par_iter()
+            .map(|q| {
+                (0..n_db)
+                    .filter(|&row| !self.excluded(a, q, &db[row]))
+                    .map(|row| self.distance(a, q, row))
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
+        let name = if several { format!("{}: ", self.name) } else { String::new() };
+        if detailed {
+            line!(
+                table,
+                "{name}{n_db} database scans, {} queries (length {length}); Recall@1% uses the top {k1}",
+                self.queries.len()
+            );
+            if self.db_unposed + self.query_unposed > 0 {
+                line!(
+                    table,
+                    "left out, without a pose: {} database and {} query scans",
+                    self.db_unposed,
+                    self.query_unposed
+                );
+            }
+        }
+        let (n5, n25) = (5.min(max_n), 25.min(max_n));
+        if detailed {
+            line!(
+                table,
+                "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} | {:>9} {:>9} {:>10}",
+                "R (m)",
+                "w/ match",
+                "R@1",
+                format!("R@{n5}"),
+                format!("R@{n25}"),
+                "R@1%",
+                "all: R@1",
+                format!("R@{n5}"),
+                "R@1%"
+            );
+        }
+        let (mut results, mut curves, mut r1) = (Vec::new(), Vec::new(), Vec::new());
+        let mut success_first = Vec::new();
+        for &r in &a.thresholds {
+            let has: Vec<bool> = nearest.iter().map(|&d| d <= r).collect();
+            let hits: Vec<Option<usize>> = self
+                .queries
+                .iter()
+                .enumerate()
+                .map(|(i, q)| first_hit(&rows_of(i), |row| self.distance(a, q, row) <= r))
+                .collect();
+            if success_first.is_empty() {
+                success_first = hits.iter().map(|h| *h == Some(0)).collect();
+            }
+            let with = recall(&hits, &has, max_n, n_db, Denominator::WithMatch);
+            let all = recall(&hits, &has, max_n, n_db, Denominator::All);
+            let at = |rc: &Recall, n: usize| rc.at_n[n - 1];
+            if detailed {
+                line!(
+                    table,
+                    "{r:>7} {:>10} {:>9.2} {:>9.2} {:>9.2} {:>10.2} | {:>9.2} {:>9.2} {:>10.2}",
+                    with.evaluated,
+                    at(&with, 1),
+                    at(&with, n5),
+                    at(&with, n25),
+                    with.at_one_percent,
+                    at(&all, 1),
+                    at(&all, n5),
+                    all.at_one_percent
+                );
+            }
+            r1.push((with.evaluated > 0).then(|| at(&with, 1)));
+            curves.push((format!("R = {r} m"), with.at_n.clone()));
+            results.push(json!({"threshold_m": r, "queries_with_match": with.evaluated, "with_match": with, "all_queries": all}));
+        }
+        // Nearest database scan: the top-1 is the closest eligible one.
+        let judged: Vec<usize> = (0..self.queries.len()).filter(|&i| nearest[i].is_finite()).collect();
+        let nearest_hits = judged
+            .iter()
+            .filter(|&&i| {
+                rows_of(i)
+                    .first()
+                    .is_some_and(|&top| self.distance(a, &self.queries[i], top) <= nearest[i] + 1e-6)
+            })
+            .count();
+        let nearest_pct = (!judged.is_empty()).then(|| 100.0 * nearest_hits as f64 / judged.len() as f64);
+        // Loop closure at the revisit radius.
+        let (mut top_distance, mut top_within) = (Vec::new(), Vec::new());
+        for (i, q) in self.queries.iter().enumerate() {
+            match retrieved[i].as_ref().and_then(|(h, _)| h.first()) {
+                Some(f) => {
+                    top_distance.push(f.distance);
+                    top_within.push(self.distance(a, q, f.row) <= a.revisit_radius);
+                }
+                None => {
+                    top_distance.push(f64::INFINITY);
+                    top_within.push(false);
+                }
+            }
+        }
+        let has_revisit: Vec<bool> = nearest.iter().map(|&d| d <= a.revisit_radius).collect();
+        // Each query's top-1 (id, descriptor distance, metres), for finding the failures.
+        let top1: Vec<serde_json::Value> = self
+            .queries
+            .iter()
+            .enumerate()
+            .map(|(i, q)| match retrieved[i].as_ref().and_then(|(h, _)| h.first()) {
+                Some(f) => {
+                    json!([q.scan_id, db[f.row].scan_id, f.distance, self.distance(a, q, f.row), nearest[i]])
+                }
+                None => json!([q.scan_id, null, null, null, nearest[i]]),
+            })
+            .collect();
+        let lc = loop_closure(&top_distance, &top_within, &has_revisit);
+        let method = &self.engine.method;
+        if detailed {
+            line!(
+                table,
+                "nearest database scan: {} %; loop closure within {} m: F1 max {:.1} %, recall at 100 % precision {:.1} %",
+                nearest_pct.map_or("-".into(), |v| format!("{v:.2}")),
+                a.revisit_radius,
+                lc.f1_max,
+                lc.recall_at_full_precision
+            );
+            line!(
+                table,
+                "search per query (mean / p95 ms): {} ({} threads, {:.2} s wall)",
+                step_summary(method, &search_times, true),
+                rayon::current_num_threads(),
+                wall
+            );
+        }
+        let mut plots = Vec::new();
+        if detailed {
+            let qpts: Vec<([f64; 2], bool)> =
+                self.queries.iter().zip(&success_first).map(|(q, &ok)| (xy(q), ok)).collect();
+            let dpts: Vec<[f64; 2]> = db.iter().map(xy).collect();
+            let title = format!("{name}top-1 within {} m", a.thresholds.first().copied().unwrap_or(0.0));
+            let stem = if several { format!("trajectory_{}", self.name) } else { "trajectory".into() };
+            plots = crate::plot::trajectory(&a.out.join(stem), &title, &dpts, &qpts)?;
+        }
+        let mut timing = timing_json(method, &search_times, true);
+        if !describe_times.is_empty() {
+            let steps = timing_json(method, &describe_times, false);
+            if let (Some(t), Some(d)) = (timing.as_object_mut(), steps.as_object()) {
+                for (k, v) in d {
+                    if !t.contains_key(k) {
+                        t.insert(k.clone(), v.clone());
+                    }
+                }
+            }
+        }
+        let json = condition_json(json!({
+            "described": described_rows.len(),
+            "not_described": failures.len(),
+            "results": results,
+            "nearest": {"queries": judged.len(), "recall_at_1": nearest_pct},
+            "loop_closure": {"radius_m": a.revisit_radius, "result": lc},
+            "top1": {"columns": ["query", "top1", "distance", "metres", "nearest_metres"], "rows": top1},
+            "timing_ms": timing,
+        }));
+        Ok(Evaluated {
+            json,
+            curves,
+            plots,
+            summary: Some((r1, nearest_pct, lc.f1_max, lc.recall_at_full_precision)),
+            loop_closure: Some(lc),
+        })
+    }
+}
+
+/// Re-reads every query scan through the query index's sources and describes it, under each
+/// condition other than as-recorded, with each method: `(condition, method) → scan id →
+/// descriptor`. Each raw scan is read once and dropped once described.
+fn redescribe(
+    a: &PlacesArgs,
+    queries_index: &Path,
+    prepared: &[Prepared],
+    conditions: &[Condition],
+) -> Result<HashMap<(usize, usize), HashMap<String, Redescribed>>> {
+    let wanted: HashSet<&str> =
+        prepared.iter().flat_map(|p| p.queries.iter().map(|q| q.scan_id.as_str())).collect();
+    let pipeline = crate::pipeline::config::Pipeline::of_index(queries_index)?;
+    let needs_unit = conditions.iter().any(|c| matches!(c, Condition::Paper(_)));
+    let mut metric = pipeline.preprocess.clone();
+    metric.normalize = false;
+    let mut found = 0usize;
+    let mut per_scan: Vec<(String, Vec<Vec<Redescribed>>)> = Vec::new();
+    for spec in &pipeline.sources {
+        let scans = spec.open()?.filter_map(|item| item.ok()).filter(|s| wanted.contains(s.id.as_str()));
+        let described: Vec<(String, Vec<Vec<Redescribed>>)> = scans
+            .par_bridge()
+            .map(|scan| {
+                let unit = if needs_unit {
+                    crate::preprocess::preprocess(scan.points.clone(), scan.fingerprint, &metric)
+                        .map(|mut pts| crate::preprocess::normalize(&mut pts))
+                        .unwrap_or(1.0)
+                } else {
+                    1.0
+                };
+                let seed = a.seed ^ crate::preprocess::seed_of(&scan.id);
+                let per_condition = conditions
+                    .iter()
+                    .map(|c| {
+                        if *c == Condition::AsRecorded {
+                            return Vec::new();
+                        }
+                        let points = c.apply(&scan.points, scan.ring.as_deref(), seed, unit);
+                        prepared
+                            .iter()
+                            .map(|p| match &points {
+                                Err(NotApplicable(why)) => Err(format!("{}: {why}", scan.id)),
+                                Ok(points) => {
+                                    let conditioned = crate::sources::Scan {
+                                        points: points.clone(),
+                                        ring: None,
+                                        intensity: None,
+                                        ..scan_header(&scan)
+                                    };
+                                    p.engine.describe_scan(conditioned).map_err(|e| e.to_string())
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                (scan.id.clone(), per_condition)
+            })
+            .collect();
+        found += described.len();
+        per_scan.extend(described);
+    }
+    if found < wanted.len() {
+        return Err(Error::index(
+            queries_index,
+            format!("{found} of {} query scans could be re-read from the index's sources", wanted.len()),
+        ));
+    }
+    let mut out: HashMap<(usize, usize), HashMap<String, Redescribed>> = HashMap::new();
+    for (id, per_condition) in per_scan {
+        for (ci, per_method) in per_condition.into_iter().enumerate() {
+            for (mi, r) in per_method.into_iter().enumerate() {
+                out.entry((ci, mi)).or_default().insert(id.clone(), r);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// A scan's identity (id, fingerprint, session, path, time, pose) without its points.
+fn scan_header(scan: &crate::sources::Scan) -> crate::sources::Scan {
+    crate::sources::Scan {
+        id: scan.id.clone(),
+        fingerprint: scan.fingerprint,
+        session: scan.session.clone(),
+        path: scan.path.clone(),
+        message_index: scan.message_index,
+        utime: scan.utime,
+        points: Vec::new(),
+        intensity: None,
+        ring: None,
+        raw_points: scan.raw_points,
+        pose: scan.pose,
+        no_pose: scan.no_pose,
+    }
+}
+
+/// `eval places --protocol pointnetvlad`: the benchmark's own database and query sets.
+fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
+    if a.queries.is_some() || !a.db_sessions.is_empty() || !a.query_sessions.is_empty() {
+        return Err(Error::invalid(
+            "--protocol pointnetvlad pairs the benchmark's own runs: --queries, --db-session and --query-session do not apply",
+        ));
+    }
+    let methods = names(&chosen_methods(&[&a.db], &a.methods)?);
+    let (table, report, curves) = super::pointnetvlad::evaluate(&a.db, &methods)?;
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
+    let plots =
+        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
+    let mut report = report;
+    report["plots"] = json!(
+        plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>()
+    );
+    write_report(&a.out, &report, &table)?;
+    Ok(table)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::glob_match;
+
+    #[test]
+    fn globs() {
+        assert!(glob_match("*/000003", "05/000003"));
+        assert!(glob_match("00/00009?", "00/000095"));
+        assert!(!glob_match("*/000003", "05/000033"));
+        assert!(glob_match("*", ""));
+        assert!(glob_match("a*b*c", "axxbyyc"));
+        assert!(!glob_match("a*b*c", "axxbyy"));
+    }
+}

@@ -1,0 +1,672 @@
+//! `toporec-plus`: a topological scan context — where a scan's persistent homology dies, laid
+//! out around the sensor, matched by circular shift.
+//!
+//! The paper's descriptor summarizes a whole diagram, so it finds the drive but not the spot,
+//! and a quarter of the view hidden changes all of it. Here the diagram keeps its geometry:
+//!
+//! 1. the raw scan (sensor frame, metres) within `max_radius` of the sensor, on a voxel grid
+//!    (`voxel`, one centroid a cell: the density no longer depends on the sensor or on dropped
+//!    points);
+//! 2. the persistent homology of its alpha complex, each pair located where its class dies —
+//!    the centroid of the edge that merges two components (H0), of the triangle that fills a
+//!    loop (H1), of the tetrahedron that fills a void (H2)
+//!    ([`crate::homology::alpha_persistence_located`]);
+//! 3. each pair's persistence (radii, metres) counted in the cell of a polar grid (`rings` ×
+//!    `sectors` out to `max_radius`) holding its location: per dimension, the sum of the
+//!    persistences in the cell (how much topology there is: dense surfaces give many short H0
+//!    pairs) and the largest (the biggest gap, loop or void there) — a `6 × rings × sectors`
+//!    image of the scan's topology;
+//! 4. the grid made again with the locations turned by `1/rotations`, `2/rotations`, … of a
+//!    sector, so that a turn between two visits that is not a whole number of sectors still
+//!    lines the cells up.
+//!
+//! The stored descriptor is the `rotations` grids, one after the other (`[rotation][dim][ring]
+//! [sector]`). Two scans compare as ScanContext's do, by columns: for each shift of the
+//! sectors and each rotation of the candidate, `1 −` the mean cosine of the columns (the
+//! `6 · rings` values of one sector) filled in both — a sector hidden in one scan is left out,
+//! not counted as a difference — and the smallest wins; the shift and rotation give the yaw.
+//! A search takes the nearest candidates by a key that does not depend on the yaw (per ring,
+//! the magnitudes of the first Fourier terms along the sectors of the H0 sums and maxima;
+//! first narrowed by their ring means alone) and re-ranks them.
+//!
+//! Nothing is trained or fitted: no codebook. A turn by a multiple of 90° maps the voxel grid
+//! and the polar grid onto themselves (with `sectors` a multiple of 4), so the distance of a
+//! scan to itself turned so is 0 up to rounding.
+
+use crate::homology::alpha_persistence_located;
+use crate::types::Point;
+use std::collections::HashMap;
+
+/// The name of the method.
+pub const NAME: &str = "toporec-plus";
+
+/// Homology dimensions.
+const DIMS: usize = 3;
+/// Grid channels: per dimension, the sum and the largest of the persistences in a cell.
+const CHANNELS: usize = 2 * DIMS;
+
+/// Settings (`[toporec-plus]` of a pipeline file).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlusParams {
+    /// Voxel-grid cell (m).
+    pub voxel: f64,
+    /// Farthest return kept, and the outer edge of the grid (m, horizontal).
+    pub max_radius: f64,
+    /// Rings of the polar grid.
+    pub rings: usize,
+    /// Sectors of the polar grid.
+    pub sectors: usize,
+    /// Grids per scan, turned by fractions of a sector.
+    pub rotations: usize,
+    /// Candidates a search re-ranks (at least the k asked for).
+    pub candidates: usize,
+    /// Shifts tried on all channels around the best alignment of the H0 columns, as a share
+    /// of the sectors (ScanContext's `SEARCH_RATIO`): ±`round(0.5 · ratio · sectors)`; 1
+    /// tries every shift.
+    pub search_ratio: f64,
+}
+
+impl Default for PlusParams {
+    fn default() -> Self {
+        PlusParams {
+            voxel: 0.6,
+            max_radius: 80.0,
+            rings: 20,
+            sectors: 60,
+            rotations: 3,
+            candidates: 50,
+            search_ratio: 0.1,
+        }
+    }
+}
+
+impl PlusParams {
+    /// The settings' problems, each with its key.
+    pub fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if !(self.voxel.is_finite() && self.voxel > 0.0) {
+            out.push(format!("{NAME}.voxel: must be in (0, inf) m; found {}", self.voxel));
+        }
+        if !(self.max_radius.is_finite() && self.max_radius > 0.0) {
+            out.push(format!("{NAME}.max_radius: must be in (0, inf) m; found {}", self.max_radius));
+        }
+        if !(1..=200).contains(&self.rings) || !(4..=720).contains(&self.sectors) {
+            out.push(format!(
+                "{NAME}: need rings in [1, 200] and sectors in [4, 720] (rings {}, sectors {})",
+                self.rings, self.sectors
+            ));
+        }
+        if !(1..=16).contains(&self.rotations) {
+            out.push(format!("{NAME}.rotations: must be in [1, 16]; found {}", self.rotations));
+        }
+        if self.candidates == 0 {
+            out.push(format!("{NAME}.candidates: must be in [1, inf)"));
+        }
+        if !(0.0..=1.0).contains(&self.search_ratio) {
+            out.push(format!("{NAME}.search_ratio: must be in [0, 1]; found {}", self.search_ratio));
+        }
+        out
+    }
+
+    /// Values of one grid: 6 channels × rings × sectors.
+    pub fn grid_len(&self) -> usize {
+        CHANNELS * self.rings * self.sectors
+    }
+
+    /// Descriptor length: `rotations` grids.
+    pub fn len(&self) -> usize {
+        self.rotations * self.grid_len()
+    }
+
+    /// Whether the descriptor is empty (never, for valid settings).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The angle of one sector, degrees.
+    fn sector_degrees(&self) -> f64 {
+        360.0 / self.sectors as f64
+    }
+
+    /// The turn of grid `r`, degrees.
+    fn rotation_degrees(&self, r: usize) -> f64 {
+        self.sector_degrees() * r as f64 / self.rotations as f64
+    }
+}
+
+/// The points of a raw scan the method describes: finite, within `max_radius` of the sensor
+/// (horizontally), on the voxel grid: one centroid per cubic cell, the cells centred on the
+/// multiples of `voxel` (so that the grid is its own mirror image through the sensor: a
+/// quarter turn of the scan turns the cells, even for a return exactly on an axis), in cell
+/// order.
+pub fn preprocess(points: &[Point], p: &PlusParams) -> Vec<Point> {
+    type Cell = ([f64; 3], u32);
+    let mut cells: HashMap<[i64; 3], Cell> = HashMap::with_capacity(points.len() / 4);
+    for q in points.iter().filter(|q| q.iter().all(|c| c.is_finite()) && q[0].hypot(q[1]) <= p.max_radius) {
+        let key = q.map(|c| (c / p.voxel + 0.5).floor() as i64);
+        let e = cells.entry(key).or_insert(([0.0; 3], 0));
+        e.0.iter_mut().zip(q).for_each(|(s, c)| *s += c);
+        e.1 += 1;
+    }
+    let mut cells: Vec<([i64; 3], Cell)> = cells.into_iter().collect();
+    cells.sort_unstable_by_key(|c| c.0);
+    cells.into_iter().map(|(_, (s, n))| s.map(|c| c / n as f64)).collect()
+}
+
+/// The descriptor of a raw scan (sensor frame, metres, z up). A scan whose complex cannot be
+/// built (fewer than 4 points left, all on a plane) has an all-zero descriptor: it matches
+/// nothing.
+pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
+    let cloud = preprocess(points, p);
+    let mut out = vec![0f32; p.len()];
+    let Ok(located) = alpha_persistence_located(&cloud) else { return out };
+    // (dim, persistence in metres, x, y) of every finite pair.
+    let pairs: Vec<(usize, f64, f64, f64)> = located
+        .iter()
+        .filter_map(|l| {
+            let at = l.at?;
+            let persistence = l.pair.death.sqrt() - l.pair.birth.sqrt();
+            (persistence > 0.0 && (l.pair.dim as usize) < DIMS).then_some((
+                l.pair.dim as usize,
+                persistence,
+                at[0],
+                at[1],
+            ))
+        })
+        .collect();
+    let (rings, sectors) = (p.rings, p.sectors);
+    // Accumulated in f64, in the pairs' order: the same on every machine and thread count.
+    let mut grid = vec![0f64; p.grid_len()];
+    for (r, block) in out.chunks_exact_mut(p.grid_len()).enumerate() {
+        grid.iter_mut().for_each(|v| *v = 0.0);
+        let (s, c) = p.rotation_degrees(r).to_radians().sin_cos();
+        for &(dim, persistence, x, y) in &pairs {
+            let (x, y) = if r == 0 { (x, y) } else { (c * x - s * y, s * x + c * y) };
+            let range = x.hypot(y);
+            if range > p.max_radius {
+                continue;
+            }
+            // Shared between the two nearest ring centres, linearly: a scan seen a little
+            // nearer or farther moves its topology smoothly across rings.
+            let u = (range / p.max_radius * rings as f64 - 0.5).clamp(0.0, (rings - 1) as f64);
+            let inner = (u as usize).min(rings - 1);
+            let outer = (inner + 1).min(rings - 1);
+            let w = u - inner as f64;
+            let azimuth = y.atan2(x).to_degrees().rem_euclid(360.0);
+            let sector = ((azimuth / p.sector_degrees()) as usize).min(sectors - 1);
+            for (ring, weight) in [(inner, 1.0 - w), (outer, w)] {
+                if weight <= 0.0 {
+                    continue;
+                }
+                let cell = ring * sectors + sector;
+                grid[dim * rings * sectors + cell] += weight * persistence;
+                let top = &mut grid[(DIMS + dim) * rings * sectors + cell];
+                *top = top.max(weight * persistence);
+            }
+        }
+        block.iter_mut().zip(&grid).for_each(|(o, &v)| *o = v as f32);
+    }
+    out
+}
+
+/// Harmonics of the key: the magnitudes of the first `KEY_HARMONICS` terms of the discrete
+/// Fourier transform along the sectors.
+const KEY_HARMONICS: usize = 6;
+
+/// The yaw-independent key of a descriptor: for the H0 persistence sums and the H0 largest
+/// persistences of each ring of the unturned grid, the magnitudes of the first
+/// `KEY_HARMONICS` Fourier terms along the sectors (a circular shift changes their phases
+/// only); each half scaled to length `1/√2` (all zeros stay zeros). The mean alone (the first
+/// term, as ScanContext's ring key) leaves too many places alike; the largest persistences
+/// keep the key when half the returns are lost, where the sums drop unevenly.
+pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
+    let (rings, sectors) = (p.rings, p.sectors);
+    let harmonics = harmonics(p);
+    let mut out = Vec::with_capacity(key_len(p));
+    for channel in [0, DIMS] {
+        let rows = &descriptor[channel * rings * sectors..(channel + 1) * rings * sectors];
+        let mut half = Vec::with_capacity(rings * harmonics);
+        for row in rows.chunks_exact(sectors) {
+            for k in 0..harmonics {
+                let (mut re, mut im) = (0.0f64, 0.0f64);
+                for (j, &v) in row.iter().enumerate() {
+                    let angle = std::f64::consts::TAU * (k * j % sectors) as f64 / sectors as f64;
+                    re += v as f64 * angle.cos();
+                    im -= v as f64 * angle.sin();
+                }
+                half.push(re.hypot(im));
+            }
+        }
+        let norm = half.iter().map(|v| v * v).sum::<f64>().sqrt() * std::f64::consts::SQRT_2;
+        out.extend(half.into_iter().map(|v| if norm > 0.0 { (v / norm) as f32 } else { 0.0 }));
+    }
+    out
+}
+
+/// The key's length.
+pub fn key_len(p: &PlusParams) -> usize {
+    2 * p.rings * harmonics(p)
+}
+
+/// A descriptor made ready for matching: for each grid, its unit columns (`sectors`
+/// columns of `6 · rings` values) and which are filled; for the unturned grid, its unit H0
+/// columns (the `rings` H0 persistence sums of each sector) and which are filled.
+struct Ready {
+    columns: Vec<f32>,
+    filled: Vec<bool>,
+    h0: Vec<f32>,
+    h0_filled: Vec<bool>,
+}
+
+/// Borrowed parts of a [`Ready`] (one entry of a [`Searcher`]).
+#[derive(Clone, Copy)]
+struct ReadyRef<'a> {
+    columns: &'a [f32],
+    filled: &'a [bool],
+    h0: &'a [f32],
+    h0_filled: &'a [bool],
+}
+
+/// The unit columns of `rows` consecutive rows of a grid (column `s` = the rows' values in
+/// sector `s`), appended to `columns`, and whether each column is filled, to `filled`.
+fn push_unit_columns(
+    grid: &[f32],
+    rows: usize,
+    sectors: usize,
+    columns: &mut Vec<f32>,
+    filled: &mut Vec<bool>,
+) {
+    for s in 0..sectors {
+        let norm = (0..rows).map(|h| (grid[h * sectors + s] as f64).powi(2)).sum::<f64>().sqrt();
+        filled.push(norm > 0.0);
+        for h in 0..rows {
+            columns.push(if norm > 0.0 { (grid[h * sectors + s] as f64 / norm) as f32 } else { 0.0 });
+        }
+    }
+}
+
+impl Ready {
+    fn new(descriptor: &[f32], p: &PlusParams) -> Self {
+        let (height, sectors) = (CHANNELS * p.rings, p.sectors);
+        let mut out = Ready {
+            columns: Vec::with_capacity(descriptor.len()),
+            filled: Vec::with_capacity(p.rotations * sectors),
+            h0: Vec::with_capacity(p.rings * sectors),
+            h0_filled: Vec::with_capacity(sectors),
+        };
+        for grid in descriptor.chunks_exact(p.grid_len()) {
+            push_unit_columns(grid, height, sectors, &mut out.columns, &mut out.filled);
+        }
+        push_unit_columns(
+            &descriptor[..p.rings * sectors],
+            p.rings,
+            sectors,
+            &mut out.h0,
+            &mut out.h0_filled,
+        );
+        out
+    }
+
+    fn as_ref(&self) -> ReadyRef<'_> {
+        ReadyRef { columns: &self.columns, filled: &self.filled, h0: &self.h0, h0_filled: &self.h0_filled }
+    }
+}
+
+/// The distance of `query` to `candidate` (both full descriptors; the query's unturned grid
+/// is compared with each of the candidate's grids, at the sector shifts around the best
+/// alignment of their H0 columns, see [`PlusParams::search_ratio`]), in [0, 1] (1 when no
+/// column is filled in both), and the yaw of the query relative to the candidate (degrees,
+/// [0, 360), counter-clockwise seen from above) that attains it.
+pub fn distance(query: &[f32], candidate: &[f32], p: &PlusParams) -> (f64, f64) {
+    distance_to(Ready::new(query, p).as_ref(), Ready::new(candidate, p).as_ref(), p)
+}
+
+/// `1 −` the mean cosine of the columns filled in both, candidate column `b` against query
+/// column `(b + shift) mod sectors` (1 when none is filled in both). With AVX2, the dot
+/// products run eight lanes wide, without fused multiply-adds: the same sums as without.
+fn column_distance(q: &[f32], qf: &[bool], c: &[f32], cf: &[bool], height: usize, shift: usize) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { column_distance_avx2(q, qf, c, cf, height, shift) };
+    }
+    column_distance_portable(q, qf, c, cf, height, shift)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn column_distance_avx2(q: &[f32], qf: &[bool], c: &[f32], cf: &[bool], height: usize, shift: usize) -> f64 {
+    column_distance_portable(q, qf, c, cf, height, shift)
+}
+
+#[inline(always)]
+fn column_distance_portable(
+    q: &[f32],
+    qf: &[bool],
+    c: &[f32],
+    cf: &[bool],
+    height: usize,
+    shift: usize,
+) -> f64 {
+    let sectors = qf.len();
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for b in 0..sectors {
+        let a = (b + shift) % sectors;
+        if qf[a] && cf[b] {
+            sum += dot(&q[a * height..(a + 1) * height], &c[b * height..(b + 1) * height]) as f64;
+            count += 1;
+        }
+    }
+    if count > 0 { 1.0 - sum / count as f64 } else { 1.0 }
+}
+
+/// The cosine of two unit columns, as `1 − ‖a − b‖² / 2` (equal columns give exactly 1),
+/// in eight lanes summed in a fixed order.
+#[inline(always)]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut lanes = [0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| (x - y) * (x - y)).sum();
+    for (x, y) in ca.zip(cb) {
+        for i in 0..8 {
+            lanes[i] += (x[i] - y[i]) * (x[i] - y[i]);
+        }
+    }
+    1.0 - 0.5 * (lanes.iter().sum::<f32>() + tail)
+}
+
+/// The distance of a ready query to a ready candidate. The shift search is in two steps:
+/// every shift of the unturned grids compared on their H0 columns alone (a hidden sector
+/// drops out of the comparison, as it does below), then the shifts within the search radius
+/// of the best one, for each of the candidate's grids, on all channels.
+fn distance_to(q: ReadyRef<'_>, c: ReadyRef<'_>, p: &PlusParams) -> (f64, f64) {
+    let (height, sectors) = (CHANNELS * p.rings, p.sectors);
+    let radius = (0.5 * p.search_ratio * sectors as f64).round() as usize;
+    let shifts: Vec<usize> = if 2 * radius + 1 >= sectors {
+        (0..sectors).collect()
+    } else {
+        let mut coarse = (f64::INFINITY, 0usize);
+        for shift in 0..sectors {
+            let d = column_distance(q.h0, q.h0_filled, c.h0, c.h0_filled, p.rings, shift);
+            if d < coarse.0 {
+                coarse = (d, shift);
+            }
+        }
+        let mut out: Vec<usize> =
+            (0..=2 * radius).map(|i| (coarse.1 + sectors + i - radius) % sectors).collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    };
+    let (qc, qf) = (&q.columns[..sectors * height], &q.filled[..sectors]);
+    let mut best = (f64::INFINITY, 0.0);
+    for r in 0..p.rotations {
+        let cc = &c.columns[r * sectors * height..(r + 1) * sectors * height];
+        let cf = &c.filled[r * sectors..(r + 1) * sectors];
+        for &shift in &shifts {
+            let d = column_distance(qc, qf, cc, cf, height, shift);
+            if d < best.0 {
+                let yaw = (shift as f64 * p.sector_degrees() + p.rotation_degrees(r)).rem_euclid(360.0);
+                best = (d, yaw);
+            }
+        }
+    }
+    (best.0.max(0.0), best.1)
+}
+
+/// A hit: database row, distance, yaw of the query relative to it (degrees).
+pub type PlusHit = (usize, f64, f64);
+
+/// Seconds a search spent in each step.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SearchTimes {
+    /// Key nearest neighbours.
+    pub candidates: f64,
+    /// Distances of the candidates.
+    pub rerank: f64,
+}
+
+/// Entries the first step of a search keeps, per candidate wanted: their ring means are
+/// nearest the query's.
+const COARSE_PER_CANDIDATE: usize = 10;
+
+/// Descriptors searched in three steps: the entries whose ring means (the key's first
+/// Fourier terms, 2 · rings values: a fast exact k-NN) are nearest the query's, then among
+/// them the nearest by the whole [`key`], then those re-ranked by [`distance`]; at least `k`
+/// candidates for the k best. The entries are kept ready for matching (unit columns), not as
+/// descriptors.
+pub struct Searcher {
+    params: PlusParams,
+    ready: Ready,
+    keys: Vec<f32>,
+    /// Each entry's ring means, `n × 2 · rings`, row-major.
+    means: Vec<f32>,
+}
+
+/// The `m` rows of `rows` (row-major, `query.len()` values each) nearest `query`, in f32: a
+/// first narrowing, not a ranking (ties and rounding may swap rows at its edge).
+fn nearest_rows(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { nearest_rows_avx2(rows, query, m) };
+    }
+    nearest_rows_portable(rows, query, m)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn nearest_rows_avx2(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
+    nearest_rows_portable(rows, query, m)
+}
+
+#[inline(always)]
+fn nearest_rows_portable(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
+    let width = query.len();
+    let mut d: Vec<(f32, usize)> = rows
+        .chunks_exact(width)
+        .enumerate()
+        .map(|(i, r)| {
+            let mut lanes = [0f32; 8];
+            let (cr, cq) = (r.chunks_exact(8), query.chunks_exact(8));
+            let tail: f32 = cr.remainder().iter().zip(cq.remainder()).map(|(a, b)| (a - b) * (a - b)).sum();
+            for (x, y) in cr.zip(cq) {
+                for k in 0..8 {
+                    lanes[k] += (x[k] - y[k]) * (x[k] - y[k]);
+                }
+            }
+            (lanes.iter().sum::<f32>() + tail, i)
+        })
+        .collect();
+    if m < d.len() {
+        d.select_nth_unstable_by(m, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        d.truncate(m);
+    }
+    d.into_iter().map(|(_, i)| i).collect()
+}
+
+/// The Fourier terms per ring of the key.
+fn harmonics(p: &PlusParams) -> usize {
+    KEY_HARMONICS.min(p.sectors / 2 + 1)
+}
+
+/// The ring means of a key (its terms of order 0).
+fn means_of(key: &[f32], p: &PlusParams) -> Vec<f32> {
+    key.iter().step_by(harmonics(p)).copied().collect()
+}
+
+impl Searcher {
+    /// A searcher over `descriptors` (`n × len`, row-major).
+    pub fn new(descriptors: Vec<f32>, params: PlusParams) -> Self {
+        use rayon::prelude::*;
+        let len = params.len();
+        let n = descriptors.len() / len;
+        let parts: Vec<(Ready, Vec<f32>)> =
+            descriptors.par_chunks_exact(len).map(|d| (Ready::new(d, &params), key(d, &params))).collect();
+        drop(descriptors);
+        let mut ready =
+            Ready { columns: Vec::new(), filled: Vec::new(), h0: Vec::new(), h0_filled: Vec::new() };
+        let mut keys = Vec::with_capacity(n * key_len(&params));
+        for (r, k) in parts {
+            ready.columns.extend(r.columns);
+            ready.filled.extend(r.filled);
+            ready.h0.extend(r.h0);
+            ready.h0_filled.extend(r.h0_filled);
+            keys.extend(k);
+        }
+        let means: Vec<f32> =
+            keys.chunks_exact(key_len(&params)).flat_map(|k| means_of(k, &params)).collect();
+        Searcher { params, ready, keys, means }
+    }
+
+    /// Rows.
+    pub fn len(&self) -> usize {
+        self.means.len() / (2 * self.params.rings)
+    }
+
+    /// Whether there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &PlusParams {
+        &self.params
+    }
+
+    /// Entry `row`, ready for matching.
+    fn entry(&self, row: usize) -> ReadyRef<'_> {
+        let p = &self.params;
+        let (height, sectors) = (CHANNELS * p.rings, p.sectors);
+        let (grids, cols) = (p.rotations * sectors, p.rotations * sectors * height);
+        ReadyRef {
+            columns: &self.ready.columns[row * cols..(row + 1) * cols],
+            filled: &self.ready.filled[row * grids..(row + 1) * grids],
+            h0: &self.ready.h0[row * sectors * p.rings..(row + 1) * sectors * p.rings],
+            h0_filled: &self.ready.h0_filled[row * sectors..(row + 1) * sectors],
+        }
+    }
+
+    /// The `k` best rows for `query`, by (distance, row), with the time of each step.
+    pub fn search(&self, query: &[f32], k: usize) -> (Vec<PlusHit>, SearchTimes) {
+        let p = &self.params;
+        let t = std::time::Instant::now();
+        let wanted = p.candidates.max(k).min(self.len());
+        let q_key = key(query, p);
+        let coarse = nearest_rows(&self.means, &means_of(&q_key, p), COARSE_PER_CANDIDATE * wanted);
+        let kl = key_len(p);
+        let mut near: Vec<(f64, usize)> = coarse
+            .into_iter()
+            .map(|row| {
+                let e = &self.keys[row * kl..(row + 1) * kl];
+                let d: f64 = q_key.iter().zip(e).map(|(a, b)| ((a - b) as f64).powi(2)).sum();
+                (d, row)
+            })
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        near.truncate(wanted);
+        let candidates_secs = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let q = Ready::new(query, p);
+        let mut hits: Vec<PlusHit> = near
+            .into_iter()
+            .map(|(_, row)| {
+                let (d, yaw) = distance_to(q.as_ref(), self.entry(row), p);
+                (row, d, yaw)
+            })
+            .collect();
+        hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        hits.truncate(k);
+        (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Box walls around the sensor, sampled every 20 cm with a few centimetres of noise (in
+    /// general position: no point on a voxel boundary, no four on a circle).
+    fn scene() -> Vec<Point> {
+        let mut rng = crate::rng::SplitMix64(7);
+        let mut jitter = move || (rng.next_f64() - 0.5) * 0.04;
+        let mut pts = Vec::new();
+        let mut add_box = |cx: f64, cy: f64, w: f64, h: f64| {
+            let steps = (w / 0.2) as i32;
+            for i in 0..=steps {
+                for k in 0..=(h / 0.2) as i32 {
+                    let t = i as f64 * 0.2 - w / 2.0;
+                    let z = k as f64 * 0.2;
+                    for q in [
+                        [cx + t, cy - w / 2.0, z],
+                        [cx + t, cy + w / 2.0, z],
+                        [cx - w / 2.0, cy + t, z],
+                        [cx + w / 2.0, cy + t, z],
+                    ] {
+                        pts.push([q[0] + jitter(), q[1] + jitter(), q[2] + jitter()]);
+                    }
+                }
+            }
+        };
+        add_box(12.0, 5.0, 6.0, 4.0);
+        add_box(-9.0, 14.0, 8.0, 6.0);
+        add_box(-15.0, -10.0, 5.0, 3.0);
+        add_box(4.0, -20.0, 10.0, 5.0);
+        add_box(30.0, -3.0, 4.0, 8.0);
+        pts
+    }
+
+    fn turned(pts: &[Point], quarter_turns: usize) -> Vec<Point> {
+        pts.iter()
+            .map(|&[x, y, z]| match quarter_turns % 4 {
+                0 => [x, y, z],
+                1 => [-y, x, z],
+                2 => [-x, -y, z],
+                _ => [y, -x, z],
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_quarter_turn_is_matched_exactly_and_its_yaw_found() {
+        let p = PlusParams::default();
+        let a = describe(&scene(), &p);
+        assert!(a.iter().any(|&v| v > 0.0));
+        for q in 1..4 {
+            let b = describe(&turned(&scene(), q), &p);
+            let (d, yaw) = distance(&b, &a, &p);
+            assert_eq!(d, 0.0, "{q} quarter turns: distance {d}");
+            assert!((yaw - 90.0 * q as f64).abs() < 1e-9, "{q} quarter turns: yaw {yaw}");
+        }
+    }
+
+    #[test]
+    fn keys_do_not_depend_on_quarter_turns_and_distances_are_symmetric_in_range() {
+        let p = PlusParams::default();
+        let a = describe(&scene(), &p);
+        let b = describe(&turned(&scene(), 1), &p);
+        let (ka, kb) = (key(&a, &p), key(&b, &p));
+        for (x, y) in ka.iter().zip(&kb) {
+            assert!((x - y).abs() < 1e-6);
+        }
+        let empty = describe(&[], &p);
+        assert_eq!(distance(&empty, &a, &p).0, 1.0, "an empty scan matches nothing");
+    }
+
+    #[test]
+    fn a_hidden_sector_is_left_out_not_counted_as_a_difference() {
+        let p = PlusParams::default();
+        let full = describe(&scene(), &p);
+        // The boxes at x > 0, y > 0 (the first quadrant) hidden.
+        let hidden: Vec<Point> = scene().into_iter().filter(|q| !(q[0] > 0.0 && q[1] > 0.0)).collect();
+        let part = describe(&hidden, &p);
+        let (d, yaw) = distance(&part, &full, &p);
+        let other = describe(
+            &turned(&scene(), 1).into_iter().map(|q| [q[0] * 1.7, q[1] * 0.6, q[2]]).collect::<Vec<_>>(),
+            &p,
+        );
+        assert!(d < distance(&part, &other, &p).0, "the occluded scan is nearer its own place");
+        assert!(!(6.0..=354.0).contains(&yaw), "no turn: yaw {yaw}");
+    }
+}

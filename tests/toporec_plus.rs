@@ -1,0 +1,204 @@
+//! toporec-plus on real KITTI scans (yaw: turned scans find themselves, exactly for quarter
+//! turns), determinism across thread counts, and the conditions and loop-closure report of
+//! `eval places` through the binary.
+
+use crate::util::*;
+use std::path::{Path, PathBuf};
+use toporec::homology::Point;
+use toporec::toporec_plus::{self, PlusParams, Searcher};
+
+/// The 48 shared KITTI scans, by path.
+fn kitti_scans(data: &Path) -> Vec<(PathBuf, Vec<Point>)> {
+    let mut files: Vec<PathBuf> = (0..11)
+        .flat_map(|s| {
+            let dir = data.join(format!("kitti/sequences/{s:02}/velodyne"));
+            std::fs::read_dir(dir).unwrap().flatten().map(|e| e.path())
+        })
+        .collect();
+    files.sort();
+    files.into_iter().map(|f| (f.clone(), read_cloud(&f))).collect()
+}
+
+/// Turned about z by `degrees` (counter-clockwise); quarter turns exactly.
+fn turned(points: &[Point], degrees: f64) -> Vec<Point> {
+    match degrees as i64 {
+        0 => points.to_vec(),
+        90 => points.iter().map(|&[x, y, z]| [-y, x, z]).collect(),
+        180 => points.iter().map(|&[x, y, z]| [-x, -y, z]).collect(),
+        270 => points.iter().map(|&[x, y, z]| [y, -x, z]).collect(),
+        _ => {
+            let (s, c) = degrees.to_radians().sin_cos();
+            points.iter().map(|&[x, y, z]| [c * x - s * y, s * x + c * y, z]).collect()
+        }
+    }
+}
+
+#[test]
+fn turned_kitti_scans_find_themselves_at_twelve_angles() {
+    let Some(data) = shared_data("turned_kitti_scans_find_themselves_at_twelve_angles") else { return };
+    let p = PlusParams::default();
+    let scans = kitti_scans(&data);
+    assert_eq!(scans.len(), 48);
+    let descriptors: Vec<f32> = scans.iter().flat_map(|(_, c)| toporec_plus::describe(c, &p)).collect();
+    let searcher = Searcher::new(descriptors, p.clone());
+    // Four scans of different sequences, each turned by 0°, 30°, …, 330°.
+    for &i in &[0usize, 13, 27, 45] {
+        let (path, cloud) = &scans[i];
+        for step in 0..12 {
+            let angle = 30.0 * step as f64;
+            let q = toporec_plus::describe(&turned(cloud, angle), &p);
+            let (hits, _) = searcher.search(&q, 3);
+            assert_eq!(
+                hits[0].0,
+                i,
+                "{} turned by {angle}°: top-1 is row {} ({hits:?})",
+                path.display(),
+                hits[0].0
+            );
+            // The yaw estimate: within a sixth of a sector (2°) plus a sector's rounding.
+            let yaw = hits[0].2;
+            let off = (yaw - angle).rem_euclid(360.0).min((angle - yaw).rem_euclid(360.0));
+            assert!(off <= 6.0, "{} turned by {angle}°: yaw {yaw}", path.display());
+            if step % 3 == 0 {
+                // A quarter turn maps the voxel grid and the polar grid onto themselves: the
+                // descriptor is the original's shifted by 15 sectors, and the distance 0.
+                assert!(
+                    hits[0].1.abs() <= 1e-9,
+                    "{} turned by {angle}°: distance {}",
+                    path.display(),
+                    hits[0].1
+                );
+                assert_eq!(yaw, angle, "{} turned by {angle}°", path.display());
+            }
+        }
+    }
+}
+
+#[test]
+fn descriptors_and_evaluation_do_not_depend_on_the_thread_count() {
+    let Some(_) = shared_data("descriptors_and_evaluation_do_not_depend_on_the_thread_count") else { return };
+    let dir = scratch_dir("toporec_plus_threads");
+    let pipeline = root().join("pipelines/kitti.toml");
+    let mut tables = Vec::new();
+    let mut reports = Vec::new();
+    for threads in [1usize, 2] {
+        let index = dir.join(format!("index-{threads}"));
+        let o = run_pipeline(&pipeline, &index, threads);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        let reader = toporec::sinks::index::IndexReader::open(&index).unwrap();
+        let mut rows = reader.descriptors_of("toporec-plus", &[], None).unwrap();
+        rows.sort_by(|a, b| a.scan_id.cmp(&b.scan_id));
+        tables.push(rows.into_iter().map(|r| (r.scan_id, r.descriptor)).collect::<Vec<_>>());
+        let out = dir.join(format!("eval-{threads}"));
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_toporec"))
+            .env("RAYON_NUM_THREADS", threads.to_string())
+            .args([
+                "eval",
+                "places",
+                "--db",
+                index.to_str().unwrap(),
+                "--within-session",
+                "--thresholds",
+                "10",
+            ])
+            .args(["--method", "toporec-plus", "--db-scan", "*/000000", "--db-scan", "*/000006"])
+            .args(["--query-scan", "*/000003", "--query-scan", "*/000009", "--condition", "occlusion"])
+            .args(["--condition", "drop", "-o", out.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        let mut report = read_json(&out.join("report.json"));
+        for c in report["methods"][0]["conditions"].as_array_mut().unwrap() {
+            c.as_object_mut().unwrap().remove("timing_ms");
+        }
+        reports.push(report["methods"][0]["conditions"].clone());
+    }
+    assert_eq!(tables[0].len(), 48);
+    assert!(tables[0] == tables[1], "the same descriptors with 1 and 2 threads");
+    assert_eq!(reports[0], reports[1], "the same conditions, rankings and metrics with 1 and 2 threads");
+}
+
+#[test]
+fn eval_places_reports_conditions_nearest_and_loop_closure_for_every_method() {
+    let dir = scratch_dir("eval_conditions");
+    let index = dir.join("index");
+    let o = run_pipeline(&root().join("pipelines/compare.toml"), &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = dir.join("eval");
+    let o = eval_days(
+        &index,
+        &out,
+        &[
+            "--thresholds",
+            "5,10",
+            "--condition",
+            "as-recorded",
+            "--condition",
+            "occlusion=90",
+            "--condition",
+            "beams=16",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let table = text(&o.stdout);
+    assert!(table.contains("summary: R@1"), "{table}");
+    let report = read_json(&out.join("report.json"));
+    assert_eq!(report["conditions"], serde_json::json!(["as recorded", "occlusion 90°", "16 beams"]));
+    let methods = report["methods"].as_array().unwrap();
+    let names: Vec<&str> = methods.iter().map(|m| m["method"].as_str().unwrap()).collect();
+    assert_eq!(names, ["toporec", "m2dp", "scancontext", "toporec-plus"]);
+    for m in methods {
+        let conditions = m["conditions"].as_array().unwrap();
+        assert_eq!(conditions.len(), 3);
+        // As recorded is the stored descriptors: its results are the method's top-level ones.
+        assert_eq!(conditions[0]["results"], m["results"]);
+        for c in conditions {
+            assert_eq!(c["queries"], 32, "{}", m["method"]);
+            let nearest = c["nearest"]["recall_at_1"].as_f64().unwrap();
+            assert!((0.0..=100.0).contains(&nearest));
+            let lc = &c["loop_closure"]["result"];
+            assert!(lc["f1_max"].as_f64().unwrap() <= 100.0);
+            assert!(!lc["curve"].as_array().unwrap().is_empty());
+            assert_eq!(c["top1"]["rows"].as_array().unwrap().len(), 32);
+        }
+    }
+    // The sample's simulated HDL-32E has ring ids: 16 beams apply; an occluded query lacks a
+    // quarter of the view, which toporec-plus leaves out of its comparison.
+    let plus = &methods[3]["conditions"];
+    assert!(plus[2]["not_applicable"].is_null());
+    let r1 = |c: &serde_json::Value| c["results"][0]["with_match"]["at_n"][0].as_f64().unwrap();
+    assert!(r1(&plus[1]) >= 50.0, "toporec-plus under occlusion: {}", r1(&plus[1]));
+    for f in ["precision_recall.png", "precision_recall.svg", "recall_at_n.png"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    // Bad conditions are refused with the value named.
+    let o = eval_days(&index, &dir.join("bad"), &["--condition", "drop=2"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o.stderr).contains("drop=2"), "{}", text(&o.stderr));
+}
+
+#[test]
+fn query_answers_with_toporec_plus_and_its_yaw() {
+    let dir = scratch_dir("query_plus");
+    let index = dir.join("index");
+    let o = run_pipeline(&root().join("pipelines/compare.toml"), &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let scan = root().join("samples/town/velodyne_data/2026-01-01/velodyne_sync");
+    let first = std::fs::read_dir(&scan).unwrap().flatten().map(|e| e.path()).min().unwrap();
+    let o = toporec(&[
+        "query",
+        "--index",
+        index.to_str().unwrap(),
+        "--method",
+        "toporec-plus",
+        "-k",
+        "2",
+        first.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!(row[2], format!("2026-01-01/{}", first.file_stem().unwrap().to_string_lossy()), "{out}");
+    assert_eq!(row[4].parse::<f64>().unwrap(), 0.0, "itself at distance 0: {out}");
+    assert_eq!(row[8], "0.0", "yaw 0: {out}");
+}
