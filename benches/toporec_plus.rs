@@ -95,7 +95,7 @@ fn main() {
         println!("ratio: {:.2}× on average, {:.2}× at most (per scan)", mean(&ratios), max(&ratios));
 
         // Search over 100,000 entries.
-        let n = 100_000;
+        let n: usize = std::env::var("TOPOREC_BENCH_ENTRIES").ok().and_then(|v| v.parse().ok()).unwrap_or(100_000);
         let described: Vec<Vec<f32>> = clouds.iter().map(|c| toporec_plus::describe(c, &p)).collect();
         let t = Instant::now();
         let mut rng = SplitMix64(7);

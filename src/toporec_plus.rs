@@ -11,11 +11,10 @@
 //!    the centroid of the edge that merges two components (H0), of the triangle that fills a
 //!    loop (H1), of the tetrahedron that fills a void (H2)
 //!    ([`crate::homology::alpha_persistence_located`]);
-//! 3. each pair's persistence (radii, metres) counted in the cell of a polar grid (`rings` ×
-//!    `sectors` out to `max_radius`) holding its location: per dimension, the sum of the
-//!    persistences in the cell (how much topology there is: dense surfaces give many short H0
-//!    pairs) and the largest (the biggest gap, loop or void there) — a `6 × rings × sectors`
-//!    image of the scan's topology;
+//! 3. each H0 and H1 pair's persistence (radii, metres) added to the cell of a polar grid
+//!    (`rings` × `sectors` out to `max_radius`) holding its location, shared linearly between
+//!    the two nearest rings: per dimension, the total persistence in the cell — a `2 × rings ×
+//!    sectors` image of where the scan's components merge and its loops close;
 //! 4. the grid made again with the locations turned by `1/rotations`, `2/rotations`, … of a
 //!    sector, so that a turn between two visits that is not a whole number of sectors still
 //!    lines the cells up.
@@ -23,11 +22,16 @@
 //! The stored descriptor is the `rotations` grids, one after the other (`[rotation][dim][ring]
 //! [sector]`). Two scans compare as ScanContext's do, by columns: for each shift of the
 //! sectors and each rotation of the candidate, `1 −` the mean cosine of the columns (the
-//! `6 · rings` values of one sector) filled in both — a sector hidden in one scan is left out,
+//! `2 · rings` values of one sector) filled in both — a sector hidden in one scan is left out,
 //! not counted as a difference — and the smallest wins; the shift and rotation give the yaw.
 //! A search takes the nearest candidates by a key that does not depend on the yaw (per ring,
-//! the magnitudes of the first Fourier terms along the sectors of the H0 sums and maxima;
+//! the magnitudes of the first Fourier terms along the sectors of the H0 and of the H1 sums;
 //! first narrowed by their ring means alone) and re-ranks them.
+//!
+//! Why these channels (measured on simulated two-session drives, `docs/evaluation.md`): the
+//! H0 sums carry most of the place; the H1 sums add a little (the nearest database scan found
+//! more often under scaling); the H2 sums changed no result, and the largest persistence per
+//! cell, or each dimension weighed equally, made every condition worse.
 //!
 //! Nothing is trained or fitted: no codebook. A turn by a multiple of 90° maps the voxel grid
 //! and the polar grid onto themselves (with `sectors` a multiple of 4), so the distance of a
@@ -40,10 +44,8 @@ use std::collections::HashMap;
 /// The name of the method.
 pub const NAME: &str = "toporec-plus";
 
-/// Homology dimensions.
-const DIMS: usize = 3;
-/// Grid channels: per dimension, the sum and the largest of the persistences in a cell.
-const CHANNELS: usize = 2 * DIMS;
+/// Grid channels: the total persistence of the H0 and of the H1 pairs in a cell.
+const CHANNELS: usize = 2;
 
 /// Settings (`[toporec-plus]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -109,7 +111,7 @@ impl PlusParams {
         out
     }
 
-    /// Values of one grid: 6 channels × rings × sectors.
+    /// Values of one grid: 2 channels × rings × sectors.
     pub fn grid_len(&self) -> usize {
         CHANNELS * self.rings * self.sectors
     }
@@ -167,7 +169,7 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
         .filter_map(|l| {
             let at = l.at?;
             let persistence = l.pair.death.sqrt() - l.pair.birth.sqrt();
-            (persistence > 0.0 && (l.pair.dim as usize) < DIMS).then_some((
+            (persistence > 0.0 && (l.pair.dim as usize) < CHANNELS).then_some((
                 l.pair.dim as usize,
                 persistence,
                 at[0],
@@ -196,13 +198,7 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
             let azimuth = y.atan2(x).to_degrees().rem_euclid(360.0);
             let sector = ((azimuth / p.sector_degrees()) as usize).min(sectors - 1);
             for (ring, weight) in [(inner, 1.0 - w), (outer, w)] {
-                if weight <= 0.0 {
-                    continue;
-                }
-                let cell = ring * sectors + sector;
-                grid[dim * rings * sectors + cell] += weight * persistence;
-                let top = &mut grid[(DIMS + dim) * rings * sectors + cell];
-                *top = top.max(weight * persistence);
+                grid[(dim * rings + ring) * sectors + sector] += weight * persistence;
             }
         }
         block.iter_mut().zip(&grid).for_each(|(o, &v)| *o = v as f32);
@@ -214,26 +210,32 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
 /// Fourier transform along the sectors.
 const KEY_HARMONICS: usize = 6;
 
-/// The yaw-independent key of a descriptor: for the H0 persistence sums and the H0 largest
-/// persistences of each ring of the unturned grid, the magnitudes of the first
-/// `KEY_HARMONICS` Fourier terms along the sectors (a circular shift changes their phases
-/// only); each half scaled to length `1/√2` (all zeros stay zeros). The mean alone (the first
-/// term, as ScanContext's ring key) leaves too many places alike; the largest persistences
-/// keep the key when half the returns are lost, where the sums drop unevenly.
+/// The yaw-independent key of a descriptor: for the H0 and the H1 persistence sums of each
+/// ring of the unturned grid, the magnitudes of the first `KEY_HARMONICS` Fourier terms
+/// along the sectors (a circular shift changes their phases only); each half scaled to
+/// length `1/√2` (all zeros stay zeros). The mean alone (the first term, as ScanContext's
+/// ring key) leaves too many places alike.
 pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
     let (rings, sectors) = (p.rings, p.sectors);
     let harmonics = harmonics(p);
+    // cos and sin of 2π m / sectors, m = k · j mod sectors.
+    let twiddles: Vec<(f64, f64)> = (0..sectors)
+        .map(|m| {
+            let angle = std::f64::consts::TAU * m as f64 / sectors as f64;
+            (angle.cos(), angle.sin())
+        })
+        .collect();
     let mut out = Vec::with_capacity(key_len(p));
-    for channel in [0, DIMS] {
+    for channel in 0..CHANNELS {
         let rows = &descriptor[channel * rings * sectors..(channel + 1) * rings * sectors];
         let mut half = Vec::with_capacity(rings * harmonics);
         for row in rows.chunks_exact(sectors) {
             for k in 0..harmonics {
                 let (mut re, mut im) = (0.0f64, 0.0f64);
                 for (j, &v) in row.iter().enumerate() {
-                    let angle = std::f64::consts::TAU * (k * j % sectors) as f64 / sectors as f64;
-                    re += v as f64 * angle.cos();
-                    im -= v as f64 * angle.sin();
+                    let (cos, sin) = twiddles[k * j % sectors];
+                    re += v as f64 * cos;
+                    im -= v as f64 * sin;
                 }
                 half.push(re.hypot(im));
             }
@@ -246,11 +248,11 @@ pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
 
 /// The key's length.
 pub fn key_len(p: &PlusParams) -> usize {
-    2 * p.rings * harmonics(p)
+    CHANNELS * p.rings * harmonics(p)
 }
 
 /// A descriptor made ready for matching: for each grid, its unit columns (`sectors`
-/// columns of `6 · rings` values) and which are filled; for the unturned grid, its unit H0
+/// columns of `2 · rings` values) and which are filled; for the unturned grid, its unit H0
 /// columns (the `rings` H0 persistence sums of each sector) and which are filled.
 struct Ready {
     columns: Vec<f32>,
@@ -269,42 +271,58 @@ struct ReadyRef<'a> {
 }
 
 /// The unit columns of `rows` consecutive rows of a grid (column `s` = the rows' values in
-/// sector `s`), appended to `columns`, and whether each column is filled, to `filled`.
-fn push_unit_columns(
-    grid: &[f32],
-    rows: usize,
-    sectors: usize,
-    columns: &mut Vec<f32>,
-    filled: &mut Vec<bool>,
-) {
-    for s in 0..sectors {
+/// sector `s`) written to `columns`, and whether each column is filled, to `filled`.
+fn unit_columns(grid: &[f32], rows: usize, sectors: usize, columns: &mut [f32], filled: &mut [bool]) {
+    for (s, (column, filled)) in columns.chunks_exact_mut(rows).zip(filled).enumerate() {
         let norm = (0..rows).map(|h| (grid[h * sectors + s] as f64).powi(2)).sum::<f64>().sqrt();
-        filled.push(norm > 0.0);
-        for h in 0..rows {
-            columns.push(if norm > 0.0 { (grid[h * sectors + s] as f64 / norm) as f32 } else { 0.0 });
+        *filled = norm > 0.0;
+        for (h, c) in column.iter_mut().enumerate() {
+            *c = if norm > 0.0 { (grid[h * sectors + s] as f64 / norm) as f32 } else { 0.0 };
         }
     }
 }
 
-impl Ready {
-    fn new(descriptor: &[f32], p: &PlusParams) -> Self {
+/// Mutable parts of one entry's [`Ready`] form.
+struct ReadyMut<'a> {
+    columns: &'a mut [f32],
+    filled: &'a mut [bool],
+    h0: &'a mut [f32],
+    h0_filled: &'a mut [bool],
+}
+
+impl ReadyMut<'_> {
+    /// Writes the ready form of `descriptor`.
+    fn fill(self, descriptor: &[f32], p: &PlusParams) {
         let (height, sectors) = (CHANNELS * p.rings, p.sectors);
-        let mut out = Ready {
-            columns: Vec::with_capacity(descriptor.len()),
-            filled: Vec::with_capacity(p.rotations * sectors),
-            h0: Vec::with_capacity(p.rings * sectors),
-            h0_filled: Vec::with_capacity(sectors),
-        };
-        for grid in descriptor.chunks_exact(p.grid_len()) {
-            push_unit_columns(grid, height, sectors, &mut out.columns, &mut out.filled);
+        let grids = descriptor.chunks_exact(p.grid_len());
+        let columns = self.columns.chunks_exact_mut(sectors * height);
+        for ((grid, columns), filled) in grids.zip(columns).zip(self.filled.chunks_exact_mut(sectors)) {
+            unit_columns(grid, height, sectors, columns, filled);
         }
-        push_unit_columns(
-            &descriptor[..p.rings * sectors],
-            p.rings,
-            sectors,
-            &mut out.h0,
-            &mut out.h0_filled,
-        );
+        unit_columns(&descriptor[..p.rings * sectors], p.rings, sectors, self.h0, self.h0_filled);
+    }
+}
+
+impl Ready {
+    /// Room for `n` entries, all zero.
+    fn zeroed(n: usize, p: &PlusParams) -> Self {
+        Ready {
+            columns: vec![0.0; n * p.len()],
+            filled: vec![false; n * p.rotations * p.sectors],
+            h0: vec![0.0; n * p.rings * p.sectors],
+            h0_filled: vec![false; n * p.sectors],
+        }
+    }
+
+    fn new(descriptor: &[f32], p: &PlusParams) -> Self {
+        let mut out = Ready::zeroed(1, p);
+        ReadyMut {
+            columns: &mut out.columns,
+            filled: &mut out.filled,
+            h0: &mut out.h0,
+            h0_filled: &mut out.h0_filled,
+        }
+        .fill(descriptor, p);
         out
     }
 
@@ -497,32 +515,32 @@ fn means_of(key: &[f32], p: &PlusParams) -> Vec<f32> {
 }
 
 impl Searcher {
-    /// A searcher over `descriptors` (`n × len`, row-major).
+    /// A searcher over `descriptors` (`n × len`, row-major), made ready in place of them.
     pub fn new(descriptors: Vec<f32>, params: PlusParams) -> Self {
         use rayon::prelude::*;
-        let len = params.len();
-        let n = descriptors.len() / len;
-        let parts: Vec<(Ready, Vec<f32>)> =
-            descriptors.par_chunks_exact(len).map(|d| (Ready::new(d, &params), key(d, &params))).collect();
+        let p = &params;
+        let n = descriptors.len() / p.len();
+        let mut ready = Ready::zeroed(n, p);
+        let mut keys = vec![0f32; n * key_len(p)];
+        descriptors
+            .par_chunks_exact(p.len())
+            .zip(ready.columns.par_chunks_exact_mut(p.len()))
+            .zip(ready.filled.par_chunks_exact_mut(p.rotations * p.sectors))
+            .zip(ready.h0.par_chunks_exact_mut(p.rings * p.sectors))
+            .zip(ready.h0_filled.par_chunks_exact_mut(p.sectors))
+            .zip(keys.par_chunks_exact_mut(key_len(p)))
+            .for_each(|(((((d, columns), filled), h0), h0_filled), k)| {
+                ReadyMut { columns, filled, h0, h0_filled }.fill(d, p);
+                k.copy_from_slice(&key(d, p));
+            });
         drop(descriptors);
-        let mut ready =
-            Ready { columns: Vec::new(), filled: Vec::new(), h0: Vec::new(), h0_filled: Vec::new() };
-        let mut keys = Vec::with_capacity(n * key_len(&params));
-        for (r, k) in parts {
-            ready.columns.extend(r.columns);
-            ready.filled.extend(r.filled);
-            ready.h0.extend(r.h0);
-            ready.h0_filled.extend(r.h0_filled);
-            keys.extend(k);
-        }
-        let means: Vec<f32> =
-            keys.chunks_exact(key_len(&params)).flat_map(|k| means_of(k, &params)).collect();
+        let means: Vec<f32> = keys.chunks_exact(key_len(p)).flat_map(|k| means_of(k, p)).collect();
         Searcher { params, ready, keys, means }
     }
 
     /// Rows.
     pub fn len(&self) -> usize {
-        self.means.len() / (2 * self.params.rings)
+        self.means.len() / (CHANNELS * self.params.rings)
     }
 
     /// Whether there are no rows.
