@@ -77,7 +77,7 @@ impl Default for PlusParams {
             rings: 20,
             sectors: 60,
             rotations: 3,
-            candidates: 50,
+            candidates: 100,
             search_ratio: 0.1,
         }
     }
@@ -206,18 +206,25 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
     out
 }
 
-/// Harmonics of the key: the magnitudes of the first `KEY_HARMONICS` terms of the discrete
+/// Terms of the shape key: the magnitudes of the first `SHAPE_TERMS` terms of the discrete
 /// Fourier transform along the sectors.
-const KEY_HARMONICS: usize = 6;
+const SHAPE_TERMS: usize = 16;
 
-/// The yaw-independent key of a descriptor: for the H0 and the H1 persistence sums of each
-/// ring of the unturned grid, the magnitudes of the first `KEY_HARMONICS` Fourier terms
-/// along the sectors (a circular shift changes their phases only); each half scaled to
-/// length `1/√2` (all zeros stay zeros). The mean alone (the first term, as ScanContext's
-/// ring key) leaves too many places alike.
-pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
+/// The terms per ring of the shape key.
+fn shape_terms(p: &PlusParams) -> usize {
+    SHAPE_TERMS.min(p.sectors / 2 + 1)
+}
+
+/// The shape key of a descriptor, independent of the yaw: for the H0 and the H1 sums of each
+/// ring of the unturned grid, which sectors are filled (1 or 0), and of that, the magnitudes
+/// of the first [`SHAPE_TERMS`] Fourier terms along the sectors (a circular shift changes
+/// their phases only); each half scaled to length `1/√2` (all zeros stay zeros). The first
+/// term is ScanContext's ring key (the filled share of the ring); the others tell where along
+/// the ring the gaps are. Built from what is filled, not from the values, it does not move
+/// when fewer returns make the sums smaller.
+fn shape_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
     let (rings, sectors) = (p.rings, p.sectors);
-    let harmonics = harmonics(p);
+    let terms = shape_terms(p);
     // cos and sin of 2π m / sectors, m = k · j mod sectors.
     let twiddles: Vec<(f64, f64)> = (0..sectors)
         .map(|m| {
@@ -225,17 +232,17 @@ pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
             (angle.cos(), angle.sin())
         })
         .collect();
-    let mut out = Vec::with_capacity(key_len(p));
+    let mut out = Vec::with_capacity(CHANNELS * rings * terms);
     for channel in 0..CHANNELS {
         let rows = &descriptor[channel * rings * sectors..(channel + 1) * rings * sectors];
-        let mut half = Vec::with_capacity(rings * harmonics);
+        let mut half = Vec::with_capacity(rings * terms);
         for row in rows.chunks_exact(sectors) {
-            for k in 0..harmonics {
+            for k in 0..terms {
                 let (mut re, mut im) = (0.0f64, 0.0f64);
-                for (j, &v) in row.iter().enumerate() {
+                for (j, _) in row.iter().enumerate().filter(|(_, v)| **v > 0.0) {
                     let (cos, sin) = twiddles[k * j % sectors];
-                    re += v as f64 * cos;
-                    im -= v as f64 * sin;
+                    re += cos;
+                    im -= sin;
                 }
                 half.push(re.hypot(im));
             }
@@ -246,9 +253,46 @@ pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
     out
 }
 
+/// The profile key of a descriptor, independent of the yaw: the mean and the standard
+/// deviation, value by value, of the unturned grid's unit columns over its filled sectors —
+/// what a sector of this place looks like, whichever sectors are seen. A quarter of the view
+/// hidden leaves it nearly as it was, where it moves every term of the shape key.
+fn profile_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
+    let (height, sectors) = (CHANNELS * p.rings, p.sectors);
+    let mut columns = vec![0f32; sectors * height];
+    let mut filled = vec![false; sectors];
+    unit_columns(&descriptor[..p.grid_len()], height, sectors, &mut columns, &mut filled);
+    let n = filled.iter().filter(|&&f| f).count();
+    let (mut mean, mut square) = (vec![0f64; height], vec![0f64; height]);
+    for column in columns.chunks_exact(height).zip(&filled).filter(|(_, f)| **f).map(|(c, _)| c) {
+        for ((m, s), &v) in mean.iter_mut().zip(&mut square).zip(column) {
+            *m += v as f64;
+            *s += v as f64 * v as f64;
+        }
+    }
+    let n = n.max(1) as f64;
+    let spread = mean.iter().zip(&square).map(|(m, s)| (s / n - (m / n).powi(2)).max(0.0).sqrt());
+    mean.iter().map(|m| m / n).chain(spread).map(|v| v as f32).collect()
+}
+
+/// The yaw-independent key of a descriptor: its shape key, then its profile key.
+pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
+    let mut out = shape_key(descriptor, p);
+    out.extend(profile_key(descriptor, p));
+    out
+}
+
 /// The key's length.
 pub fn key_len(p: &PlusParams) -> usize {
-    CHANNELS * p.rings * harmonics(p)
+    shape_len(p) + profile_len(p)
+}
+
+fn shape_len(p: &PlusParams) -> usize {
+    CHANNELS * p.rings * shape_terms(p)
+}
+
+fn profile_len(p: &PlusParams) -> usize {
+    2 * CHANNELS * p.rings
 }
 
 /// A descriptor made ready for matching: for each grid, its unit columns (`sectors`
@@ -445,25 +489,30 @@ pub struct SearchTimes {
     pub rerank: f64,
 }
 
-/// Entries the first step of a search keeps, per candidate wanted: their ring means are
-/// nearest the query's.
+/// Entries the first step of the shape half keeps, per candidate it gives: their filled
+/// shares per ring are nearest the query's.
 const COARSE_PER_CANDIDATE: usize = 10;
 
-/// Descriptors searched in three steps: the entries whose ring means (the key's first
-/// Fourier terms, 2 · rings values: a fast exact k-NN) are nearest the query's, then among
-/// them the nearest by the whole [`key`], then those re-ranked by [`distance`]; at least `k`
-/// candidates for the k best. The entries are kept ready for matching (unit columns), not as
-/// descriptors.
+/// Descriptors searched in two steps: candidates by the keys, then those re-ranked by
+/// [`distance`]. Half the candidates come from each key: by the shape key among the entries
+/// whose filled shares per ring (its first terms: a fast exact k-NN) are nearest the query's,
+/// and by the profile key among all entries; the two lists are taken in turn, each entry
+/// once. Each key misses what the other finds: the shape key the scans with a hidden sector,
+/// the profile key places whose sectors look alike in another order. The entries are kept
+/// ready for matching (unit columns), not as descriptors.
 pub struct Searcher {
     params: PlusParams,
     ready: Ready,
-    keys: Vec<f32>,
-    /// Each entry's ring means, `n × 2 · rings`, row-major.
-    means: Vec<f32>,
+    /// Each entry's shape key, `n × shape_len`, row-major.
+    shapes: Vec<f32>,
+    /// Each entry's filled shares per ring (its shape key's first terms), `n × 2 · rings`.
+    shares: Vec<f32>,
+    /// Each entry's profile key, `n × profile_len`.
+    profiles: Vec<f32>,
 }
 
-/// The `m` rows of `rows` (row-major, `query.len()` values each) nearest `query`, in f32: a
-/// first narrowing, not a ranking (ties and rounding may swap rows at its edge).
+/// The `m` rows of `rows` (row-major, `query.len()` values each) nearest `query` by squared
+/// Euclidean distance in f32, ties to the lower row, in that order.
 fn nearest_rows(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -497,21 +546,18 @@ fn nearest_rows_portable(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
             (lanes.iter().sum::<f32>() + tail, i)
         })
         .collect();
+    let order = |a: &(f32, usize), b: &(f32, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
     if m < d.len() {
-        d.select_nth_unstable_by(m, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        d.select_nth_unstable_by(m, order);
         d.truncate(m);
     }
+    d.sort_unstable_by(order);
     d.into_iter().map(|(_, i)| i).collect()
 }
 
-/// The Fourier terms per ring of the key.
-fn harmonics(p: &PlusParams) -> usize {
-    KEY_HARMONICS.min(p.sectors / 2 + 1)
-}
-
-/// The ring means of a key (its terms of order 0).
-fn means_of(key: &[f32], p: &PlusParams) -> Vec<f32> {
-    key.iter().step_by(harmonics(p)).copied().collect()
+/// The filled shares per ring of a shape key (its terms of order 0).
+fn shares_of(shape: &[f32], p: &PlusParams) -> Vec<f32> {
+    shape.iter().step_by(shape_terms(p)).copied().collect()
 }
 
 impl Searcher {
@@ -521,26 +567,28 @@ impl Searcher {
         let p = &params;
         let n = descriptors.len() / p.len();
         let mut ready = Ready::zeroed(n, p);
-        let mut keys = vec![0f32; n * key_len(p)];
+        let (mut shapes, mut profiles) = (vec![0f32; n * shape_len(p)], vec![0f32; n * profile_len(p)]);
         descriptors
             .par_chunks_exact(p.len())
             .zip(ready.columns.par_chunks_exact_mut(p.len()))
             .zip(ready.filled.par_chunks_exact_mut(p.rotations * p.sectors))
             .zip(ready.h0.par_chunks_exact_mut(p.rings * p.sectors))
             .zip(ready.h0_filled.par_chunks_exact_mut(p.sectors))
-            .zip(keys.par_chunks_exact_mut(key_len(p)))
-            .for_each(|(((((d, columns), filled), h0), h0_filled), k)| {
+            .zip(shapes.par_chunks_exact_mut(shape_len(p)))
+            .zip(profiles.par_chunks_exact_mut(profile_len(p)))
+            .for_each(|((((((d, columns), filled), h0), h0_filled), shape), profile)| {
                 ReadyMut { columns, filled, h0, h0_filled }.fill(d, p);
-                k.copy_from_slice(&key(d, p));
+                shape.copy_from_slice(&shape_key(d, p));
+                profile.copy_from_slice(&profile_key(d, p));
             });
         drop(descriptors);
-        let means: Vec<f32> = keys.chunks_exact(key_len(p)).flat_map(|k| means_of(k, p)).collect();
-        Searcher { params, ready, keys, means }
+        let shares = shapes.chunks_exact(shape_len(p)).flat_map(|k| shares_of(k, p)).collect();
+        Searcher { params, ready, shapes, shares, profiles }
     }
 
     /// Rows.
     pub fn len(&self) -> usize {
-        self.means.len() / (CHANNELS * self.params.rings)
+        self.shares.len() / (CHANNELS * self.params.rings)
     }
 
     /// Whether there are no rows.
@@ -566,30 +614,51 @@ impl Searcher {
         }
     }
 
+    /// The candidates for `query`: at most `wanted` rows, half by each key, taken in turn.
+    fn candidates(&self, query: &[f32], wanted: usize) -> Vec<usize> {
+        let p = &self.params;
+        let half = wanted.div_ceil(2);
+        let shape = shape_key(query, p);
+        let width = shape_len(p);
+        let mut by_shape: Vec<(f64, usize)> =
+            nearest_rows(&self.shares, &shares_of(&shape, p), COARSE_PER_CANDIDATE * half)
+                .into_iter()
+                .map(|row| {
+                    let e = &self.shapes[row * width..(row + 1) * width];
+                    (shape.iter().zip(e).map(|(a, b)| ((a - b) as f64).powi(2)).sum(), row)
+                })
+                .collect();
+        by_shape.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let by_profile = nearest_rows(&self.profiles, &profile_key(query, p), wanted);
+        let lists = [by_shape.into_iter().map(|(_, row)| row).collect::<Vec<_>>(), by_profile];
+        // In turn, each row once: half from each list unless they share rows.
+        let mut out = Vec::with_capacity(wanted);
+        let mut taken = std::collections::HashSet::with_capacity(wanted);
+        for i in 0..lists[0].len().max(lists[1].len()) {
+            for list in &lists {
+                if let Some(&row) = list.get(i)
+                    && out.len() < wanted
+                    && taken.insert(row)
+                {
+                    out.push(row);
+                }
+            }
+        }
+        out
+    }
+
     /// The `k` best rows for `query`, by (distance, row), with the time of each step.
     pub fn search(&self, query: &[f32], k: usize) -> (Vec<PlusHit>, SearchTimes) {
         let p = &self.params;
         let t = std::time::Instant::now();
         let wanted = p.candidates.max(k).min(self.len());
-        let q_key = key(query, p);
-        let coarse = nearest_rows(&self.means, &means_of(&q_key, p), COARSE_PER_CANDIDATE * wanted);
-        let kl = key_len(p);
-        let mut near: Vec<(f64, usize)> = coarse
-            .into_iter()
-            .map(|row| {
-                let e = &self.keys[row * kl..(row + 1) * kl];
-                let d: f64 = q_key.iter().zip(e).map(|(a, b)| ((a - b) as f64).powi(2)).sum();
-                (d, row)
-            })
-            .collect();
-        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        near.truncate(wanted);
+        let rows = self.candidates(query, wanted);
         let candidates_secs = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
         let q = Ready::new(query, p);
-        let mut hits: Vec<PlusHit> = near
+        let mut hits: Vec<PlusHit> = rows
             .into_iter()
-            .map(|(_, row)| {
+            .map(|row| {
                 let (d, yaw) = distance_to(q.as_ref(), self.entry(row), p);
                 (row, d, yaw)
             })
