@@ -195,10 +195,16 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
             let inner = (u as usize).min(rings - 1);
             let outer = (inner + 1).min(rings - 1);
             let w = u - inner as f64;
-            let azimuth = y.atan2(x).to_degrees().rem_euclid(360.0);
-            let sector = ((azimuth / p.sector_degrees()) as usize).min(sectors - 1);
+            // Likewise between the two nearest sector centres: a turn by part of a sector
+            // moves the topology smoothly from one column to the next.
+            let v = y.atan2(x).to_degrees().rem_euclid(360.0) / p.sector_degrees() - 0.5;
+            let (first, ws) = (v.floor(), v - v.floor());
+            let before = (first as i64).rem_euclid(sectors as i64) as usize;
+            let after = (before + 1) % sectors;
             for (ring, weight) in [(inner, 1.0 - w), (outer, w)] {
-                grid[(dim * rings + ring) * sectors + sector] += weight * persistence;
+                let row = &mut grid[(dim * rings + ring) * sectors..(dim * rings + ring + 1) * sectors];
+                row[before] += weight * (1.0 - ws) * persistence;
+                row[after] += weight * ws * persistence;
             }
         }
         block.iter_mut().zip(&grid).for_each(|(o, &v)| *o = v as f32);
@@ -505,15 +511,22 @@ pub struct Searcher {
     ready: Ready,
     /// Each entry's shape key, `n × shape_len`, row-major.
     shapes: Vec<f32>,
-    /// Each entry's filled shares per ring (its shape key's first terms), `n × 2 · rings`.
-    shares: Vec<f32>,
-    /// Each entry's profile key, `n × profile_len`.
-    profiles: Vec<f32>,
+    /// Each entry's filled shares per ring (its shape key's first terms), `n × 2 · rings`,
+    /// [`quantized`].
+    shares: Vec<u8>,
+    /// Each entry's profile key, `n × profile_len`, [`quantized`].
+    profiles: Vec<u8>,
 }
 
-/// The `m` rows of `rows` (row-major, `query.len()` values each) nearest `query` by squared
-/// Euclidean distance in f32, ties to the lower row, in that order.
-fn nearest_rows(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
+/// Key values in [0, 1] as bytes (`round(255 v)`): the first narrowing of a search reads a
+/// quarter of the memory, and its integer distances are exact and the same on every machine.
+fn quantized(values: &[f32]) -> Vec<u8> {
+    values.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect()
+}
+
+/// The `m` rows of `rows` (row-major, `query.len()` bytes each) nearest `query` by squared
+/// Euclidean distance, ties to the lower row, in that order.
+fn nearest_rows(rows: &[u8], query: &[u8], m: usize) -> Vec<usize> {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
@@ -524,35 +537,36 @@ fn nearest_rows(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn nearest_rows_avx2(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
+fn nearest_rows_avx2(rows: &[u8], query: &[u8], m: usize) -> Vec<usize> {
     nearest_rows_portable(rows, query, m)
 }
 
 #[inline(always)]
-fn nearest_rows_portable(rows: &[f32], query: &[f32], m: usize) -> Vec<usize> {
-    let width = query.len();
-    let mut d: Vec<(f32, usize)> = rows
-        .chunks_exact(width)
-        .enumerate()
-        .map(|(i, r)| {
-            let mut lanes = [0f32; 8];
-            let (cr, cq) = (r.chunks_exact(8), query.chunks_exact(8));
-            let tail: f32 = cr.remainder().iter().zip(cq.remainder()).map(|(a, b)| (a - b) * (a - b)).sum();
-            for (x, y) in cr.zip(cq) {
-                for k in 0..8 {
-                    lanes[k] += (x[k] - y[k]) * (x[k] - y[k]);
-                }
-            }
-            (lanes.iter().sum::<f32>() + tail, i)
-        })
-        .collect();
-    let order = |a: &(f32, usize), b: &(f32, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-    if m < d.len() {
-        d.select_nth_unstable_by(m, order);
-        d.truncate(m);
+fn nearest_rows_portable(rows: &[u8], query: &[u8], m: usize) -> Vec<usize> {
+    // The m smallest (distance << 32 | row) so far, largest on top: one integer to compare,
+    // ties to the lower row; most rows are refused by one comparison with the top.
+    let mut best: std::collections::BinaryHeap<u64> = std::collections::BinaryHeap::with_capacity(m + 1);
+    if m == 0 {
+        return Vec::new();
     }
-    d.sort_unstable_by(order);
-    d.into_iter().map(|(_, i)| i).collect()
+    for (i, r) in rows.chunks_exact(query.len()).enumerate() {
+        let sum: i32 = r
+            .iter()
+            .zip(query)
+            .map(|(&a, &b)| {
+                let d = a as i16 - b as i16;
+                d as i32 * d as i32
+            })
+            .sum();
+        let key = ((sum as u64) << 32) | i as u64;
+        if best.len() < m {
+            best.push(key);
+        } else if key < *best.peek().expect("m > 0") {
+            best.pop();
+            best.push(key);
+        }
+    }
+    best.into_sorted_vec().into_iter().map(|v| (v & 0xffff_ffff) as usize).collect()
 }
 
 /// The filled shares per ring of a shape key (its terms of order 0).
@@ -582,7 +596,8 @@ impl Searcher {
                 profile.copy_from_slice(&profile_key(d, p));
             });
         drop(descriptors);
-        let shares = shapes.chunks_exact(shape_len(p)).flat_map(|k| shares_of(k, p)).collect();
+        let shares = shapes.chunks_exact(shape_len(p)).flat_map(|k| quantized(&shares_of(k, p))).collect();
+        let profiles = quantized(&profiles);
         Searcher { params, ready, shapes, shares, profiles }
     }
 
@@ -621,7 +636,7 @@ impl Searcher {
         let shape = shape_key(query, p);
         let width = shape_len(p);
         let mut by_shape: Vec<(f64, usize)> =
-            nearest_rows(&self.shares, &shares_of(&shape, p), COARSE_PER_CANDIDATE * half)
+            nearest_rows(&self.shares, &quantized(&shares_of(&shape, p)), COARSE_PER_CANDIDATE * half)
                 .into_iter()
                 .map(|row| {
                     let e = &self.shapes[row * width..(row + 1) * width];
@@ -629,7 +644,7 @@ impl Searcher {
                 })
                 .collect();
         by_shape.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let by_profile = nearest_rows(&self.profiles, &profile_key(query, p), wanted);
+        let by_profile = nearest_rows(&self.profiles, &quantized(&profile_key(query, p)), wanted);
         let lists = [by_shape.into_iter().map(|(_, row)| row).collect::<Vec<_>>(), by_profile];
         // In turn, each row once: half from each list unless they share rows.
         let mut out = Vec::with_capacity(wanted);
