@@ -229,13 +229,27 @@ fn ransac_ground(points: &[Point], threshold: f64, iterations: usize, rng: &mut 
     best.map(|(_, p)| p)
 }
 
-/// One centroid per occupied cell, in cell order (deterministic).
+/// One centroid per occupied cell, in cell order (deterministic); the cells' corners on the
+/// multiples of `size`.
 pub fn voxel_grid(points: &[Point], size: f64) -> Vec<Point> {
+    voxel_cells(points, size, 0.0)
+}
+
+/// [`voxel_grid`] with the cells' centres on the multiples of `size`: the grid is its own
+/// mirror image through the origin, so a quarter turn about z maps its cells onto its cells
+/// (even for a point exactly on an axis).
+pub fn voxel_grid_centred<'a>(points: impl IntoIterator<Item = &'a Point>, size: f64) -> Vec<Point> {
+    voxel_cells(points, size, 0.5)
+}
+
+fn voxel_cells<'a>(points: impl IntoIterator<Item = &'a Point>, size: f64, offset: f64) -> Vec<Point> {
     /// A cell's coordinate sum and point count.
     type Cell = ([f64; 3], u32);
-    let mut cells: HashMap<[i64; 3], Cell> = HashMap::with_capacity(points.len() / 2);
+    let points = points.into_iter();
+    // A few points a cell (a filter gives only its upper bound).
+    let mut cells: HashMap<[i64; 3], Cell> = HashMap::with_capacity(points.size_hint().1.unwrap_or(0) / 4);
     for q in points {
-        let key = q.map(|c| (c / size).floor() as i64);
+        let key = q.map(|c| (c / size + offset).floor() as i64);
         let e = cells.entry(key).or_insert(([0.0; 3], 0));
         e.0.iter_mut().zip(q).for_each(|(s, c)| *s += c);
         e.1 += 1;

@@ -39,7 +39,6 @@
 
 use crate::homology::alpha_persistence_located;
 use crate::types::Point;
-use std::collections::HashMap;
 
 /// The name of the method.
 pub const NAME: &str = "toporec-plus";
@@ -138,22 +137,11 @@ impl PlusParams {
 }
 
 /// The points of a raw scan the method describes: finite, within `max_radius` of the sensor
-/// (horizontally), on the voxel grid: one centroid per cubic cell, the cells centred on the
-/// multiples of `voxel` (so that the grid is its own mirror image through the sensor: a
-/// quarter turn of the scan turns the cells, even for a return exactly on an axis), in cell
-/// order.
+/// (horizontally), on the voxel grid centred on the sensor
+/// ([`crate::preprocess::voxel_grid_centred`]: a quarter turn of the scan turns the cells).
 pub fn preprocess(points: &[Point], p: &PlusParams) -> Vec<Point> {
-    type Cell = ([f64; 3], u32);
-    let mut cells: HashMap<[i64; 3], Cell> = HashMap::with_capacity(points.len() / 4);
-    for q in points.iter().filter(|q| q.iter().all(|c| c.is_finite()) && q[0].hypot(q[1]) <= p.max_radius) {
-        let key = q.map(|c| (c / p.voxel + 0.5).floor() as i64);
-        let e = cells.entry(key).or_insert(([0.0; 3], 0));
-        e.0.iter_mut().zip(q).for_each(|(s, c)| *s += c);
-        e.1 += 1;
-    }
-    let mut cells: Vec<([i64; 3], Cell)> = cells.into_iter().collect();
-    cells.sort_unstable_by_key(|c| c.0);
-    cells.into_iter().map(|(_, (s, n))| s.map(|c| c / n as f64)).collect()
+    let kept = points.iter().filter(|q| q.iter().all(|c| c.is_finite()) && q[0].hypot(q[1]) <= p.max_radius);
+    crate::preprocess::voxel_grid_centred(kept, p.voxel)
 }
 
 /// The descriptor of a raw scan (sensor frame, metres, z up). A scan whose complex cannot be
