@@ -5,15 +5,14 @@
 //! and a quarter of the view hidden changes all of it. Here the diagram keeps its geometry:
 //!
 //! 1. the raw scan (sensor frame, metres) within `max_radius` of the sensor, on a voxel grid
-//!    (`voxel`, one centroid a cell: the density no longer depends on the sensor or on dropped
-//!    points);
+//!    centred on the sensor (`voxel`, one centroid a cell: the density no longer depends on
+//!    the sensor or on dropped points);
 //! 2. the persistent homology of its alpha complex, each pair located where its class dies —
-//!    the centroid of the edge that merges two components (H0), of the triangle that fills a
-//!    loop (H1), of the tetrahedron that fills a void (H2)
-//!    ([`crate::homology::alpha_persistence_located`]);
-//! 3. each H0 and H1 pair's persistence (radii, metres) added to the cell of a polar grid
-//!    (`rings` × `sectors` out to `max_radius`) holding its location, shared linearly between
-//!    the two nearest rings: per dimension, the total persistence in the cell — a `2 × rings ×
+//!    the midpoint of the edge that merges two components (H0), the centroid of the triangle
+//!    that fills a loop (H1) ([`crate::homology::alpha_persistence_located`]);
+//! 3. each H0 and H1 pair's persistence (radii, metres) added to a polar grid (`rings` ×
+//!    `sectors` out to `max_radius`), shared linearly between the two nearest rings and the
+//!    two nearest sectors: per dimension, the total persistence in a cell — a `2 × rings ×
 //!    sectors` image of where the scan's components merge and its loops close;
 //! 4. the grid made again with the locations turned by `1/rotations`, `2/rotations`, … of a
 //!    sector, so that a turn between two visits that is not a whole number of sectors still
@@ -24,14 +23,15 @@
 //! sectors and each rotation of the candidate, `1 −` the mean cosine of the columns (the
 //! `2 · rings` values of one sector) filled in both — a sector hidden in one scan is left out,
 //! not counted as a difference — and the smallest wins; the shift and rotation give the yaw.
-//! A search takes the nearest candidates by a key that does not depend on the yaw (per ring,
-//! the magnitudes of the first Fourier terms along the sectors of the H0 and of the H1 sums;
-//! first narrowed by their ring means alone) and re-ranks them.
+//! A [`Searcher`] takes candidates from two keys that do not depend on the yaw, in turn, and
+//! re-ranks them by that distance.
 //!
-//! Why these channels (measured on simulated two-session drives, `docs/evaluation.md`): the
-//! H0 sums carry most of the place; the H1 sums add a little (the nearest database scan found
-//! more often under scaling); the H2 sums changed no result, and the largest persistence per
-//! cell, or each dimension weighed equally, made every condition worse.
+//! Why these choices (measured on simulated two-session drives; the tables are in
+//! `docs/evaluation.md`): the H0 totals carry most of the place and the H1 totals add a little;
+//! the H2 totals changed no result, and the largest persistence per cell, or each dimension
+//! weighed equally, made every condition worse; three turned grids found the nearest scan far
+//! more often than one; the candidates, not the distance, limited the recall, until the two
+//! keys took turns.
 //!
 //! Nothing is trained or fitted: no codebook. A turn by a multiple of 90° maps the voxel grid
 //! and the polar grid onto themselves (with `sectors` a multiple of 4), so the distance of a

@@ -172,7 +172,7 @@ fn bad_inputs_table() {
     )
     .unwrap();
     std::fs::write(d.join("ids.txt"), "a\n").unwrap();
-    let methods: [(&str, &[&str], &[&str]); 7] = [
+    let methods: [(&str, &[&str], &[&str]); 10] = [
         (
             "query --method nope",
             &["query", "--index", "idx", "--method", "nope", "x.csv"],
@@ -182,6 +182,21 @@ fn bad_inputs_table() {
             "eval places --method nope",
             &["eval", "places", "--db", "idx", "-o", "ev", "--method", "nope"],
             &["--method nope"],
+        ),
+        (
+            "eval places --condition nonsense",
+            &["eval", "places", "--db", "idx", "-o", "ev", "--condition", "nonsense"],
+            &["--condition", "unknown condition `nonsense`"],
+        ),
+        (
+            "eval places --condition occlusion=400",
+            &["eval", "places", "--db", "idx", "-o", "ev", "--condition", "occlusion=400"],
+            &["--condition", "occlusion=400", "[0, 360]"],
+        ),
+        (
+            "eval places --revisit-radius 0",
+            &["eval", "places", "--db", "idx", "-o", "ev", "--revisit-radius", "0"],
+            &["--revisit-radius"],
         ),
         (
             "import --method toporec",
@@ -213,7 +228,7 @@ fn bad_inputs_table() {
         check(case, &run(args), 2, names);
     }
     let base = std::fs::read_to_string(&pipeline).unwrap();
-    let keys: [(&str, &str, &[&str]); 4] = [
+    let keys: [(&str, &str, &[&str]); 6] = [
         (
             "an unknown method",
             "[descriptors]\nmethods = [\"toporec\", \"nope\"]\n",
@@ -226,6 +241,12 @@ fn bad_inputs_table() {
             &["scancontext", "rings", "max_radius"],
         ),
         ("an unknown m2dp key", "[m2dp]\nvoxels = 1.0\n", &["m2dp", "voxels"]),
+        (
+            "toporec-plus out of range",
+            "[descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\nvoxel = 0\nsectors = 2\nrotations = 17\nsearch_ratio = 2\n",
+            &["toporec-plus.voxel", "sectors", "toporec-plus.rotations", "toporec-plus.search_ratio"],
+        ),
+        ("an unknown toporec-plus key", "[toporec-plus]\nvoxels = 1.0\n", &["toporec-plus", "voxels"]),
     ];
     for (case, extra, names) in keys {
         let file = d.join("methods.toml");

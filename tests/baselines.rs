@@ -265,6 +265,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
     assert_eq!(r1(1), [24.0, 24.0, 26.0, 29.0], "M2DP");
     assert_eq!(r1(2), [32.0, 32.0, 32.0, 32.0], "ScanContext");
+    assert_eq!(r1(3), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
     for f in
         ["recall_at_n.png", "trajectory_toporec.png", "trajectory_m2dp.png", "trajectory_scancontext.png"]
     {
