@@ -9,6 +9,9 @@
 //!
 //! Run: `cargo bench --bench baselines`.
 
+mod common;
+
+use common::median_ms;
 use std::path::Path;
 use std::time::Instant;
 use toporec::baselines::m2dp;
@@ -41,19 +44,6 @@ fn subsample(points: &[Point], n: usize, seed: u64) -> Vec<Point> {
     }
     p.truncate(n);
     p
-}
-
-/// Median milliseconds of `reps` runs.
-fn median_ms(reps: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let s = Instant::now();
-            f();
-            s.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
 }
 
 fn main() {

@@ -10,6 +10,9 @@
 //!
 //! Run: `cargo bench --bench toporec_plus`.
 
+mod common;
+
+use common::median_ms;
 use std::path::Path;
 use std::time::Instant;
 use toporec::homology::{Point, alpha_persistence};
@@ -39,19 +42,6 @@ fn scans() -> (String, Vec<Vec<Point>>) {
     let name =
         if kitti.is_dir() { "KITTI (one scan a sequence and more)" } else { "simulated (samples/town)" };
     (name.into(), files.iter().map(|f| toporec::sources::read_cloud(f, None).expect("a scan")).collect())
-}
-
-/// Median milliseconds of `reps` runs.
-fn median_ms(reps: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let s = Instant::now();
-            f();
-            s.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
 }
 
 fn main() {

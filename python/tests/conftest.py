@@ -39,3 +39,14 @@ def require(module: str):
         if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
             raise
         pytest.skip(f"{module} is not installed")
+
+
+@pytest.fixture(scope="session")
+def binary() -> pathlib.Path:
+    """The release binary the README builds, or a skip (a failure with TOPOREC_REQUIRE_DATA=1)."""
+    path = REPO / "target" / "release" / "toporec"
+    if not path.exists():
+        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+            pytest.fail(f"{path} is missing: build it with `cargo build --release`")
+        pytest.skip(f"{path} is missing (cargo build --release)")
+    return path

@@ -3,7 +3,6 @@ against the rows `toporec run` wrote."""
 
 import csv
 import io
-import os
 import pathlib
 import subprocess
 
@@ -56,18 +55,13 @@ def sample_files():
     return sorted(root.glob("*/velodyne_sync/*.bin"))
 
 
-def test_query_paths_match_the_cli(sample_index, tmp_path):
+def test_query_paths_match_the_cli(sample_index, tmp_path, binary):
     day2 = REPO / "samples" / "town" / "velodyne_data" / "2026-01-02"
     table = toporec.Index(sample_index).query(day2, k=3)
     assert table.column_names == "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z,yaw_deg".split(",")
     first = table.filter(pa.compute.equal(table["rank"], 1))
     assert first["query_id"].to_pylist() == first["scan_id"].to_pylist()
     assert max(first["distance"].to_pylist()) == 0.0
-    binary = REPO / "target" / "release" / "toporec"
-    if not binary.exists():
-        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
-            pytest.fail(f"{binary} is missing: build it with `cargo build --release`")
-        pytest.skip(f"{binary} is missing (cargo build --release)")
     out = tmp_path / "hits.csv"
     subprocess.run([binary, "query", "--index", sample_index, "-k", "3", "--out", out, day2], check=True, capture_output=True)
     rows = list(csv.DictReader(io.StringIO(out.read_text())))

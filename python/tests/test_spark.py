@@ -34,7 +34,7 @@ def spark():
     session.stop()
 
 
-def test_spark_index_equals_toporec_run(spark, tmp_path):
+def test_spark_index_equals_toporec_run(spark, tmp_path, binary):
     from toporec.spark import index_files
 
     pipeline = REPO / "pipelines" / "sample.toml"
@@ -59,11 +59,6 @@ def test_spark_index_equals_toporec_run(spark, tmp_path):
     day2 = REPO / "samples" / "town" / "velodyne_data" / "2026-01-02"
     assert a.query(day2, k=5).equals(b.query(day2, k=5))
 
-    binary = REPO / "target" / "release" / "toporec"
-    if not binary.exists():
-        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
-            pytest.fail(f"{binary} is missing: build it with `cargo build --release`")
-        pytest.skip(f"{binary} is missing (cargo build --release)")
     verify = subprocess.run([binary, "verify", "--index", by_spark], capture_output=True, text=True)
     assert verify.returncode == 0, verify.stderr
     reports = []
@@ -107,17 +102,12 @@ def test_a_bad_file_is_an_error_row(spark, tmp_path):
     assert bad["status"] == "error" and files[1].name in bad["error"]
 
 
-def test_mcap_files_split_by_message_ranges(spark, tmp_path):
+def test_mcap_files_split_by_message_ranges(spark, tmp_path, binary):
     """A simulated two-session MCAP drive, split into ranges of 3 messages, gives the index
     `toporec run` gives: the same scan rows (seq, message_index and poses included), the same
     diagram rows, the same descriptors."""
     from toporec.spark import index_files
 
-    binary = REPO / "target" / "release" / "toporec"
-    if not binary.exists():
-        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
-            pytest.fail(f"{binary} is missing: build it with `cargo build --release`")
-        pytest.skip(f"{binary} is missing (cargo build --release)")
     drive = tmp_path / "drive"
     subprocess.run(
         [binary, "simulate", "-o", drive, "--format", "mcap", "--sessions", "2", "--scans", "7", "--blocks", "2"],
