@@ -72,6 +72,13 @@ pub enum ScanInput {
         /// Its format (`None`: from the path).
         format: Option<FileFormat>,
     },
+    /// A scan file read by the describer itself (on a file system it mounts).
+    Path {
+        /// The file (names the scan and its session).
+        path: PathBuf,
+        /// Its format (`None`: from the path).
+        format: Option<FileFormat>,
+    },
     /// The scans of an MCAP file whose message index (among its point-cloud topic's messages)
     /// lies in `first..first + count`, read from the file, as the pipeline's MCAP source that
     /// lists the file reads it (its topic, poses, session), else with the defaults. Its
@@ -283,6 +290,20 @@ impl BatchDescriber {
                 return Ok(Scan { utime: utime.unwrap_or(0), pose, no_pose, ..scan });
             }
             ScanInput::File { path, bytes, format } => (path, bytes, format),
+            ScanInput::Path { path, format } => match std::fs::read(&path) {
+                Ok(bytes) => (path, bytes, format),
+                Err(e) => {
+                    let (session, name) = file_names(&path);
+                    let error = format!("{}: cannot read: {e}", path.display());
+                    return Err(ScanFailure::of_file(
+                        format!("{session}/{name}"),
+                        &session,
+                        &path,
+                        None,
+                        error,
+                    ));
+                }
+            },
             ScanInput::McapRange { path, first, .. } => {
                 return Err(ScanFailure::of_file(
                     format!("{}/{first}", path.display()),
@@ -293,9 +314,8 @@ impl BatchDescriber {
                 ));
             }
         };
-        let dir = path.parent().and_then(Path::parent).unwrap_or(Path::new("")).to_owned();
-        let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let dir = session_dir(&path);
+        let (session, name) = file_names(&path);
         let Some(format) = format.or_else(|| FileFormat::of_path(&path)) else {
             let error = format!(
                 "{}: unknown scan file format (give `format`: nclt or kitti; or the layout's velodyne_sync/ or velodyne/ folder)",
@@ -409,4 +429,17 @@ impl BatchDescriber {
         }
         Ok(BatchOutput { scans, diagrams, descriptors })
     }
+}
+
+/// The session folder of a scan file (`<session>/velodyne_sync/<utime>.bin`,
+/// `<sequence>/velodyne/<frame>.bin`).
+fn session_dir(path: &Path) -> PathBuf {
+    path.parent().and_then(Path::parent).unwrap_or(Path::new("")).to_owned()
+}
+
+/// A scan file's session (its session folder's name) and scan name (its stem).
+fn file_names(path: &Path) -> (String, String) {
+    let session = session_dir(path).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    (session, name)
 }

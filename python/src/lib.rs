@@ -615,8 +615,9 @@ impl BatchDescriber {
     }
 
     /// Describes the scans of an Arrow stream (normalized by the Python side: `path` utf8;
-    /// `content` binary or `points` list<float64>; optional `format`, `scan_id`, `session`
-    /// utf8, `seq` uint64, `utime` int64, `pose_x/y/z/yaw` float64). With `diagrams_to`
+    /// `content` binary or `points` list<float64>, or neither (the file is read from `path`);
+    /// optional `format`, `scan_id`, `session` utf8, `seq` uint64, `utime` int64,
+    /// `pose_x/y/z/yaw` float64). With `diagrams_to`
     /// (a folder, and a file name), the diagrams are written there instead of returned.
     #[allow(clippy::type_complexity)]
     #[pyo3(signature = (stream, diagrams_to=None))]
@@ -684,13 +685,16 @@ fn batch_inputs(b: &RecordBatch, offset: u64) -> PyResult<Vec<(u64, toporec::bat
         column("first_message").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned()),
         column("message_count").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned()),
     );
-    if content.is_none() && points.is_none() && formats.is_none() {
-        return Err(value_error(
-            "the batch has neither a `content` (file bytes) nor a `points` column, nor `format` = mcap rows",
-        ));
-    }
     let get = |a: &Option<arrow::array::StringArray>, i: usize| {
         a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i).to_string())
+    };
+    let file_format = |i: usize| -> PyResult<Option<FileFormat>> {
+        match get(&formats, i) {
+            None => Ok(None),
+            Some(f) => FileFormat::parse(&f)
+                .map(Some)
+                .ok_or_else(|| value_error(format!("row {i}: format {f:?}: expected nclt, kitti or mcap"))),
+        }
     };
     let mut out = Vec::with_capacity(b.num_rows());
     for i in 0..b.num_rows() {
@@ -709,13 +713,7 @@ fn batch_inputs(b: &RecordBatch, offset: u64) -> PyResult<Vec<(u64, toporec::bat
                 ScanInput::McapRange { path, first, count }
             }
             (Some(c), _) if c.is_valid(i) => {
-                let format = match get(&formats, i) {
-                    None => None,
-                    Some(f) => Some(FileFormat::parse(&f).ok_or_else(|| {
-                        value_error(format!("row {i}: format {f:?}: expected nclt, kitti or mcap"))
-                    })?),
-                };
-                ScanInput::File { path, bytes: c.value(i).to_vec(), format }
+                ScanInput::File { path, bytes: c.value(i).to_vec(), format: file_format(i)? }
             }
             (_, Some(p)) if p.is_valid(i) => {
                 let values = p.value(i);
@@ -743,7 +741,8 @@ fn batch_inputs(b: &RecordBatch, offset: u64) -> PyResult<Vec<(u64, toporec::bat
                 let utime = utimes.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
                 ScanInput::Points { scan_id, session, path, utime, pose, points: pts }
             }
-            _ => return Err(value_error(format!("row {i}: neither content nor points"))),
+            // Neither bytes nor points: the engine reads the file.
+            _ => ScanInput::Path { path, format: file_format(i)? },
         };
         out.push((seq, input));
     }

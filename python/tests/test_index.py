@@ -132,5 +132,17 @@ def test_describe_batch_points(sample_index):
     row = out["scans"].to_pylist()[0]
     assert row["status"] == "ok" and row["session"] == "drive" and row["raw_points"] == len(points)
     assert out["descriptors"]["toporec"].num_rows == 1
-    with pytest.raises(ValueError, match="neither"):
-        toporec.describe_batch(pa.table({"path": ["x"]}), sample_index)
+
+
+def test_describe_batch_reads_files_from_their_paths(sample_index):
+    """Rows without bytes are read by the engine from `path`, giving the rows the bytes give;
+    a file that cannot be read is an error row naming it."""
+    files = sample_files()[:4]
+    with_bytes = toporec.describe_batch(pa.table({"path": [str(f) for f in files], "content": [f.read_bytes() for f in files]}), sample_index)
+    by_path = toporec.describe_batch(pa.table({"path": [str(f) for f in files]}), sample_index)
+    for table in ("scans", "diagrams"):
+        assert by_path[table].equals(with_bytes[table])
+    assert by_path["descriptors"]["toporec"].equals(with_bytes["descriptors"]["toporec"])
+    missing = files[0].with_name("1767261600000001.bin")
+    rows = toporec.describe_batch(pa.table({"path": [str(missing)]}), sample_index)["scans"].to_pylist()
+    assert rows[0]["status"] == "error" and f"{missing}: cannot read" in rows[0]["error"], rows

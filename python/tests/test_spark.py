@@ -34,14 +34,17 @@ def spark():
     session.stop()
 
 
-def test_spark_index_equals_toporec_run(spark, tmp_path, binary):
+@pytest.mark.parametrize("read", ["auto", "spark"])
+def test_spark_index_equals_toporec_run(spark, tmp_path, binary, read):
+    """Both ways of reading the files: by the tasks (local files, the default) and as Spark's
+    `binaryFile` rows (other file systems)."""
     from toporec.spark import index_files
 
     pipeline = REPO / "pipelines" / "sample.toml"
     by_run, by_spark = tmp_path / "run", tmp_path / "spark"
     toporec.fit(pipeline, sample=0.5, index=by_run)
     toporec.run(pipeline, index=by_run)
-    result = index_files(spark, [REPO / "samples" / "town" / "velodyne_data"], by_spark, pipeline=pipeline, sample=0.5)
+    result = index_files(spark, [REPO / "samples" / "town" / "velodyne_data"], by_spark, pipeline=pipeline, sample=0.5, read=read)
     assert result["scans"] == 64 and result["ok"] == 64, result
     assert not list(by_spark.glob(".spark-*")), "the staging folder is removed"
 
@@ -84,7 +87,8 @@ def _same_recalls(a, b):
     return strip(a) == strip(b)
 
 
-def test_a_bad_file_is_an_error_row(spark, tmp_path):
+@pytest.mark.parametrize("read", ["auto", "spark"])
+def test_a_bad_file_is_an_error_row(spark, tmp_path, read):
     from toporec.spark import index_files
 
     pipeline = REPO / "pipelines" / "sample.toml"
@@ -95,7 +99,7 @@ def test_a_bad_file_is_an_error_row(spark, tmp_path):
         shutil.copy(f, drive / f.name)
     (drive / files[1].name).write_bytes(files[1].read_bytes()[:-5])
     index = tmp_path / "index"
-    result = index_files(spark, [tmp_path / "drive"], index, pipeline=pipeline, sample=1.0)
+    result = index_files(spark, [tmp_path / "drive"], index, pipeline=pipeline, sample=1.0, read=read)
     assert result["scans"] == 3 and result["errors"] == 1, result
     rows = {r["scan_id"]: r for r in toporec.Index(index).scans().to_pylist()}
     bad = rows[f"2026-01-01/{files[1].stem}"]

@@ -20,13 +20,31 @@ import hashlib
 import json
 import os
 import warnings
-from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple, Union
+from typing import TYPE_CHECKING, Any, Dict, Iterable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import pyarrow as pa
 
 from . import _toporec
-from ._estimator import Atol, PaperDescriptor, paper_diagram
+
+if TYPE_CHECKING:
+    from ._estimator import Atol, PaperDescriptor, paper_diagram
+
+_ESTIMATORS = ("Atol", "PaperDescriptor", "paper_diagram")
+
+
+def __getattr__(name: str) -> Any:
+    # The estimators import scikit-learn (most of a second): only when first used, so that a
+    # distributed job's workers, which call describe_batch, start without it.
+    if name in _ESTIMATORS:
+        from . import _estimator
+
+        return getattr(_estimator, name)
+    raise AttributeError(f"module 'toporec' has no attribute {name!r}")
+
+
+def __dir__() -> List[str]:
+    return sorted(list(globals()) + list(_ESTIMATORS))
 
 __version__ = _toporec.__version__
 __all__ = [
@@ -354,7 +372,8 @@ def describe_batch(
         batch: a pyarrow RecordBatch or Table with a ``path`` column and either ``content``
             (the bytes of a scan file: NCLT ``velodyne_sync/<utime>.bin`` or KITTI
             ``velodyne/<frame>.bin``, as Spark's ``binaryFile`` source reads them; its id,
-            session, time and pose come from the path, as ``toporec run`` makes them) or
+            session, time and pose come from the path, as ``toporec run`` makes them; a row
+            whose ``content`` is missing or null is read from its ``path``) or
             ``points`` (list<float64> of x, y, z, x, y, z ...; with ``scan_id``, and optionally
             ``session``, ``utime``, ``pose_x/y/z/yaw``), or ``format`` = ``mcap`` with
             ``first_message`` and ``message_count``: the scans of that MCAP file whose index

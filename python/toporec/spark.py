@@ -9,11 +9,16 @@
 1. The codebook: the index's frozen one when it has one, else fitted on the driver on a
    hash sample of the pipeline's scans (``toporec fit --pipeline``) and frozen in the index.
    Executors read it from the index folder, which they must see (a shared file system).
-2. Scan files are read with ``spark.read.format("binaryFile")`` (NCLT ``velodyne_sync/*.bin``,
-   KITTI ``velodyne/*.bin``). MCAP files are listed the same way and split by message ranges
-   (``messages_per_task`` scans a task, counted by a first pass on the executors); a task
-   reads its range from the file's path, decoding only its own messages. Each scan keeps its
-   position in the sorted file list (an MCAP file's scans in message order) as its ``seq``.
+2. Scan files are listed with ``spark.read.format("binaryFile")`` (NCLT
+   ``velodyne_sync/*.bin``, KITTI ``velodyne/*.bin``) on the driver, which reads no content.
+   Files on the local file system (``file:``, mounted on every executor) are read by the
+   tasks themselves, a run of ``scans_per_task`` files each: their bytes do not pass through
+   the JVM. Files elsewhere (``s3a://``, ``hdfs://``; or ``read="spark"``) come as the
+   ``binaryFile`` rows' content. MCAP files are listed the same way and split by message
+   ranges (``messages_per_task`` scans a task, counted by a first pass on the executors); a
+   task reads its range from the file's path, decoding only its own messages. Each scan
+   keeps its position in the sorted file list (an MCAP file's scans in message order) as its
+   ``seq``.
 3. ``mapInArrow`` calls :func:`toporec.describe_batch` on each Arrow batch (a scan that fails
    is an ``error`` row, never a failed task) and returns one row per scan: its ``scans``
    columns and each method's descriptor.
@@ -40,7 +45,6 @@ import shutil
 import uuid
 from typing import Any, Dict, List, Optional, Sequence, Union
 
-import numpy as np
 import pyarrow as pa
 
 import toporec
@@ -136,10 +140,38 @@ def describe_partition(batches, index: str, seqs: Dict[str, int], methods: Seque
         scans = pa.table({
             "path": [local_path(p) for p in uris],
             "content": batch.column("content"),
-            "seq": pa.array([seqs[p] for p in uris], pa.uint64()),
+            "seq": pa.array([seqs[_uri(p)] for p in uris], pa.uint64()),
         })
         out = toporec.describe_batch(scans, index, diagrams_to=staging)
         yield from scan_rows(out, methods).to_batches()
+
+
+def describe_paths(batches, index: str, chunks: Any, methods: Sequence[str], staging: str):
+    """The ``mapInArrow`` function of scan files every executor mounts: rows of ``id`` (a run
+    of files in ``chunks``, a broadcast list of runs of ``(path, seq)``) in, one row per scan
+    out (as :func:`describe_partition`). The engine reads the files; one that cannot be read
+    is an ``error`` row naming it."""
+    _task_threads()
+    for batch in batches:
+        for i in batch.column("id").to_pylist():
+            run = chunks.value[i]
+            scans = pa.table({
+                "path": [local_path(p) for p, _ in run],
+                "seq": pa.array([q for _, q in run], pa.uint64()),
+            })
+            out = toporec.describe_batch(scans, index, diagrams_to=staging)
+            yield from scan_rows(out, methods).to_batches()
+
+
+def _uri(uri: str) -> str:
+    """One spelling of a file URI: ``file:///a/b`` (a listing's) as ``file:/a/b`` (a row's)."""
+    scheme, sep, rest = uri.partition(":///")
+    return f"{scheme}:/{rest}" if sep and "/" not in scheme else uri
+
+
+def _is_local(uri: str) -> bool:
+    """Whether a listed file is on the local file system (``file:``), which the tasks read."""
+    return uri.startswith("file:") or "://" not in uri
 
 
 def describe_ranges(batches, index: str, methods: Sequence[str], staging: str):
@@ -186,7 +218,8 @@ def index_files(
     *,
     pipeline: Optional[PathLike] = None,
     sample: float = 0.1,
-    partitions: Optional[int] = None,
+    scans_per_task: Optional[int] = None,
+    read: str = "auto",
     glob: str = "*.bin",
     mcap_glob: Optional[str] = "*.mcap",
     messages_per_task: int = 64,
@@ -201,7 +234,11 @@ def index_files(
         pipeline: the pipeline file whose settings the index takes, needed when the index has
             no codebook yet (then fitted on ``sample`` of its scans on the driver).
         sample: the fraction of the pipeline's scans the codebook is fitted on.
-        partitions: repartition the scan files into this many tasks (default: Spark's split).
+        scans_per_task: scan files per task (default: about a quarter of a core's share,
+            at most 256).
+        read: who reads the scan files' bytes: ``"auto"``, the tasks themselves when every
+            file is on the local file system (``file:``, mounted on every executor), Spark's
+            ``binaryFile`` rows otherwise; ``"spark"``, always Spark.
         glob: the scan files' name pattern (NCLT ``velodyne_sync`` and KITTI ``velodyne``
             files, one scan each).
         mcap_glob: the MCAP files' name pattern (``None``: no MCAP). Each file is split into
@@ -217,48 +254,58 @@ def index_files(
 
     if messages_per_task < 1:
         raise ValueError(f"messages_per_task: must be >= 1; found {messages_per_task}")
+    if read not in ("auto", "spark"):
+        raise ValueError(f"read: expected auto or spark; found {read!r}")
+    if scans_per_task is not None and scans_per_task < 1:
+        raise ValueError(f"scans_per_task: must be >= 1; found {scans_per_task}")
     index = os.path.abspath(os.fspath(index))
     if not _has_codebook(index):
         if pipeline is None:
             raise ValueError(f"{index}: no codebook yet; give `pipeline` to fit one on a sample of its scans")
         toporec.fit(pipeline, sample=sample, index=index)
     inputs = [os.fspath(p) for p in inputs]
+    # The listing is the driver's (the file index Spark builds for a `binaryFile` read): no job.
     files = _listing(spark, inputs, glob)
-    # One listing job for both kinds (no file content is read: Spark prunes the column).
-    listing = files.select("path", "length", F.lit(False).alias("mcap"))
-    if mcap_glob:
-        logs = _listing(spark, inputs, mcap_glob)
-        listing = listing.unionByName(logs.select("path", "length", F.lit(True).alias("mcap")))
-    listed = listing.collect()
+    scan_files = sorted(_uri(p) for p in files.inputFiles())
+    logs_listed = sorted(_uri(p) for p in _listing(spark, inputs, mcap_glob).inputFiles()) if mcap_glob else []
     # Scan counts of the MCAP files (one pass over each, on the executors).
     counts: Dict[str, int] = {}
-    logs_listed = [r["path"] for r in listed if r["mcap"]]
     if logs_listed:
         paths_df = spark.createDataFrame([(p,) for p in logs_listed], "path string").repartition(len(logs_listed))
         counted = paths_df.mapInArrow(_count_scans, "path string, topic string, scans bigint").collect()
         counts = {r["path"]: r["scans"] for r in counted}
     # Each scan's place in the sorted file list (an MCAP file's scans in message order) is
-    # the `seq` toporec run gives it; the map travels with the task closure.
-    listed = [r for r in listed if not r["mcap"]]
-    paths = sorted([r["path"] for r in listed] + list(counts))
+    # the `seq` toporec run gives it.
     seqs, position = {}, 0
-    for p in paths:
+    for p in sorted(scan_files + list(counts)):
         seqs[p] = position
         position += counts.get(p, 1)
     methods = [m for m, _ in toporec._toporec.BatchDescriber(index).methods()]
     ddl = ", ".join(f"{n} {d}" for n, _, d in scan_row_schema(methods))
     staging = os.path.join(index, f".spark-{uuid.uuid4().hex[:12]}")
-    scans = files.select("path", "content")
-    if partitions:
-        scans = scans.repartition(partitions)
-    # Spark packs files into tasks of up to 128 MB counting 4 MB per file: a few dozen scans
-    # a task, and its per-task cost (a second or so of a core per 10 tasks) would add up.
-    # Tasks of about a sixth of a core's share keep the cores busy to the end.
     slots = max(1, spark.sparkContext.defaultParallelism)
-    split = max(sum(r["length"] for r in listed) // (6 * slots), 1 << 20)
-    conf = {"spark.sql.files.maxPartitionBytes": str(split), "spark.sql.files.openCostInBytes": "0"}
+    # Tasks of about a quarter of a core's share (at most 256 scans) keep the cores busy to
+    # the end; each task costs ~0.1 s of a core beyond its scans.
+    size = scans_per_task or max(1, min(256, -(-len(scan_files) // (4 * slots))))
+    conf: Dict[str, str] = {}
+    if read == "auto" and all(_is_local(p) for p in scan_files):
+        # Files every executor mounts are read by the task itself: their bytes do not pass
+        # through the JVM and its Arrow hand-over (a tenth of the describing's time on two
+        # cores). Task i takes the i-th run of `size` files (sent once to each executor).
+        files_seqs = [(p, seqs[p]) for p in scan_files]
+        runs = [files_seqs[i:i + size] for i in range(0, len(files_seqs), size)]
+        chunks = spark.sparkContext.broadcast(runs)
+        ids = spark.range(len(runs), numPartitions=max(1, len(runs)))
+        rows = ids.mapInArrow(lambda batches: describe_paths(batches, index, chunks, methods, staging), ddl)
+    else:
+        # Other file systems (s3a://, hdfs://): the bytes come with Spark's `binaryFile`
+        # rows, packed into tasks of `size` files' worth of bytes (Spark's default, 128 MB
+        # counting 4 MB per file, is a few dozen scans a task).
+        total = sum(r["length"] for r in files.select("length").collect())
+        split = max(total * size // max(1, len(scan_files)), 1 << 20)
+        conf = {"spark.sql.files.maxPartitionBytes": str(split), "spark.sql.files.openCostInBytes": "0"}
+        rows = files.select("path", "content").mapInArrow(lambda batches: describe_partition(batches, index, seqs, methods, staging), ddl)
     saved = {k: spark.conf.get(k, None) for k in conf}
-    rows = scans.mapInArrow(lambda batches: describe_partition(batches, index, seqs, methods, staging), ddl)
     ranges = [
         (p, first, min(messages_per_task, n - first), seqs[p] + first)
         for p, n in sorted(counts.items())
@@ -272,8 +319,7 @@ def index_files(
     rows = rows.persist(StorageLevel.MEMORY_AND_DISK)
     try:
         for k, v in conf.items():
-            if not partitions:
-                spark.conf.set(k, v)
+            spark.conf.set(k, v)
         write = lambda df, path: df.write.mode("overwrite").option("compression", "zstd").partitionBy("session").parquet(path)  # noqa: E731
         write(rows.select(*SCAN_FIELDS, "session"), os.path.join(staging, "scans"))
         for i, method in enumerate(methods):
@@ -328,7 +374,8 @@ def main(argv: Optional[List[str]] = None) -> None:
     ap.add_argument("--index", required=True, help="the index folder (shared by every executor)")
     ap.add_argument("--pipeline", help="the pipeline file (settings; needed when the index has no codebook)")
     ap.add_argument("--sample", type=float, default=0.1, help="fraction of scans the codebook is fitted on")
-    ap.add_argument("--partitions", type=int, help="tasks to split the scan files into")
+    ap.add_argument("--scans-per-task", type=int, help="scan files per task (default: a quarter of a core's share, at most 256)")
+    ap.add_argument("--read", choices=["auto", "spark"], default="auto", help="who reads the scan files: the tasks when local (auto), or Spark's binaryFile rows")
     ap.add_argument("--messages-per-task", type=int, default=64, help="scans per MCAP task")
     ap.add_argument("--master", help="Spark master (default: spark-submit's)")
     args = ap.parse_args(argv)
@@ -336,7 +383,7 @@ def main(argv: Optional[List[str]] = None) -> None:
     if args.master:
         builder = builder.master(args.master)
     spark = builder.getOrCreate()
-    result = index_files(spark, args.inputs, args.index, pipeline=args.pipeline, sample=args.sample, partitions=args.partitions, messages_per_task=args.messages_per_task)
+    result = index_files(spark, args.inputs, args.index, pipeline=args.pipeline, sample=args.sample, scans_per_task=args.scans_per_task, read=args.read, messages_per_task=args.messages_per_task)
     print(result)
     spark.stop()
 
