@@ -62,7 +62,7 @@ def main():
         spark_secs = time.perf_counter() - t
         spark.stop()
         n = result["scans"]
-        print(f"| engine | scans | seconds | scans/s |\n|---|---:|---:|---:|")
+        print("| engine | scans | seconds | scans/s |\n|---|---:|---:|---:|")
         print(f"| toporec run --threads 2 | {n} | {run_secs:.1f} | {n / run_secs:.1f} |")
         print(f"| Spark local[2] | {n} | {spark_secs:.1f} | {n / spark_secs:.1f} |")
         print(f"overhead: {100 * (spark_secs / run_secs - 1):.1f} %")
