@@ -30,6 +30,10 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
+/// Inputs per rayon thread that [`BatchDescriber::describe_into`] describes before writing
+/// their diagrams: enough to keep the threads busy, few enough to keep memory flat.
+pub const STREAM_CHUNK: usize = 16;
+
 /// The file formats a batch may carry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FileFormat {
@@ -187,7 +191,7 @@ impl BatchDescriber {
     /// rayon's threads.
     pub fn describe(&self, inputs: Vec<(u64, ScanInput)>) -> Result<BatchOutput> {
         let results = self.results(inputs);
-        self.output(&results, true)
+        self.output(&results)
     }
 
     /// Every scan of `inputs`, read and described on rayon's threads, in input order.
@@ -251,33 +255,45 @@ impl BatchDescriber {
     /// The same `name` again (a retried task) replaces the files. The returned `diagrams`
     /// batch is empty. A distributed job's tasks call this: the diagrams, nearly all of a
     /// job's rows, go straight from the engine to Parquet.
+    ///
+    /// The inputs are described a few at a time ([`STREAM_CHUNK`] per thread) and their
+    /// diagrams written before the next ones are read, so a task's memory does not grow with
+    /// its size (a scan's diagram is about a megabyte in memory; growing the heap by hundreds
+    /// of them cost a fresh worker process a fifth of a batch's time).
     pub fn describe_into(
         &self,
         inputs: Vec<(u64, ScanInput)>,
         folder: &Path,
         name: &str,
     ) -> Result<BatchOutput> {
-        let results = self.results(inputs);
-        let mut sessions: Vec<&str> =
-            results.iter().filter(|r| r.diagram.is_some()).map(|r| r.row.session.as_str()).collect();
-        sessions.sort_unstable();
-        sessions.dedup();
-        for session in sessions {
-            let path = folder
-                .join(schema::tables::DIAGRAMS)
-                .join(format!("{}={session}", C::SESSION))
-                .join(format!("{name}.parquet"));
-            let mut file = DiagramsFile::create(&path)?;
-            for r in results.iter().filter(|r| r.row.session == session) {
-                if let Some(d) = &r.diagram {
-                    file.push(&r.row.scan_id, d, &self.dims)?;
-                }
+        let chunk = STREAM_CHUNK * rayon::current_num_threads().max(1);
+        let mut files: Vec<(String, DiagramsFile)> = Vec::new();
+        let mut results = Vec::with_capacity(inputs.len());
+        let mut inputs = inputs.into_iter().peekable();
+        while inputs.peek().is_some() {
+            let mut described = self.results(inputs.by_ref().take(chunk).collect());
+            for r in &mut described {
+                let Some(diagram) = r.diagram.take() else { continue };
+                let session = r.row.session.as_str();
+                let at = match files.iter().position(|(s, _)| s == session) {
+                    Some(at) => at,
+                    None => {
+                        let path = folder
+                            .join(schema::tables::DIAGRAMS)
+                            .join(format!("{}={session}", C::SESSION))
+                            .join(format!("{name}.parquet"));
+                        files.push((session.to_owned(), DiagramsFile::create(&path)?));
+                        files.len() - 1
+                    }
+                };
+                files[at].1.push(&r.row.scan_id, &diagram, &self.dims)?;
             }
+            results.append(&mut described);
+        }
+        for (_, file) in files {
             file.finish()?.0.publish()?;
         }
-        let mut out = self.output(&results, false)?;
-        out.diagrams = out.diagrams.slice(0, 0);
-        Ok(out)
+        self.output(&results)
     }
 
     /// The scan of one input, as the sources would make it.
@@ -378,8 +394,8 @@ impl BatchDescriber {
         (crate::sources::groundtruth::find_for_session(dir, session), default.tolerance_ms)
     }
 
-    /// The output batches of described scans.
-    fn output(&self, results: &[ScanResult], diagrams: bool) -> Result<BatchOutput> {
+    /// The output batches of described scans (the diagrams of those that still hold theirs).
+    fn output(&self, results: &[ScanResult]) -> Result<BatchOutput> {
         let here = Path::new("describe_batch");
         let sessions = |ids: Vec<&str>| -> ArrayRef { Arc::new(StringArray::from(ids)) };
         let with_session = |table: schema::Table, mut columns: Vec<ArrayRef>, session: ArrayRef| {
@@ -397,7 +413,7 @@ impl BatchDescriber {
         )?;
         let mut diagram_columns = DiagramColumns::default();
         let mut diagram_sessions = Vec::new();
-        for r in results.iter().filter(|_| diagrams) {
+        for r in results {
             if let Some(d) = &r.diagram {
                 let n = diagram_columns.push(&r.row.scan_id, d, &self.dims);
                 diagram_sessions.extend(std::iter::repeat_n(r.row.session.as_str(), n));

@@ -145,3 +145,23 @@ def test_mcap_files_split_by_message_ranges(spark, tmp_path, binary):
     pairs = key + [("dim", "ascending"), ("birth", "ascending"), ("death", "ascending")]
     assert a.diagrams().sort_by(pairs).equals(b.diagrams().sort_by(pairs))
     assert a.descriptors().sort_by(key).equals(b.descriptors().sort_by(key))
+
+
+def test_local_listing_equals_binary_file_listing(spark, tmp_path):
+    """Local folders are walked by the driver; the files are those Spark's `binaryFile` read
+    lists (hidden names skipped, the glob on file names, files given directly)."""
+    from toporec.spark import _listing, _local_files, _local_inputs, _uri
+
+    for name in ["a/velodyne_sync/1.bin", "a/velodyne_sync/2.bin", "a/velodyne_sync/notes.txt", "a/.hidden/3.bin",
+                 "a/_tmp/4.bin", "a/velodyne_sync/.5.bin", "a/velodyne_sync/_6.bin", "b/deep/er/7.bin", "c/8.bin"]:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(b"\0" * 16)
+    inputs = [str(tmp_path / "a"), f"file:{tmp_path / 'b'}", str(tmp_path / "c" / "8.bin")]
+    assert _local_inputs(spark, inputs)
+    ours = _local_files(inputs, "*.bin")
+    assert ours == sorted(_uri(p) for p in _listing(spark, inputs, "*.bin").inputFiles())
+    assert [p.rsplit("/", 1)[1] for p in ours] == ["1.bin", "2.bin", "7.bin", "8.bin"]
+    assert not _local_inputs(spark, ["s3a://bucket/logs"]) and not _local_inputs(spark, ["hdfs:/logs"])
+    assert not _local_inputs(spark, [str(tmp_path / "*")])
+    with pytest.raises(FileNotFoundError, match="missing: no such file or folder"):
+        _local_files([str(tmp_path / "missing")], "*.bin")

@@ -9,16 +9,17 @@
 1. The codebook: the index's frozen one when it has one, else fitted on the driver on a
    hash sample of the pipeline's scans (``toporec fit --pipeline``) and frozen in the index.
    Executors read it from the index folder, which they must see (a shared file system).
-2. Scan files are listed with ``spark.read.format("binaryFile")`` (NCLT
-   ``velodyne_sync/*.bin``, KITTI ``velodyne/*.bin``) on the driver, which reads no content.
-   Files on the local file system (``file:``, mounted on every executor) are read by the
-   tasks themselves, a run of ``scans_per_task`` files each: their bytes do not pass through
-   the JVM. Files elsewhere (``s3a://``, ``hdfs://``; or ``read="spark"``) come as the
-   ``binaryFile`` rows' content. MCAP files are listed the same way and split by message
-   ranges (``messages_per_task`` scans a task, counted by a first pass on the executors); a
-   task reads its range from the file's path, decoding only its own messages. Each scan
-   keeps its position in the sorted file list (an MCAP file's scans in message order) as its
-   ``seq``.
+2. Scan files (NCLT ``velodyne_sync/*.bin``, KITTI ``velodyne/*.bin``) are listed on the
+   driver, which reads no content: local folders (``file:``, mounted on every executor) by
+   walking them, as ``spark.read.format("binaryFile")`` with ``recursiveFileLookup`` would
+   list them; others (``s3a://``, ``hdfs://``, globs; or ``read="spark"``) by that
+   ``binaryFile`` read's file index. Local files are read by the tasks themselves, a run of
+   ``scans_per_task`` files each: their bytes do not pass through the JVM. Files elsewhere
+   come as the ``binaryFile`` rows' content. MCAP files are listed the same way and split by
+   message ranges (``messages_per_task`` scans a task, counted by a first pass on the
+   executors); a task reads its range from the file's path, decoding only its own messages.
+   Each scan keeps its position in the sorted file list (an MCAP file's scans in message
+   order) as its ``seq``.
 3. ``mapInArrow`` calls :func:`toporec.describe_batch` on each Arrow batch (a scan that fails
    is an ``error`` row, never a failed task) and returns one row per scan: its ``scans``
    columns and each method's descriptor.
@@ -211,6 +212,49 @@ def _listing(spark: Any, inputs: Sequence[str], glob: str) -> Any:
     return reader.load(list(inputs))
 
 
+def _local_inputs(spark: Any, inputs: Sequence[str]) -> bool:
+    """Whether every input is a plain folder or file on the local file system: a ``file:``
+    URI, or a path without a scheme where Hadoop's default file system is the local one
+    (on a cluster whose default is HDFS, ``/data`` is an HDFS folder), and no glob."""
+    default_fs = spark.sparkContext._jsc.hadoopConfiguration().get("fs.defaultFS") or "file:///"
+
+    def local(p: str) -> bool:
+        if any(c in p for c in "*?[{"):
+            return False
+        if p.startswith("file:"):
+            return True
+        return "://" not in p and not p.split("/", 1)[0].endswith(":") and default_fs.startswith("file:")
+
+    return all(local(p) for p in inputs)
+
+
+def _hidden(name: str) -> bool:
+    """A name Spark's file listing skips (``_SUCCESS``, ``.staging``, ``._COPYING_`` files)."""
+    return name.startswith(("_", ".")) or name.endswith("._COPYING_")
+
+
+def _local_files(inputs: Sequence[str], glob: str) -> List[str]:
+    """The files under local ``inputs`` whose names match ``glob``, as ``file:`` URIs, sorted:
+    what a ``binaryFile`` read with ``recursiveFileLookup`` lists (hidden names skipped below
+    an input), without the JVM's file index (which costs a fresh driver about a second)."""
+    import fnmatch
+
+    found = []
+    for given in inputs:
+        root = os.path.abspath(local_path(given))
+        if os.path.isfile(root):
+            candidates = [root]
+        elif os.path.isdir(root):
+            candidates = []
+            for folder, dirs, names in os.walk(root, followlinks=True):
+                dirs[:] = [d for d in dirs if not _hidden(d)]
+                candidates += [os.path.join(folder, n) for n in names if not _hidden(n)]
+        else:
+            raise FileNotFoundError(f"{given}: no such file or folder")
+        found += [f"file:{c}" for c in candidates if fnmatch.fnmatchcase(os.path.basename(c), glob)]
+    return sorted(set(found))
+
+
 def index_files(
     spark: Any,
     inputs: Sequence[PathLike],
@@ -264,10 +308,16 @@ def index_files(
             raise ValueError(f"{index}: no codebook yet; give `pipeline` to fit one on a sample of its scans")
         toporec.fit(pipeline, sample=sample, index=index)
     inputs = [os.fspath(p) for p in inputs]
-    # The listing is the driver's (the file index Spark builds for a `binaryFile` read): no job.
-    files = _listing(spark, inputs, glob)
-    scan_files = sorted(_uri(p) for p in files.inputFiles())
-    logs_listed = sorted(_uri(p) for p in _listing(spark, inputs, mcap_glob).inputFiles()) if mcap_glob else []
+    # The listing is the driver's, no job: local folders are walked directly, others listed by
+    # the file index Spark builds for a `binaryFile` read.
+    local = read == "auto" and _local_inputs(spark, inputs)
+    if local:
+        scan_files = _local_files(inputs, glob)
+        logs_listed = _local_files(inputs, mcap_glob) if mcap_glob else []
+    else:
+        files = _listing(spark, inputs, glob)
+        scan_files = sorted(_uri(p) for p in files.inputFiles())
+        logs_listed = sorted(_uri(p) for p in _listing(spark, inputs, mcap_glob).inputFiles()) if mcap_glob else []
     # Scan counts of the MCAP files (one pass over each, on the executors).
     counts: Dict[str, int] = {}
     if logs_listed:
@@ -288,7 +338,7 @@ def index_files(
     # the end; each task costs ~0.1 s of a core beyond its scans.
     size = scans_per_task or max(1, min(256, -(-len(scan_files) // (4 * slots))))
     conf: Dict[str, str] = {}
-    if read == "auto" and all(_is_local(p) for p in scan_files):
+    if local or (read == "auto" and all(_is_local(p) for p in scan_files)):
         # Files every executor mounts are read by the task itself: their bytes do not pass
         # through the JVM and its Arrow hand-over (a tenth of the describing's time on two
         # cores). Task i takes the i-th run of `size` files (sent once to each executor).
