@@ -16,7 +16,9 @@ use crate::error::{Error, Result, ResultExt};
 use crate::pipeline::config::Pipeline;
 use crate::pipeline::{ScanResult, computed_ids, describe_scan};
 use crate::sinks::index::reader::IndexReader;
-use crate::sinks::parquet::{DiagramColumns, DiagramsFile, descriptor_columns, scan_columns};
+use crate::sinks::parquet::{
+    DescriptorsFile, DiagramColumns, DiagramsFile, descriptor_columns, scan_columns,
+};
 use crate::sinks::schema::{self, columns as C};
 use crate::sources::groundtruth::GroundTruth;
 use crate::sources::kitti::Sequence;
@@ -249,17 +251,19 @@ impl BatchDescriber {
         }
     }
 
-    /// Like [`BatchDescriber::describe`], but the diagrams are written, not returned: one
-    /// file per session of the batch, `folder/diagrams/session=<s>/<name>.parquet`, by
-    /// toporec's own writer (its layout and page sizes), each appearing only once complete.
-    /// The same `name` again (a retried task) replaces the files. The returned `diagrams`
-    /// batch is empty. A distributed job's tasks call this: the diagrams, nearly all of a
-    /// job's rows, go straight from the engine to Parquet.
+    /// Like [`BatchDescriber::describe`], but the diagrams and the descriptors are written,
+    /// not returned: one file per table (each method's descriptors a table) and session of
+    /// the batch, `folder/diagrams/session=<s>/<name>.parquet` and
+    /// `folder/descriptors/method=<m>/session=<s>/<name>.parquet`, by toporec's own writer (its
+    /// layout, page sizes and file metadata), each appearing only once complete. The same
+    /// `name` again (a retried task) replaces the files. The returned batches hold the scans
+    /// only (`diagrams` and `descriptors` empty). A distributed job's tasks call this: the
+    /// rows go straight from the engine to Parquet, and the engine is left with one row a scan.
     ///
-    /// The inputs are described a few at a time ([`STREAM_CHUNK`] per thread) and their
-    /// diagrams written before the next ones are read, so a task's memory does not grow with
-    /// its size (a scan's diagram is about a megabyte in memory; growing the heap by hundreds
-    /// of them cost a fresh worker process a fifth of a batch's time).
+    /// The inputs are described a few at a time ([`STREAM_CHUNK`] per thread) and their rows
+    /// written before the next ones are read, so a task's memory does not grow with its size
+    /// (a scan's diagram is about a megabyte in memory; growing the heap by hundreds of them
+    /// cost a fresh worker process a fifth of a batch's time).
     pub fn describe_into(
         &self,
         inputs: Vec<(u64, ScanInput)>,
@@ -267,30 +271,56 @@ impl BatchDescriber {
         name: &str,
     ) -> Result<BatchOutput> {
         let chunk = STREAM_CHUNK * rayon::current_num_threads().max(1);
-        let mut files: Vec<(String, DiagramsFile)> = Vec::new();
+        let lengths: HashMap<String, usize> = self.methods().into_iter().collect();
+        let mut diagram_files: Vec<(String, DiagramsFile)> = Vec::new();
+        let mut descriptor_files: Vec<(String, DescriptorsFile)> = Vec::new();
         let mut results = Vec::with_capacity(inputs.len());
         let mut inputs = inputs.into_iter().peekable();
         while inputs.peek().is_some() {
             let mut described = self.results(inputs.by_ref().take(chunk).collect());
             for r in &mut described {
-                let Some(diagram) = r.diagram.take() else { continue };
-                let session = r.row.session.as_str();
-                let at = match files.iter().position(|(s, _)| s == session) {
-                    Some(at) => at,
-                    None => {
-                        let path = folder
-                            .join(schema::tables::DIAGRAMS)
-                            .join(format!("{}={session}", C::SESSION))
-                            .join(format!("{name}.parquet"));
-                        files.push((session.to_owned(), DiagramsFile::create(&path)?));
-                        files.len() - 1
-                    }
-                };
-                files[at].1.push(&r.row.scan_id, &diagram, &self.dims)?;
+                let session = r.row.session.clone();
+                if let Some(diagram) = r.diagram.take() {
+                    let at = match diagram_files.iter().position(|(s, _)| *s == session) {
+                        Some(at) => at,
+                        None => {
+                            let path = folder
+                                .join(schema::tables::DIAGRAMS)
+                                .join(format!("{}={session}", C::SESSION))
+                                .join(format!("{name}.parquet"));
+                            diagram_files.push((session.clone(), DiagramsFile::create(&path)?));
+                            diagram_files.len() - 1
+                        }
+                    };
+                    diagram_files[at].1.push(&r.row.scan_id, &diagram, &self.dims)?;
+                }
+                for d in r.method_descriptors(self.codebook_id.as_deref(), &self.computed) {
+                    let key = format!("{}/{session}", d.method);
+                    let at = match descriptor_files.iter().position(|(k, _)| *k == key) {
+                        Some(at) => at,
+                        None => {
+                            let path = folder
+                                .join(schema::tables::DESCRIPTORS)
+                                .join(format!("method={}", d.method))
+                                .join(format!("{}={session}", C::SESSION))
+                                .join(format!("{name}.parquet"));
+                            let length = lengths.get(&d.method).copied().unwrap_or(d.row.values.len());
+                            let file = DescriptorsFile::create(&path, &session, &d.method, length, &d.id)?;
+                            descriptor_files.push((key, file));
+                            descriptor_files.len() - 1
+                        }
+                    };
+                    descriptor_files[at].1.push(d.row)?;
+                }
+                r.descriptor = None;
+                r.baselines.clear();
             }
             results.append(&mut described);
         }
-        for (_, file) in files {
+        for (_, file) in diagram_files {
+            file.finish()?.0.publish()?;
+        }
+        for (_, file) in descriptor_files {
             file.finish()?.0.publish()?;
         }
         self.output(&results)
@@ -394,7 +424,7 @@ impl BatchDescriber {
         (crate::sources::groundtruth::find_for_session(dir, session), default.tolerance_ms)
     }
 
-    /// The output batches of described scans (the diagrams of those that still hold theirs).
+    /// The output batches of described scans (the diagrams and descriptors they still hold).
     fn output(&self, results: &[ScanResult]) -> Result<BatchOutput> {
         let here = Path::new("describe_batch");
         let sessions = |ids: Vec<&str>| -> ArrayRef { Arc::new(StringArray::from(ids)) };

@@ -633,15 +633,15 @@ impl BatchDescriber {
     /// Describes the scans of an Arrow stream (normalized by the Python side: `path` utf8;
     /// `content` binary or `points` list<float64>, or neither (the file is read from `path`);
     /// optional `format`, `scan_id`, `session` utf8, `seq` uint64, `utime` int64,
-    /// `pose_x/y/z/yaw` float64). With `diagrams_to`
-    /// (a folder, and a file name), the diagrams are written there instead of returned.
+    /// `pose_x/y/z/yaw` float64). With `write_to` (a folder, and a file name), the diagrams
+    /// and descriptors are written there instead of returned.
     #[allow(clippy::type_complexity)]
-    #[pyo3(signature = (stream, diagrams_to=None))]
+    #[pyo3(signature = (stream, write_to=None))]
     fn describe(
         &self,
         py: Python<'_>,
         stream: Bound<'_, PyCapsule>,
-        diagrams_to: Option<(PathBuf, String)>,
+        write_to: Option<(PathBuf, String)>,
     ) -> PyResult<(ArrowStream, ArrowStream, Vec<(String, ArrowStream)>)> {
         let (_, batches) = import_stream(&stream)?;
         let inner = self.inner.clone();
@@ -650,7 +650,7 @@ impl BatchDescriber {
             for b in &batches {
                 inputs.extend(batch_inputs(b, inputs.len() as u64)?);
             }
-            match &diagrams_to {
+            match &write_to {
                 Some((folder, name)) => inner.describe_into(inputs, folder, name),
                 None => inner.describe(inputs),
             }

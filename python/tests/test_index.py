@@ -107,16 +107,19 @@ def test_describe_batch_gives_the_rows_run_wrote(sample_index):
     same(out["descriptors"]["toporec"], index.descriptors(), ["scan_id"])
 
 
-def test_describe_batch_writes_the_diagrams_run_wrote(sample_index, tmp_path):
+def test_describe_batch_writes_the_rows_run_wrote(sample_index, tmp_path):
     # Both sessions' scans, more than one streaming chunk (16 per engine thread).
     files = sample_files()
     assert len(files) > 32 and len({f.parents[1] for f in files}) == 2
-    out = toporec.describe_batch(pa.table({"path": [str(f) for f in files]}), sample_index, diagrams_to=tmp_path, part_name="part")
-    assert out["diagrams"].num_rows == 0
-    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*.parquet")) == [
-        f"diagrams/session={s}/part.parquet" for s in sorted({f.parents[1].name for f in files})
-    ]
-    same(read_with_pyarrow(tmp_path, "diagrams"), toporec.Index(sample_index).diagrams(), ["scan_id", "dim", "birth", "death"])
+    out = toporec.describe_batch(pa.table({"path": [str(f) for f in files]}), sample_index, write_to=tmp_path, part_name="part")
+    assert out["diagrams"].num_rows == 0 and out["descriptors"]["toporec"].num_rows == 0
+    sessions = sorted({f.parents[1].name for f in files})
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*.parquet")) == sorted(
+        [f"diagrams/session={s}/part.parquet" for s in sessions] + [f"descriptors/method=toporec/session={s}/part.parquet" for s in sessions]
+    )
+    index = toporec.Index(sample_index)
+    same(read_with_pyarrow(tmp_path, "diagrams"), index.diagrams(), ["scan_id", "dim", "birth", "death"])
+    same(read_with_pyarrow(tmp_path, "descriptors", "toporec"), index.descriptors(), ["scan_id"])
 
 
 def test_describe_batch_bad_rows_become_error_rows(sample_index):

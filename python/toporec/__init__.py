@@ -363,7 +363,7 @@ def describe_batch(
     batch: Union[pa.RecordBatch, pa.Table],
     config: PathLike,
     *,
-    diagrams_to: Optional[PathLike] = None,
+    write_to: Optional[PathLike] = None,
     part_name: Optional[str] = None,
 ) -> Dict[str, Any]:
     """Describes a batch of scans with an index's settings, frozen codebook and methods.
@@ -382,11 +382,13 @@ def describe_batch(
             ``format`` (``nclt``, ``kitti`` or ``mcap``; default: from the path) and ``seq``
             (the position of the row's first scan in the job; default: its row).
         config: the index folder whose settings and codebook are used.
-        diagrams_to: a folder to write the diagrams to instead of returning them (a
-            distributed job's task: ``diagrams/session=<s>/<name>.parquet`` under it, one file
-            per session, toporec's own layout, each complete or absent; ``diagrams`` is then
-            empty). The same ``part_name`` again replaces the files.
-        part_name: the file name (without ``.parquet``) with ``diagrams_to``; default: a hash of
+        write_to: a folder to write the diagrams and descriptors to instead of returning
+            them (a distributed job's task: ``diagrams/session=<s>/<name>.parquet`` and
+            ``descriptors/method=<m>/session=<s>/<name>.parquet`` under it, one file per table
+            and session, toporec's own layout, each complete or absent; ``diagrams`` and the
+            ``descriptors`` tables are then empty). The same ``part_name`` again replaces the
+            files.
+        part_name: the file name (without ``.parquet``) with ``write_to``; default: a hash of
             the batch's paths and scan ids, so that a retried task rewrites its own files.
 
     Returns:
@@ -414,11 +416,11 @@ def describe_batch(
             names.append(name)
     table = pa.Table.from_arrays(columns, names=names).combine_chunks()
     target = None
-    if diagrams_to is not None:
+    if write_to is not None:
         if part_name is None:
             key = "\n".join(str(v) for c in ("path", "scan_id", "first_message") if c in table.column_names for v in table.column(c).to_pylist())
             part_name = "part-" + hashlib.sha1(key.encode()).hexdigest()[:16]
-        target = (os.fspath(diagrams_to), part_name)
+        target = (os.fspath(write_to), part_name)
     scans, diagrams, descriptors = describer.describe(table.__arrow_c_stream__(), target)
     return {
         "scans": _table(scans),

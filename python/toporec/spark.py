@@ -21,22 +21,23 @@
    Each scan keeps its position in the sorted file list (an MCAP file's scans in message
    order) as its ``seq``.
 3. ``mapInArrow`` calls :func:`toporec.describe_batch` on each Arrow batch (a scan that fails
-   is an ``error`` row, never a failed task) and returns one row per scan: its ``scans``
-   columns and each method's descriptor.
-4. The rows are written with ``write.partitionBy("session").parquet(...)`` as the ``scans``
-   and ``descriptors/method=<m>`` tables of a staging folder inside the index
-   (``.spark-<id>``). The diagrams (thousands of rows per scan, nearly all of a job's rows)
-   are written by the tasks themselves into the same folder, by toporec's own Parquet writer,
-   one file per batch and session under a name fixed by the batch's files: a retried or
-   recomputed task replaces its own files. Passing them through Spark's row-wise writer would
-   cost more than describing the scans (docs/distributed.md gives the figures).
+   is an ``error`` row, never a failed task). The diagrams and each method's descriptors are
+   written by the task itself, by toporec's own Parquet writer, into a staging folder inside
+   the index (``.spark-<id>``): one file per table and session, under a name fixed by the
+   batch's files, so that a retried or recomputed task replaces its own files. The task
+   returns one row per scan: its ``scans`` columns.
+4. Those rows are written with ``write.partitionBy("session").parquet(...)`` as the ``scans``
+   table of the staging folder: the job's only Spark write, in the job that describes the
+   scans. Passing the diagrams (thousands of rows per scan, nearly all of a job's rows)
+   through Spark's row-wise writer would cost more than describing the scans; the
+   descriptors through it, a second job over kept rows (docs/distributed.md gives the
+   figures).
 5. The staging folder is merged into the index in one commit under its lock: manifest,
    checksums and counts, so ``toporec query``, ``eval`` and ``verify`` accept it. A job that
    dies before the merge leaves the index as it was.
 
-Spark has no unsigned integers: ``seq``, ``raw_points``, ``kept_points``, ``message_index``
-are written as int64, ``dim_used`` as int8 (Spark's byte), and descriptors as a list of
-float32; toporec's readers cast them back to its own types.
+Spark has no unsigned integers: ``seq``, ``raw_points``, ``kept_points`` and ``message_index``
+are written as int64; toporec's readers cast them back to its own types.
 """
 
 from __future__ import annotations
@@ -70,22 +71,13 @@ _SCAN_COLUMNS = [
     ("error", pa.string(), "string"),
 ]
 SCAN_FIELDS = [n for n, _, _ in _SCAN_COLUMNS]
-DESCRIPTOR_FIELDS = ["scan_id", "utime", "pose_x", "pose_y", "pose_z", "dim_used", "descriptor", "codebook_id"]
 
 
-def scan_row_schema(methods: Sequence[str]) -> List[Any]:
-    """The columns of the rows ``mapInArrow`` returns: one row per scan, with its session, its
-    ``scans`` columns and, per method, ``d<i>_dim_used``, ``d<i>_descriptor`` and
-    ``d<i>_codebook_id`` (null for a scan without a descriptor). The diagrams do not pass
-    through Spark: each task writes them (see the module doc)."""
-    columns = [("session", pa.string(), "string")] + list(_SCAN_COLUMNS)
-    for i, _ in enumerate(methods):
-        columns += [
-            (f"d{i}_dim_used", pa.int8(), "tinyint"),
-            (f"d{i}_descriptor", pa.list_(pa.float32()), "array<float>"),
-            (f"d{i}_codebook_id", pa.string(), "string"),
-        ]
-    return columns
+def scan_row_schema() -> List[Any]:
+    """The columns of the rows ``mapInArrow`` returns: one row per scan, with its session and
+    its ``scans`` columns. The diagrams and descriptors do not pass through Spark: each task
+    writes them (see the module doc)."""
+    return [("session", pa.string(), "string")] + list(_SCAN_COLUMNS)
 
 
 def local_path(path: str) -> str:
@@ -97,26 +89,13 @@ def local_path(path: str) -> str:
     return path
 
 
-def scan_rows(out: Dict[str, Any], methods: Sequence[str]) -> pa.Table:
+def scan_rows(out: Dict[str, Any]) -> pa.Table:
     """The per-scan rows (:func:`scan_row_schema`) of one :func:`toporec.describe_batch` result."""
     scans = out["scans"]
-    schema = pa.schema([pa.field(n, t) for n, t, _ in scan_row_schema(methods)])
-    ids = scans.column("scan_id").to_pylist()
+    schema = pa.schema([pa.field(n, t) for n, t, _ in scan_row_schema()])
     data: Dict[str, Any] = {"session": scans.column("session")}
     for name, typ, _ in _SCAN_COLUMNS:
         data[name] = scans.column(name).cast(typ)
-    for i, method in enumerate(methods):
-        table = out["descriptors"].get(method)
-        rows = {s: r for r, s in enumerate(table.column("scan_id").to_pylist())} if table is not None else {}
-        pick = pa.array([rows.get(s) for s in ids], pa.int64())
-        for suffix, typ in (("dim_used", pa.int8()), ("descriptor", pa.list_(pa.float32())), ("codebook_id", pa.string())):
-            if table is None:
-                data[f"d{i}_{suffix}"] = pa.nulls(len(ids), typ)
-                continue
-            column = table.column(suffix).combine_chunks()
-            if pa.types.is_fixed_size_list(column.type):
-                column = column.cast(pa.list_(pa.float32()))
-            data[f"d{i}_{suffix}"] = column.take(pick).cast(typ)
     return pa.Table.from_pydict(data, schema=schema)
 
 
@@ -129,9 +108,10 @@ def _task_threads() -> None:
     os.environ.setdefault("RAYON_NUM_THREADS", str(context.cpus() if context is not None else 1))
 
 
-def describe_partition(batches, index: str, seqs: Dict[str, int], methods: Sequence[str], staging: str):
+def describe_partition(batches, index: str, seqs: Dict[str, int], staging: str):
     """The ``mapInArrow`` function: Arrow batches of ``binaryFile`` rows in, one row per scan
-    (:func:`scan_row_schema`) out; each batch's diagrams are written under ``staging``.
+    (:func:`scan_row_schema`) out; each batch's diagrams and descriptors are written under
+    ``staging``.
     ``seqs``: each file's place in the job (the ``seq`` ``toporec run`` gives it)."""
     _task_threads()
     for batch in batches:
@@ -143,11 +123,11 @@ def describe_partition(batches, index: str, seqs: Dict[str, int], methods: Seque
             "content": batch.column("content"),
             "seq": pa.array([seqs[_uri(p)] for p in uris], pa.uint64()),
         })
-        out = toporec.describe_batch(scans, index, diagrams_to=staging)
-        yield from scan_rows(out, methods).to_batches()
+        out = toporec.describe_batch(scans, index, write_to=staging)
+        yield from scan_rows(out).to_batches()
 
 
-def describe_paths(batches, index: str, chunks: Any, methods: Sequence[str], staging: str):
+def describe_paths(batches, index: str, chunks: Any, staging: str):
     """The ``mapInArrow`` function of scan files every executor mounts: rows of ``id`` (a run
     of files in ``chunks``, a broadcast list of runs of ``(path, seq)``) in, one row per scan
     out (as :func:`describe_partition`). The engine reads the files; one that cannot be read
@@ -160,8 +140,8 @@ def describe_paths(batches, index: str, chunks: Any, methods: Sequence[str], sta
                 "path": [local_path(p) for p, _ in run],
                 "seq": pa.array([q for _, q in run], pa.uint64()),
             })
-            out = toporec.describe_batch(scans, index, diagrams_to=staging)
-            yield from scan_rows(out, methods).to_batches()
+            out = toporec.describe_batch(scans, index, write_to=staging)
+            yield from scan_rows(out).to_batches()
 
 
 def _uri(uri: str) -> str:
@@ -175,7 +155,7 @@ def _is_local(uri: str) -> bool:
     return uri.startswith("file:") or "://" not in uri
 
 
-def describe_ranges(batches, index: str, methods: Sequence[str], staging: str):
+def describe_ranges(batches, index: str, staging: str):
     """The ``mapInArrow`` function of MCAP files: rows of message ranges (``path``,
     ``first_message``, ``message_count``, ``seq``) in, one row per scan out (as
     :func:`describe_partition`)."""
@@ -190,8 +170,8 @@ def describe_ranges(batches, index: str, methods: Sequence[str], staging: str):
             "message_count": batch.column("message_count").cast(pa.uint64()),
             "seq": batch.column("seq").cast(pa.uint64()),
         })
-        out = toporec.describe_batch(ranges, index, diagrams_to=staging)
-        yield from scan_rows(out, methods).to_batches()
+        out = toporec.describe_batch(ranges, index, write_to=staging)
+        yield from scan_rows(out).to_batches()
 
 
 def _count_scans(batches):
@@ -293,9 +273,6 @@ def index_files(
     Returns:
         ``{"scans": n, "ok": n, "skipped": n, "errors": n, "index": path}``.
     """
-    from pyspark import StorageLevel
-    from pyspark.sql import functions as F
-
     if messages_per_task < 1:
         raise ValueError(f"messages_per_task: must be >= 1; found {messages_per_task}")
     if read not in ("auto", "spark"):
@@ -330,8 +307,7 @@ def index_files(
     for p in sorted(scan_files + list(counts)):
         seqs[p] = position
         position += counts.get(p, 1)
-    methods = [m for m, _ in toporec._toporec.BatchDescriber(index).methods()]
-    ddl = ", ".join(f"{n} {d}" for n, _, d in scan_row_schema(methods))
+    ddl = ", ".join(f"{n} {d}" for n, _, d in scan_row_schema())
     staging = os.path.join(index, f".spark-{uuid.uuid4().hex[:12]}")
     slots = max(1, spark.sparkContext.defaultParallelism)
     # Tasks of about a quarter of a core's share (at most 256 scans) keep the cores busy to
@@ -346,7 +322,7 @@ def index_files(
         runs = [files_seqs[i:i + size] for i in range(0, len(files_seqs), size)]
         chunks = spark.sparkContext.broadcast(runs)
         ids = spark.range(len(runs), numPartitions=max(1, len(runs)))
-        rows = ids.mapInArrow(lambda batches: describe_paths(batches, index, chunks, methods, staging), ddl)
+        rows = ids.mapInArrow(lambda batches: describe_paths(batches, index, chunks, staging), ddl)
     else:
         # Other file systems (s3a://, hdfs://): the bytes come with Spark's `binaryFile`
         # rows, packed into tasks of `size` files' worth of bytes (Spark's default, 128 MB
@@ -354,7 +330,7 @@ def index_files(
         total = sum(r["length"] for r in files.select("length").collect())
         split = max(total * size // max(1, len(scan_files)), 1 << 20)
         conf = {"spark.sql.files.maxPartitionBytes": str(split), "spark.sql.files.openCostInBytes": "0"}
-        rows = files.select("path", "content").mapInArrow(lambda batches: describe_partition(batches, index, seqs, methods, staging), ddl)
+        rows = files.select("path", "content").mapInArrow(lambda batches: describe_partition(batches, index, seqs, staging), ddl)
     saved = {k: spark.conf.get(k, None) for k in conf}
     ranges = [
         (p, first, min(messages_per_task, n - first), seqs[p] + first)
@@ -364,18 +340,11 @@ def index_files(
     if ranges:
         tasks = spark.createDataFrame(ranges, "path string, first_message bigint, message_count bigint, seq bigint")
         tasks = tasks.repartition(len(ranges))
-        rows = rows.unionByName(tasks.mapInArrow(lambda batches: describe_ranges(batches, index, methods, staging), ddl))
-    # Described once, written as scans and each method's descriptors: the rows are kept.
-    rows = rows.persist(StorageLevel.MEMORY_AND_DISK)
+        rows = rows.unionByName(tasks.mapInArrow(lambda batches: describe_ranges(batches, index, staging), ddl))
     try:
         for k, v in conf.items():
             spark.conf.set(k, v)
-        write = lambda df, path: df.write.mode("overwrite").option("compression", "zstd").partitionBy("session").parquet(path)  # noqa: E731
-        write(rows.select(*SCAN_FIELDS, "session"), os.path.join(staging, "scans"))
-        for i, method in enumerate(methods):
-            chosen = rows.filter(F.col(f"d{i}_descriptor").isNotNull())
-            renamed = [F.col(f"d{i}_{c}").alias(c) if c in ("dim_used", "descriptor", "codebook_id") else F.col(c) for c in DESCRIPTOR_FIELDS]
-            write(chosen.select(*renamed, "session"), os.path.join(staging, "descriptors", f"method={method}"))
+        rows.write.mode("overwrite").option("compression", "zstd").partitionBy("session").parquet(os.path.join(staging, "scans"))
         status = _status_counts(os.path.join(staging, "scans"))
         toporec._toporec.merge_written(index, staging)
     finally:
@@ -384,7 +353,6 @@ def index_files(
                 spark.conf.unset(k)
             else:
                 spark.conf.set(k, v)
-        rows.unpersist()
         shutil.rmtree(staging, ignore_errors=True)
     return {
         "index": index,
