@@ -15,6 +15,7 @@ use crate::describe::Describer;
 use crate::error::{Error, Result, ResultExt};
 use crate::pipeline::config::Pipeline;
 use crate::pipeline::{ScanResult, computed_ids, describe_scan};
+use crate::sinks::index::partition_dir;
 use crate::sinks::index::reader::IndexReader;
 use crate::sinks::parquet::{
     DescriptorsFile, DiagramColumns, DiagramsFile, descriptor_columns, scan_columns,
@@ -28,7 +29,8 @@ use crate::types::Point;
 use arrow::array::{ArrayRef, RecordBatch, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
 use rayon::prelude::*;
-use std::collections::HashMap;
+use std::collections::btree_map::Entry;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
@@ -272,55 +274,41 @@ impl BatchDescriber {
     ) -> Result<BatchOutput> {
         let chunk = STREAM_CHUNK * rayon::current_num_threads().max(1);
         let lengths: HashMap<String, usize> = self.methods().into_iter().collect();
-        let mut diagram_files: Vec<(String, DiagramsFile)> = Vec::new();
-        let mut descriptor_files: Vec<(String, DescriptorsFile)> = Vec::new();
+        let path = |table: &str, method: Option<&str>, session: &str| {
+            folder.join(partition_dir(table, method, session)).join(format!("{name}.parquet"))
+        };
+        let mut diagram_files: BTreeMap<String, DiagramsFile> = BTreeMap::new();
+        let mut descriptor_files: BTreeMap<(String, String), DescriptorsFile> = BTreeMap::new();
         let mut results = Vec::with_capacity(inputs.len());
         let mut inputs = inputs.into_iter().peekable();
         while inputs.peek().is_some() {
             let mut described = self.results(inputs.by_ref().take(chunk).collect());
             for r in &mut described {
-                let session = r.row.session.clone();
+                let session = r.row.session.as_str();
                 if let Some(diagram) = r.diagram.take() {
-                    let at = match diagram_files.iter().position(|(s, _)| *s == session) {
-                        Some(at) => at,
-                        None => {
-                            let path = folder
-                                .join(schema::tables::DIAGRAMS)
-                                .join(format!("{}={session}", C::SESSION))
-                                .join(format!("{name}.parquet"));
-                            diagram_files.push((session.clone(), DiagramsFile::create(&path)?));
-                            diagram_files.len() - 1
-                        }
-                    };
-                    diagram_files[at].1.push(&r.row.scan_id, &diagram, &self.dims)?;
+                    let file = open_file(&mut diagram_files, session.to_owned(), || {
+                        DiagramsFile::create(&path(schema::tables::DIAGRAMS, None, session))
+                    })?;
+                    file.push(&r.row.scan_id, &diagram, &self.dims)?;
                 }
                 for d in r.method_descriptors(self.codebook_id.as_deref(), &self.computed) {
-                    let key = format!("{}/{session}", d.method);
-                    let at = match descriptor_files.iter().position(|(k, _)| *k == key) {
-                        Some(at) => at,
-                        None => {
-                            let path = folder
-                                .join(schema::tables::DESCRIPTORS)
-                                .join(format!("method={}", d.method))
-                                .join(format!("{}={session}", C::SESSION))
-                                .join(format!("{name}.parquet"));
-                            let length = lengths.get(&d.method).copied().unwrap_or(d.row.values.len());
-                            let file = DescriptorsFile::create(&path, &session, &d.method, length, &d.id)?;
-                            descriptor_files.push((key, file));
-                            descriptor_files.len() - 1
-                        }
-                    };
-                    descriptor_files[at].1.push(d.row)?;
+                    let key = (d.method.clone(), session.to_owned());
+                    let file = open_file(&mut descriptor_files, key, || {
+                        let length = lengths.get(&d.method).copied().unwrap_or(d.row.values.len());
+                        let at = path(schema::tables::DESCRIPTORS, Some(&d.method), session);
+                        DescriptorsFile::create(&at, session, &d.method, length, &d.id)
+                    })?;
+                    file.push(d.row)?;
                 }
                 r.descriptor = None;
                 r.baselines.clear();
             }
             results.append(&mut described);
         }
-        for (_, file) in diagram_files {
+        for file in diagram_files.into_values() {
             file.finish()?.0.publish()?;
         }
-        for (_, file) in descriptor_files {
+        for file in descriptor_files.into_values() {
             file.finish()?.0.publish()?;
         }
         self.output(&results)
@@ -488,4 +476,16 @@ fn file_names(path: &Path) -> (String, String) {
     let session = session_dir(path).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     (session, name)
+}
+
+/// The open file under `key`, made by `create` at its first use.
+fn open_file<K: Ord, T>(
+    files: &mut BTreeMap<K, T>,
+    key: K,
+    create: impl FnOnce() -> Result<T>,
+) -> Result<&mut T> {
+    Ok(match files.entry(key) {
+        Entry::Occupied(e) => e.into_mut(),
+        Entry::Vacant(e) => e.insert(create()?),
+    })
 }

@@ -70,7 +70,6 @@ _SCAN_COLUMNS = [
     ("status", pa.string(), "string"),
     ("error", pa.string(), "string"),
 ]
-SCAN_FIELDS = [n for n, _, _ in _SCAN_COLUMNS]
 
 
 def scan_row_schema() -> List[Any]:
@@ -287,8 +286,7 @@ def index_files(
     inputs = [os.fspath(p) for p in inputs]
     # The listing is the driver's, no job: local folders are walked directly, others listed by
     # the file index Spark builds for a `binaryFile` read.
-    local = read == "auto" and _local_inputs(spark, inputs)
-    if local:
+    if read == "auto" and _local_inputs(spark, inputs):
         scan_files = _local_files(inputs, glob)
         logs_listed = _local_files(inputs, mcap_glob) if mcap_glob else []
     else:
@@ -314,7 +312,7 @@ def index_files(
     # the end; each task costs ~0.1 s of a core beyond its scans.
     size = scans_per_task or max(1, min(256, -(-len(scan_files) // (4 * slots))))
     conf: Dict[str, str] = {}
-    if local or (read == "auto" and all(_is_local(p) for p in scan_files)):
+    if read == "auto" and all(_is_local(p) for p in scan_files):
         # Files every executor mounts are read by the task itself: their bytes do not pass
         # through the JVM and its Arrow hand-over (a tenth of the describing's time on two
         # cores). Task i takes the i-th run of `size` files (sent once to each executor).
