@@ -273,7 +273,6 @@ impl BatchDescriber {
         name: &str,
     ) -> Result<BatchOutput> {
         let chunk = STREAM_CHUNK * rayon::current_num_threads().max(1);
-        let lengths: HashMap<String, usize> = self.methods().into_iter().collect();
         let path = |table: &str, method: Option<&str>, session: &str| {
             folder.join(partition_dir(table, method, session)).join(format!("{name}.parquet"))
         };
@@ -294,9 +293,8 @@ impl BatchDescriber {
                 for d in r.method_descriptors(self.codebook_id.as_deref(), &self.computed) {
                     let key = (d.method.clone(), session.to_owned());
                     let file = open_file(&mut descriptor_files, key, || {
-                        let length = lengths.get(&d.method).copied().unwrap_or(d.row.values.len());
                         let at = path(schema::tables::DESCRIPTORS, Some(&d.method), session);
-                        DescriptorsFile::create(&at, session, &d.method, length, &d.id)
+                        DescriptorsFile::create(&at, session, &d.method, d.row.values.len(), &d.id)
                     })?;
                     file.push(d.row)?;
                 }
