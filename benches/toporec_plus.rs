@@ -64,7 +64,7 @@ fn main() {
                 std::hint::black_box(atol.transform(&h2));
             }));
             plus.push(median_ms(5, || {
-                std::hint::black_box(toporec_plus::describe(c, &p));
+                std::hint::black_box(toporec_plus::describe(c, &p).unwrap());
             }));
             voxels.push(toporec_plus::preprocess(c, &p).len());
         }
@@ -86,7 +86,7 @@ fn main() {
 
         // Search over 100,000 entries.
         let n: usize = std::env::var("TOPOREC_BENCH_ENTRIES").ok().and_then(|v| v.parse().ok()).unwrap_or(100_000);
-        let described: Vec<Vec<f32>> = clouds.iter().map(|c| toporec_plus::describe(c, &p)).collect();
+        let described: Vec<Vec<f32>> = clouds.iter().map(|c| toporec_plus::describe(c, &p).unwrap()).collect();
         let t = Instant::now();
         let mut rng = SplitMix64(7);
         let grid = p.grid_len();

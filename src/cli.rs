@@ -67,8 +67,8 @@ enum Command {
     /// Merge an index's small part files (left by chunked commits) into one per partition.
     Compact(IndexArgs),
     /// Check an index against its manifest (files, sizes, checksums, rows, codebook, every ok
-    /// scan's rows); exit 1 with the list of problems.
-    Verify(IndexArgs),
+    /// scan's rows, part files no commit names); exit 1 with the list of problems.
+    Verify(VerifyArgs),
     /// Store descriptors made elsewhere (Parquet, .npy with scan ids, CSV) as one more method
     /// of an index, matched to its scans by id.
     Import(toporec::import::ImportArgs),
@@ -80,6 +80,17 @@ struct IndexArgs {
     /// The index.
     #[arg(long)]
     index: PathBuf,
+}
+
+/// Arguments of `toporec verify`.
+#[derive(clap::Args, Debug)]
+struct VerifyArgs {
+    /// The index.
+    #[arg(long)]
+    index: PathBuf,
+    /// Report part files no commit names (a writer at work, or killed) as notes, not problems.
+    #[arg(long)]
+    allow_orphans: bool,
 }
 
 /// Arguments of `toporec run`.
@@ -202,6 +213,12 @@ enum Done {
 
 /// Entry point of the binary.
 pub fn main() -> ExitCode {
+    // Past a file-size limit (`ulimit -f`) a write then fails with EFBIG, reported with its path
+    // and handled like a full disk, instead of SIGXFSZ killing the process without a word.
+    // SAFETY: setting a signal's disposition to SIG_IGN before any other thread starts.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => return usage_error(e),
@@ -395,8 +412,7 @@ fn query(a: QueryArgs) -> Result<Done> {
 }
 
 fn plot_diagram(a: PlotDiagramArgs) -> Result<()> {
-    let d = IndexReader::open(&a.index)?
-        .diagram_of(&a.scan)?
+    let d = IndexReader::read_consistent(&a.index, |r| r.diagram_of(&a.scan))?
         .with_context(|| format!("{}: no scan {} in the diagrams table", a.index.display(), a.scan))?;
     let stem =
         a.out.unwrap_or_else(|| PathBuf::from(format!("diagram_{}", a.scan.replace(['/', '\\'], "_"))));
@@ -507,8 +523,8 @@ fn compact(args: IndexArgs) -> Result<()> {
     Ok(())
 }
 
-fn verify(args: IndexArgs) -> Result<Done> {
-    let v = toporec::maintenance::verify(&args.index)?;
+fn verify(args: VerifyArgs) -> Result<Done> {
+    let v = toporec::maintenance::verify(&args.index, args.allow_orphans)?;
     print(&format!("{}: {v}\n", args.index.display()))?;
     Ok(if v.problems.is_empty() { Done::All } else { Done::Partial })
 }

@@ -137,7 +137,16 @@ impl Describer {
         catch(label, || {
             let mut out = Vec::with_capacity(self.computed.len());
             for m in &self.computed {
-                let d = m.describe_raw(points).unwrap_or_default();
+                let d = match m.describe_raw(points) {
+                    Some(Ok(d)) => d,
+                    Some(Err(source)) => {
+                        return Err(DescribeError::Complex {
+                            label: format!("{label} ({})", m.name),
+                            source,
+                        });
+                    }
+                    None => Vec::new(),
+                };
                 if !d.iter().all(|v| v.is_finite()) {
                     return Err(DescribeError::NonFinite { label: format!("{label} ({})", m.name) });
                 }

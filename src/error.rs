@@ -199,6 +199,11 @@ impl Error {
         Error::Index { path: path.to_owned(), message: message.into() }
     }
 
+    /// Whether the error is a file or folder that does not exist.
+    pub fn is_not_found(&self) -> bool {
+        matches!(self, Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound)
+    }
+
     /// An [`Error::Table`].
     pub fn table(path: &Path, message: impl Into<String>) -> Self {
         Error::Table { path: path.to_owned(), message: message.into() }

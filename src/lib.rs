@@ -42,6 +42,7 @@ pub mod describe;
 pub mod diagram_csv;
 pub mod error;
 pub mod eval;
+pub mod fault;
 pub mod fingerprint;
 pub mod fsutil;
 pub mod homology;

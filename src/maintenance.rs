@@ -15,7 +15,7 @@ use crate::sinks::index::{MANIFEST_FILE, reader};
 use crate::sinks::parquet::Status;
 use crate::sinks::schema::tables;
 use crate::vectorize::codebook::Codebook;
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `toporec revectorize`.
@@ -59,6 +59,12 @@ pub fn revectorize(args: &RevectorizeArgs, threads: usize) -> Result<Revectorize
         return Err(Error::index(&args.index, "empty: nothing to revectorize (run a pipeline first)"));
     }
     let old_codebook = writer.manifest().codebook_id.clone();
+    // Every diagrams file is read: each is checked against its checksum first, so damage is
+    // refused rather than turned into descriptors with fresh checksums.
+    let files: Vec<_> = writer.manifest().files_of(tables::DIAGRAMS).cloned().collect();
+    for f in &files {
+        writer.verified_path(f)?;
+    }
     let squared = pipeline.persistence.squared;
     let (codebook, cached) = match &args.codebook {
         Some(path) => (Codebook::load(path)?, None),
@@ -85,6 +91,7 @@ pub fn revectorize(args: &RevectorizeArgs, threads: usize) -> Result<Revectorize
     // One commit at the end: readers see the old codebook and descriptors, or the new ones.
     let opts =
         RunOptions { commit_every: u64::MAX, commit_seconds: f64::INFINITY, ..RunOptions::new(threads) };
+    crate::fault::point("revectorize-mid");
     let (_, _, descriptors) = stored_descriptors(&mut writer, &codebook, threads, &opts, cached)?;
     writer.commit()?;
     Ok(Revectorized { old_codebook, codebook, descriptors, seconds: start.elapsed().as_secs_f64() })
@@ -108,7 +115,7 @@ pub struct Verification {
     pub scans: usize,
     /// Problems, each naming its file or scan.
     pub problems: Vec<String>,
-    /// Notes that are not problems (uncommitted files of a running or killed writer).
+    /// Notes that are not problems (foreign files; uncommitted files, with `--allow-orphans`).
     pub notes: Vec<String>,
 }
 
@@ -131,18 +138,22 @@ impl std::fmt::Display for Verification {
 /// Checks an index against its manifest: every named file exists with its size, checksum and
 /// row count and reads as its table; the codebook ids agree; every ok scan has its diagram and
 /// descriptor rows; the counts add up.
-pub fn verify(index: &Path) -> Result<Verification> {
-    let manifest = Manifest::load(&index.join(MANIFEST_FILE))?
+pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
+    // Opened as every reader opens it: a commit a kill left half done is completed first.
+    let reader = crate::sinks::index::IndexReader::open(index)?;
+    let manifest = reader
+        .manifest()
+        .cloned()
         .ok_or_else(|| Error::index(index, "no manifest.json: not an index toporec wrote"))?;
     let mut v = Verification { files: manifest.files.len(), ..Default::default() };
-    let named: HashSet<&str> = manifest.files.iter().map(|f| f.path.as_str()).collect();
-    // Files on disk that no commit names.
-    for (_, rel) in crate::sinks::index::files_on_disk(index) {
-        if !named.contains(rel.as_str()) {
-            v.notes.push(format!(
-                "{rel}: not committed (a writer running, or killed; the next writer removes it)"
-            ));
-        }
+    // toporec's own files that no commit names: what a glob of the tables would see (a writer
+    // at work, or one killed: the next writer removes them).
+    for rel in crate::sinks::index::recovery::orphans(index, &manifest) {
+        let what = format!("{rel}: not committed (a writer at work, or killed; the next writer removes it)");
+        if allow_orphans { v.notes.push(what) } else { v.problems.push(what) }
+    }
+    for rel in crate::sinks::index::recovery::foreign(index) {
+        v.notes.push(format!("{rel}: foreign (not toporec's; left alone)"));
     }
     // Each file: present, intact, readable as its table.
     let codebook = match manifest.codebook(index) {
@@ -163,7 +174,7 @@ pub fn verify(index: &Path) -> Result<Verification> {
     }
     let mut intact: Vec<&crate::sinks::index::manifest::FileEntry> = Vec::new();
     for f in &manifest.files {
-        let path = index.join(&f.path);
+        let path = crate::sinks::index::resolve(index, &f.path);
         if !path.is_file() {
             v.problems.push(format!("{}: missing", f.path));
             continue;
@@ -210,7 +221,7 @@ pub fn verify(index: &Path) -> Result<Verification> {
     let mut status: HashMap<String, Status> = HashMap::new();
     let mut counts = crate::sinks::index::manifest::Counts::default();
     for f in intact.iter().filter(|f| f.table == tables::SCANS) {
-        for r in read_scans(&index.join(&f.path), &f.session)? {
+        for r in read_scans(&crate::sinks::index::resolve(index, &f.path), &f.session)? {
             if status.insert(r.scan_id.clone(), r.status).is_some() {
                 v.problems.push(format!("scan {}: more than one row in scans", r.scan_id));
             }
@@ -231,7 +242,7 @@ pub fn verify(index: &Path) -> Result<Verification> {
         let mut out: HashMap<String, usize> = HashMap::new();
         let files = intact.iter().filter(|f| f.table == table && method.is_none_or(|m| f.method_name() == m));
         for f in files {
-            for id in scan_ids(&index.join(&f.path))? {
+            for id in scan_ids(&crate::sinks::index::resolve(index, &f.path))? {
                 *out.entry(id).or_default() += 1;
             }
         }

@@ -49,14 +49,26 @@ trait Figure {
         DB::ErrorType: 'static;
 }
 
+/// `<stem>.<extension>`: the extension appended to the whole stem (a stem holding a dot, as
+/// `diagram_drive.v2_000001`, keeps all of it), or replacing a `.png` or `.svg` the stem ends
+/// with.
+fn image_path(stem: &Path, extension: &str) -> PathBuf {
+    if stem.extension().is_some_and(|e| e == "png" || e == "svg") {
+        return stem.with_extension(extension);
+    }
+    let mut name = stem.as_os_str().to_owned();
+    name.push(".");
+    name.push(extension);
+    PathBuf::from(name)
+}
+
 /// Renders `fig` into `<stem>.png` and `<stem>.svg`.
 fn render(stem: &Path, size: (u32, u32), fig: &impl Figure) -> Result<Vec<PathBuf>> {
     register_font();
     if let Some(dir) = stem.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).at(dir)?;
     }
-    let png = stem.with_extension("png");
-    let svg = stem.with_extension("svg");
+    let (png, svg) = (image_path(stem, "png"), image_path(stem, "svg"));
     {
         let root = BitMapBackend::new(&png, size).into_drawing_area();
         root.fill(&WHITE).map_err(e).map_err(drawing(&png))?;

@@ -338,8 +338,13 @@ fn methods_of(reader: &IndexReader) -> Result<Vec<Method>> {
 /// been made by one codebook or parameter set, of one length; rows with non-finite values are
 /// left out with a warning.
 pub fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Loaded> {
-    let reader = IndexReader::open(index)?;
-    let methods = methods_of(&reader)?;
+    IndexReader::read_consistent(index, |reader| load_method_from(reader, method, sessions))
+}
+
+/// [`load_method`] on an opened index.
+fn load_method_from(reader: &IndexReader, method: &str, sessions: &[String]) -> Result<Loaded> {
+    let index = reader.root();
+    let methods = methods_of(reader)?;
     let Some(m) = methods.iter().find(|m| m.name == method).cloned() else {
         let names: Vec<&str> = methods.iter().map(|m| m.name.as_str()).collect();
         return Err(Error::index(

@@ -144,13 +144,15 @@ pub fn preprocess(points: &[Point], p: &PlusParams) -> Vec<Point> {
     crate::preprocess::voxel_grid_centred(kept, p.voxel)
 }
 
-/// The descriptor of a raw scan (sensor frame, metres, z up). A scan whose complex cannot be
-/// built (fewer than 4 points left, all on a plane) has an all-zero descriptor: it matches
-/// nothing.
-pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
+/// The descriptor of a raw scan (sensor frame, metres, z up); an error when its alpha complex
+/// cannot be built (points closer than the engine resolves, a cloud past the engine's limits).
+/// A scan with few points left, or all on a plane, has the descriptor of the pairs it has.
+pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, crate::homology::ComplexError> {
     let cloud = preprocess(points, p);
     let mut out = vec![0f32; p.len()];
-    let Ok(located) = alpha_persistence_located(&cloud) else { return out };
+    // A scan whose complex cannot be built has no descriptor (an error row), never a zero
+    // vector that would match every other such scan.
+    let located = alpha_persistence_located(&cloud)?;
     // (dim, persistence in metres, x, y) of every finite pair.
     let pairs: Vec<(usize, f64, f64, f64)> = located
         .iter()
@@ -197,7 +199,7 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Vec<f32> {
         }
         block.iter_mut().zip(&grid).for_each(|(o, &v)| *o = v as f32);
     }
-    out
+    Ok(out)
 }
 
 /// Terms of the shape key: the magnitudes of the first `SHAPE_TERMS` terms of the discrete
@@ -721,10 +723,10 @@ mod tests {
     #[test]
     fn a_quarter_turn_is_matched_exactly_and_its_yaw_found() {
         let p = PlusParams::default();
-        let a = describe(&scene(), &p);
+        let a = describe(&scene(), &p).unwrap();
         assert!(a.iter().any(|&v| v > 0.0));
         for q in 1..4 {
-            let b = describe(&turned(&scene(), q), &p);
+            let b = describe(&turned(&scene(), q), &p).unwrap();
             let (d, yaw) = distance(&b, &a, &p);
             assert_eq!(d, 0.0, "{q} quarter turns: distance {d}");
             assert!((yaw - 90.0 * q as f64).abs() < 1e-9, "{q} quarter turns: yaw {yaw}");
@@ -734,28 +736,29 @@ mod tests {
     #[test]
     fn keys_do_not_depend_on_quarter_turns_and_distances_are_symmetric_in_range() {
         let p = PlusParams::default();
-        let a = describe(&scene(), &p);
-        let b = describe(&turned(&scene(), 1), &p);
+        let a = describe(&scene(), &p).unwrap();
+        let b = describe(&turned(&scene(), 1), &p).unwrap();
         let (ka, kb) = (key(&a, &p), key(&b, &p));
         for (x, y) in ka.iter().zip(&kb) {
             assert!((x - y).abs() < 1e-6);
         }
-        let empty = describe(&[], &p);
+        let empty = describe(&[], &p).unwrap();
         assert_eq!(distance(&empty, &a, &p).0, 1.0, "an empty scan matches nothing");
     }
 
     #[test]
     fn a_hidden_sector_is_left_out_not_counted_as_a_difference() {
         let p = PlusParams::default();
-        let full = describe(&scene(), &p);
+        let full = describe(&scene(), &p).unwrap();
         // The boxes at x > 0, y > 0 (the first quadrant) hidden.
         let hidden: Vec<Point> = scene().into_iter().filter(|q| !(q[0] > 0.0 && q[1] > 0.0)).collect();
-        let part = describe(&hidden, &p);
+        let part = describe(&hidden, &p).unwrap();
         let (d, yaw) = distance(&part, &full, &p);
         let other = describe(
             &turned(&scene(), 1).into_iter().map(|q| [q[0] * 1.7, q[1] * 0.6, q[2]]).collect::<Vec<_>>(),
             &p,
-        );
+        )
+        .unwrap();
         assert!(d < distance(&part, &other, &p).0, "the occluded scan is nearer its own place");
         assert!(!(6.0..=354.0).contains(&yaw), "no turn: yaw {yaw}");
     }

@@ -248,6 +248,10 @@ sessions = ["missing-folder"]
 [[sources]]
 kind = "mcap"
 fils = ["a.mcap"]
+[[sources]]
+kind = "nclt"
+sessions = "one-session"
+tolerance_ms = "100"
 [preprocess]
 voxel = -1.0
 subsample = "many"
@@ -267,7 +271,11 @@ contrast = "sharp"
         "output.colour: unknown key",
         "sources[0].sessions:",
         "missing-folder does not exist",
-        "sources[1]: unknown field `fils`",
+        "sources[1].fils: unknown field `fils`",
+        "sources[1]: missing field `files`",
+        // Two bad keys in one entry: both, each with its key path.
+        "sources[2].sessions: invalid type: string \"one-session\", expected a sequence",
+        "sources[2].tolerance_ms: invalid type: string \"100\", expected f64",
         "preprocess.voxel: the cell size must be > 0",
         "preprocess.subsample:",
         "preprocess.range: need 0 <= min < max",
@@ -277,7 +285,7 @@ contrast = "sharp"
     ] {
         assert!(e.contains(needle), "missing `{needle}` in:\n{e}");
     }
-    assert!(e.contains("9 errors:"), "{e}");
+    assert!(e.contains("12 errors:"), "{e}");
     // Syntax errors name the line.
     std::fs::write(&p, "[output\nindex = 1").unwrap();
     let e = text(&toporec(&["validate", p.to_str().unwrap()]).stderr);

@@ -39,14 +39,15 @@ fn turned_kitti_scans_find_themselves_at_twelve_angles() {
     let p = PlusParams::default();
     let scans = kitti_scans(&data);
     assert_eq!(scans.len(), 48);
-    let descriptors: Vec<f32> = scans.iter().flat_map(|(_, c)| toporec_plus::describe(c, &p)).collect();
+    let descriptors: Vec<f32> =
+        scans.iter().flat_map(|(_, c)| toporec_plus::describe(c, &p).unwrap()).collect();
     let searcher = Searcher::new(descriptors, p.clone());
     // Four scans of different sequences, each turned by 0°, 30°, …, 330°.
     for &i in &[0usize, 13, 27, 45] {
         let (path, cloud) = &scans[i];
         for step in 0..12 {
             let angle = 30.0 * step as f64;
-            let q = toporec_plus::describe(&turned(cloud, angle), &p);
+            let q = toporec_plus::describe(&turned(cloud, angle), &p).unwrap();
             let (hits, _) = searcher.search(&q, 3);
             assert_eq!(
                 hits[0].0,

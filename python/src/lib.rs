@@ -448,8 +448,9 @@ fn import_stream(capsule: &Bound<'_, PyCapsule>) -> PyResult<(SchemaRef, Vec<Rec
 fn index_table(py: Python<'_>, index: PathBuf, table: &str, method: Option<String>) -> PyResult<ArrowStream> {
     let (schema, batches) = py
         .detach(|| {
-            let reader = toporec::sinks::index::reader::IndexReader::open(&index)?;
-            reader.table(table, method.as_deref())
+            toporec::sinks::index::reader::IndexReader::read_consistent(&index, |reader| {
+                reader.table(table, method.as_deref())
+            })
         })
         .map_err(toporec_error)?;
     Ok(ArrowStream::new(schema, batches))

@@ -147,13 +147,15 @@ impl Method {
         matches!(self.kind, MethodKind::ScanContext(_) | MethodKind::M2dp(_) | MethodKind::ToporecPlus(_))
     }
 
-    /// The descriptor of a raw scan (sensor frame, metres) for ScanContext and M2DP, after the
-    /// method's own preprocessing (its voxel grid); `None` for the others.
-    pub fn describe_raw(&self, points: &[Point]) -> Option<Vec<f32>> {
+    /// The descriptor of a raw scan (sensor frame, metres) for the methods computed from it
+    /// (ScanContext, M2DP, toporec-plus), after the method's own preprocessing (its voxel
+    /// grid); `None` for the others. An error when the method could not describe the scan
+    /// (toporec-plus: the scan's alpha complex could not be built).
+    pub fn describe_raw(&self, points: &[Point]) -> Option<Result<Vec<f32>, crate::homology::ComplexError>> {
         let grid = |voxel: f64| if voxel > 0.0 { voxel_grid(points, voxel) } else { points.to_vec() };
         match &self.kind {
-            MethodKind::ScanContext(p) => Some(scancontext::describe(&grid(p.voxel), p)),
-            MethodKind::M2dp(p) => Some(m2dp::describe(&grid(p.voxel))),
+            MethodKind::ScanContext(p) => Some(Ok(scancontext::describe(&grid(p.voxel), p))),
+            MethodKind::M2dp(p) => Some(Ok(m2dp::describe(&grid(p.voxel)))),
             MethodKind::ToporecPlus(p) => Some(crate::toporec_plus::describe(points, p)),
             _ => None,
         }

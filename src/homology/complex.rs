@@ -58,6 +58,15 @@ pub enum ComplexError {
         /// Number of points.
         points: usize,
     },
+    /// A Delaunay triangulation with more cells than the engine numbers.
+    #[error(
+        "cloud too large: its Delaunay triangulation needs more than {limit} cells, the engine's \
+         limit (clouds whose points lie on a few lines or curves need the most)"
+    )]
+    TooManyCells {
+        /// The limit.
+        limit: usize,
+    },
 }
 
 /// The Delaunay complex (all finite simplices of the Delaunay triangulation).
@@ -128,7 +137,7 @@ impl DelaunayComplex {
                 let mut t = Triangulation::<3>::new(&g, [a, b, cc], n, 2 * n + 8);
                 for &i in &order {
                     if i != a && i != b && i != cc {
-                        t.insert(&g, i);
+                        t.insert(&g, i).map_err(|l| ComplexError::TooManyCells { limit: l.0 })?;
                     }
                 }
                 c.build_2d(&t);
@@ -139,7 +148,7 @@ impl DelaunayComplex {
                 let mut t = Triangulation::<4>::new(&g, [a, b, cc, d], n, 7 * n + 16);
                 for &i in &order {
                     if i != a && i != b && i != cc && i != d {
-                        t.insert(&g, i);
+                        t.insert(&g, i).map_err(|l| ComplexError::TooManyCells { limit: l.0 })?;
                     }
                 }
                 c.build_3d(&t);

@@ -81,7 +81,16 @@ pub struct Triangulation<const K: usize> {
     ridges: RidgeTable,
     rng: u64,
     hint: u32,
+    /// Most cells the triangulation may hold ([`MAX_CELLS`]).
+    max_cells: usize,
 }
+
+/// Most cells of a triangulation: links keep a cell id in 30 bits.
+pub const MAX_CELLS: usize = 1 << 30;
+
+/// A triangulation that would need more than its cell limit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CellLimit(pub usize);
 
 struct BoundaryFacet<const K: usize> {
     verts: [u32; K],
@@ -112,6 +121,7 @@ impl<const K: usize> Triangulation<K> {
             ridges: RidgeTable::new(),
             rng: 0x9E37_79B9_7F4A_7C15,
             hint: 0,
+            max_cells: crate::fault::cell_limit(MAX_CELLS),
         };
         t.push_cell(first);
         for i in 0..K {
@@ -146,8 +156,7 @@ impl<const K: usize> Triangulation<K> {
             self.cells[c as usize] = cell;
             c
         } else {
-            // Links keep a cell id in 30 bits.
-            assert!(self.cells.len() < 1 << 30, "more than 2^30 Delaunay cells");
+            // `insert` has checked the limit ([`MAX_CELLS`]: links keep a cell id in 30 bits).
             self.cells.push(cell);
             self.mark.push(0);
             (self.cells.len() - 1) as u32
@@ -234,8 +243,9 @@ impl<const K: usize> Triangulation<K> {
         }
     }
 
-    /// Inserts point `p` (not a duplicate of an inserted point).
-    pub fn insert<G: Geometry<K>>(&mut self, g: &G, p: u32) {
+    /// Inserts point `p` (not a duplicate of an inserted point). Fails, leaving the
+    /// triangulation unusable, when it would need more cells than its limit.
+    pub fn insert<G: Geometry<K>>(&mut self, g: &G, p: u32) -> Result<(), CellLimit> {
         let start = self.locate(g, p);
         self.stamp += 1;
         let (conflict, outside) = (2 * self.stamp, 2 * self.stamp + 1);
@@ -274,6 +284,10 @@ impl<const K: usize> Triangulation<K> {
         for &c in &self.cavity {
             self.cells[c as usize].v[0] = DEAD;
             self.free.push(c);
+        }
+        // The new cells fit in the freed slots and the room left below the limit?
+        if self.boundary.len() > self.free.len() + self.max_cells.saturating_sub(self.cells.len()) {
+            return Err(CellLimit(self.max_cells));
         }
         // Each ridge of the cavity boundary is shared by exactly two new cells. Ridges are
         // matched in a small table indexed by cavity-local vertex ids (a cavity has ~15
@@ -320,6 +334,7 @@ impl<const K: usize> Triangulation<K> {
         if last_finite != NO_CELL {
             self.hint = last_finite;
         }
+        Ok(())
     }
 }
 
@@ -686,9 +701,9 @@ mod tests {
         let d = (3..sphere).find(|&d| orient3d(&pts[0], &pts[1], &pts[2], &pts[d]) != 0.0).unwrap();
         let mut t = Triangulation::<4>::new(&g, [0, 1, 2, d as u32], pts.len(), 16);
         for i in (3..sphere).filter(|&i| i != d) {
-            t.insert(&g, i as u32);
+            t.insert(&g, i as u32).expect("below the cell limit");
         }
-        t.insert(&g, sphere as u32);
+        t.insert(&g, sphere as u32).expect("below the cell limit");
         assert_linked(&t);
         let finite = (0..t.cells.len()).filter(|&c| t.is_alive(c) && !t.is_infinite(c as u32)).count();
         assert_eq!(finite, 2 * sphere - 4);

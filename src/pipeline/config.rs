@@ -143,9 +143,18 @@ impl Pipeline {
         Self::parse_with(&text, path, false)
     }
 
-    /// The effective pipeline of an index (its settings; inputs need not exist any more).
+    /// The effective pipeline of an index (its settings; inputs need not exist any more): the
+    /// one its manifest records, else its `pipeline.toml`.
     pub fn of_index(index: &Path) -> Result<Self, ConfigErrors> {
-        Self::load_settings(&index.join(crate::sinks::index::PIPELINE_FILE))
+        let path = index.join(crate::sinks::index::PIPELINE_FILE);
+        let manifest =
+            crate::sinks::index::manifest::Manifest::load(&index.join(crate::sinks::index::MANIFEST_FILE));
+        match manifest {
+            Ok(Some(crate::sinks::index::manifest::Manifest { pipeline: Some(text), .. })) => {
+                Self::parse_with(&text, &path, false)
+            }
+            _ => Self::load_settings(&path),
+        }
     }
 
     /// Parses pipeline text; `path` names the file and anchors relative paths.
@@ -309,17 +318,14 @@ impl Parser {
         match doc.get("sources") {
             Some(Value::Array(items)) if !items.is_empty() => {
                 for (i, item) in items.iter().enumerate() {
-                    match item.clone().try_into::<SourceSpec>() {
-                        Ok(mut s) => {
-                            s.resolve_paths(&self.base);
-                            s.clean_paths(clean);
-                            check_source_numbers(&s, i, &mut self.errors);
-                            if self.check_inputs {
-                                check_source_paths(&s, i, &mut self.errors);
-                            }
-                            sources.push(s);
+                    if let Some(mut s) = source_entry(item, i, &mut self.errors) {
+                        s.resolve_paths(&self.base);
+                        s.clean_paths(clean);
+                        check_source_numbers(&s, i, &mut self.errors);
+                        if self.check_inputs {
+                            check_source_paths(&s, i, &mut self.errors);
                         }
-                        Err(e) => self.errors.push(format!("sources[{i}]: {}", e.message().trim())),
+                        sources.push(s);
                     }
                 }
             }
@@ -563,6 +569,77 @@ fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
             }
         }
         SourceSpec::PointNetVlad(p) => check("root", &p.root),
+    }
+}
+
+/// One `[[sources]]` entry, or every error in it, each with its key path (`sources[0].sessions:
+/// invalid type …`): a key of the wrong type or unknown is reported and left out, and the rest
+/// of the entry is read again, so one bad key does not hide the next.
+fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<SourceSpec> {
+    use crate::sources::{kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec, pointnetvlad::PointNetVladSpec};
+    const KINDS: &str = "nclt, mcap, kitti or pointnetvlad";
+    let Value::Table(table) = item else {
+        errors.push(format!("sources[{i}]: expected a table ([[sources]]), found {}", item.type_str()));
+        return None;
+    };
+    let kind = match table.get("kind") {
+        Some(Value::String(k)) => k.clone(),
+        Some(other) => {
+            errors
+                .push(format!("sources[{i}].kind: expected a string ({KINDS}), found {}", other.type_str()));
+            return None;
+        }
+        None => {
+            errors.push(format!("sources[{i}].kind: missing ({KINDS})"));
+            return None;
+        }
+    };
+    fn typed<T: serde::de::DeserializeOwned>(t: &Table) -> Result<T, (String, String)> {
+        serde_path_to_error::deserialize(Value::Table(t.clone())).map_err(|e| {
+            let path = e.path().to_string();
+            (if path == "." { String::new() } else { path }, e.into_inner().message().trim().to_string())
+        })
+    }
+    let mut rest = table.clone();
+    rest.remove("kind");
+    let mut left_out: Vec<String> = Vec::new();
+    loop {
+        let spec = match kind.as_str() {
+            "nclt" => typed::<NcltSpec>(&rest).map(SourceSpec::Nclt),
+            "mcap" => typed::<McapSpec>(&rest).map(SourceSpec::Mcap),
+            "kitti" => typed::<KittiSpec>(&rest).map(SourceSpec::Kitti),
+            "pointnetvlad" => typed::<PointNetVladSpec>(&rest).map(SourceSpec::PointNetVlad),
+            other => {
+                errors.push(format!("sources[{i}].kind: unknown kind `{other}` (expected {KINDS})"));
+                return None;
+            }
+        };
+        let (path, message) = match spec {
+            Ok(spec) => return left_out.is_empty().then_some(spec),
+            Err(e) => e,
+        };
+        // The key at fault: the path's first segment, or the one an unknown-field error names.
+        let key = match path.split(['.', '[']).next().filter(|k| !k.is_empty()) {
+            Some(k) => Some(k.to_string()),
+            None => {
+                message.strip_prefix("unknown field `").and_then(|m| m.split('`').next()).map(str::to_string)
+            }
+        };
+        match key {
+            Some(key) if rest.contains_key(&key) => {
+                let at = if path.is_empty() { key.clone() } else { path };
+                errors.push(format!("sources[{i}].{at}: {message}"));
+                rest.remove(&key);
+                left_out.push(key);
+            }
+            _ => {
+                // A key found bad above and left out is not reported again as missing.
+                if !left_out.iter().any(|k| message.contains(&format!("`{k}`"))) {
+                    errors.push(format!("sources[{i}]: {message}"));
+                }
+                return None;
+            }
+        }
     }
 }
 

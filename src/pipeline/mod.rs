@@ -114,6 +114,8 @@ pub struct RunSummary {
     pub pruned: u64,
     /// Indexed scans the sources no longer yield, kept (no `--prune`).
     pub not_in_sources: u64,
+    /// Indexed scans of inputs that could not be read whole this run: kept, never pruned.
+    pub not_read: u64,
     /// Scans the sources yielded twice under one id (the later ones are left out).
     pub duplicates: u64,
     /// Scans read without a pose, by reason.
@@ -159,6 +161,7 @@ impl RunSummary {
                 "replaced": self.replaced,
                 "pruned": self.pruned,
                 "not_in_sources": self.not_in_sources,
+                "not_read": self.not_read,
                 "duplicates": self.duplicates,
                 "without_pose": self.no_pose,
                 "computed": self.computed,
@@ -224,6 +227,13 @@ impl std::fmt::Display for RunSummary {
                 f,
                 "  {} indexed scans are not in this run's sources: kept (`--prune` removes them)",
                 self.not_in_sources
+            )?;
+        }
+        if self.not_read > 0 {
+            writeln!(
+                f,
+                "  {} indexed scans belong to inputs that could not be read: kept (never pruned)",
+                self.not_read
             )?;
         }
         if self.duplicates > 0 {
@@ -294,9 +304,17 @@ fn run_index(p: &Pipeline, opts: &RunOptions, main: Option<&shard::MainIndex>) -
     let pass = index_scans(p, &describer, &settings, opts, main, &mut writer, &mut summary)?;
     let mut stages = pass.stages;
 
-    // Scans the sources no longer yield.
-    let gone: Vec<String> =
-        writer.committed().keys().filter(|id| !pass.seen.contains(*id)).cloned().collect();
+    // Scans the sources no longer yield. A scan is gone only when its input was read whole: one
+    // of an input that failed to be read may simply not have been reached.
+    let (mut gone, mut not_read) = (Vec::new(), 0u64);
+    for (id, c) in writer.committed().iter().filter(|(id, _)| !pass.seen.contains(*id)) {
+        if pass.unread_source || pass.unread_sessions.contains(&c.session) {
+            not_read += 1;
+        } else {
+            gone.push(id.clone());
+        }
+    }
+    summary.not_read = not_read;
     if opts.prune {
         gone.iter().for_each(|id| writer.remove(id));
         writer.commit()?;
@@ -328,6 +346,8 @@ fn run_index(p: &Pipeline, opts: &RunOptions, main: Option<&shard::MainIndex>) -
         summary.methods.push((crate::baselines::TOPOREC.into(), codebook.len()));
     }
     summary.methods.extend(p.methods.computed.iter().map(|m| (m.name.clone(), m.len())));
+    // A rebuild switches the index to its new generation here, in one commit.
+    writer.finish()?;
     summary.commits = writer.commits();
     summary.wall = start.elapsed();
     summary.stages = BTreeMap::from([
@@ -481,6 +501,10 @@ pub(crate) type Known = HashMap<String, CommittedScan>;
 struct IndexedPass {
     /// Ids the sources yielded.
     seen: HashSet<String>,
+    /// Sessions with an input that could not be read whole.
+    unread_sessions: HashSet<String>,
+    /// A source failed before naming its sessions.
+    unread_source: bool,
     /// Worker CPU time per stage.
     stages: StageTimes,
     /// CPU seconds of the source thread and of the writer.
@@ -498,6 +522,10 @@ struct SourceReport {
     replaced: u64,
     duplicates: u64,
     no_pose: BTreeMap<String, u64>,
+    /// Sessions with an input that could not be read whole: their scans are never pruned.
+    unread_sessions: HashSet<String>,
+    /// A source failed before naming its sessions: no scan is pruned.
+    unread_source: bool,
     secs: f64,
 }
 
@@ -574,7 +602,14 @@ fn index_scans(
     summary.replaced = report.replaced;
     summary.duplicates = report.duplicates;
     summary.no_pose = report.no_pose;
-    Ok(IndexedPass { seen: report.seen, stages, read_secs: report.secs, write_secs })
+    Ok(IndexedPass {
+        seen: report.seen,
+        unread_sessions: report.unread_sessions,
+        unread_source: report.unread_source,
+        stages,
+        read_secs: report.secs,
+        write_secs,
+    })
 }
 
 /// The source thread: every source's scans in order; the up-to-date ones are counted, the
@@ -638,6 +673,11 @@ fn read_sources(
         let stream = match spec.open() {
             Ok(s) => s,
             Err(e) => {
+                // The sessions it would have yielded, when a listing tells; else none may be pruned.
+                match spec.sessions() {
+                    Ok(sessions) => report.unread_sessions.extend(sessions.into_iter().map(|(s, _)| s)),
+                    Err(_) => report.unread_source = true,
+                }
                 let failure = ScanFailure {
                     id: format!("source[{i}]"),
                     session: format!("source-{i}"),
@@ -646,6 +686,7 @@ fn read_sources(
                     utime: None,
                     fingerprint: None,
                     error: e.to_string(),
+                    input_unread: true,
                 };
                 if !consider(Err(failure), false, &mut report) {
                     break 'all;
@@ -655,6 +696,11 @@ fn read_sources(
         };
         let by_file = matches!(spec, crate::sources::SourceSpec::Mcap(_));
         for item in stream {
+            if let Err(f) = &item
+                && f.input_unread
+            {
+                report.unread_sessions.insert(f.session.clone());
+            }
             if !consider(item, by_file, &mut report) {
                 break 'all;
             }

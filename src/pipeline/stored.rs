@@ -103,7 +103,7 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
 }
 
 fn diagram_files(writer: &IndexWriter) -> Vec<PathBuf> {
-    writer.manifest().files_of(tables::DIAGRAMS).map(|f| writer.root().join(&f.path)).collect()
+    writer.manifest().files_of(tables::DIAGRAMS).map(|f| writer.path_of(f)).collect()
 }
 
 /// Pairs of stored diagrams kept in memory between a fit and the descriptors made with it

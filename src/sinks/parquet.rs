@@ -167,6 +167,11 @@ impl TableFile {
         Ok(TableFile { path: path.to_owned(), writer, schema, rows: 0 })
     }
 
+    /// The file's schema.
+    pub fn schema(&self) -> &Arc<Schema> {
+        &self.schema
+    }
+
     /// Writes a batch of this file's schema.
     pub fn write_batch(&mut self, batch: &RecordBatch) -> Result<()> {
         self.rows += batch.num_rows() as u64;

@@ -104,15 +104,24 @@ impl KittiSpec {
     #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     pub fn open(&self) -> Result<ScanStream, SourceError> {
         let mut streams: Vec<ScanStream> = Vec::new();
+        // A sequence that cannot be opened is one failure naming it; the others are read.
         for dir in &self.sequences {
-            let velodyne = dir.join("velodyne");
-            if !velodyne.is_dir() {
-                return Err(SourceError::invalid(dir, "not a KITTI sequence (no velodyne/ folder)"));
-            }
-            let seq = Arc::new(Sequence::read(dir)?);
             let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            let files = super::list_files(&velodyne, "bin")?;
-            streams.push(Box::new(files.into_iter().map(move |path| frame_scan(&path, &session, &seq))));
+            let opened = (|| -> Result<(Arc<Sequence>, Vec<PathBuf>), SourceError> {
+                let velodyne = dir.join("velodyne");
+                if !velodyne.is_dir() {
+                    return Err(SourceError::invalid(dir, "not a KITTI sequence (no velodyne/ folder)"));
+                }
+                Ok((Arc::new(Sequence::read(dir)?), super::list_files(&velodyne, "bin")?))
+            })();
+            match opened {
+                Ok((seq, files)) => streams
+                    .push(Box::new(files.into_iter().map(move |path| frame_scan(&path, &session, &seq)))),
+                Err(e) => {
+                    let failure = ScanFailure::of_input(&session, dir, e.to_string());
+                    streams.push(Box::new(std::iter::once(Err(failure))));
+                }
+            }
         }
         Ok(Box::new(streams.into_iter().flatten()))
     }

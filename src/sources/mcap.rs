@@ -48,30 +48,40 @@ impl McapSpec {
         }
     }
 
-    /// Opens the stream over all files, in order.
+    /// Opens the stream over all files, in order. A file that cannot be opened (not an MCAP,
+    /// truncated before its first message, no point-cloud topic) is one failure naming it, and
+    /// the other files are read.
     pub fn open(&self) -> Result<ScanStream, SourceError> {
         let poses = match &self.poses {
             Some(p) => Some(std::sync::Arc::new(GroundTruth::read(p)?)),
             None => None,
         };
-        let mut streams = Vec::new();
-        for path in &self.files {
-            let topic = resolve_topic(path, self.topic.as_deref())?;
-            let session = self.session.clone().unwrap_or_else(|| stem(path));
-            let messages =
-                McapMessages::open(path).map_err(|source| SourceError::Io { path: path.clone(), source })?;
-            let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
-            streams.push(McapScans {
-                messages,
-                topic,
-                session,
-                poses: poses.clone(),
-                tolerance,
-                index: 0,
-                range: 0..u64::MAX,
-            });
-        }
-        Ok(Box::new(streams.into_iter().flatten()))
+        let spec = self.clone();
+        let files = self.files.clone();
+        Ok(Box::new(files.into_iter().flat_map(move |path| -> ScanStream {
+            let session = spec.session.clone().unwrap_or_else(|| stem(&path));
+            match spec.scans_of(&path, poses.clone(), 0..u64::MAX) {
+                Ok(scans) => Box::new(scans),
+                Err(e) => {
+                    Box::new(std::iter::once(Err(ScanFailure::of_input(&session, &path, e.to_string()))))
+                }
+            }
+        })))
+    }
+
+    /// The scans of one file whose message index lies in `range`.
+    fn scans_of(
+        &self,
+        path: &Path,
+        poses: Option<std::sync::Arc<GroundTruth>>,
+        range: std::ops::Range<u64>,
+    ) -> Result<McapScans, SourceError> {
+        let topic = resolve_topic(path, self.topic.as_deref())?;
+        let session = self.session.clone().unwrap_or_else(|| stem(path));
+        let messages =
+            McapMessages::open(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
+        Ok(McapScans { messages, topic, session, poses, tolerance, index: 0, range })
     }
 
     /// The scans of `path` (one of the spec's files, or any file read with the spec's
@@ -83,12 +93,7 @@ impl McapSpec {
             Some(p) => Some(std::sync::Arc::new(GroundTruth::read(p)?)),
             None => None,
         };
-        let topic = resolve_topic(path, self.topic.as_deref())?;
-        let session = self.session.clone().unwrap_or_else(|| stem(path));
-        let messages =
-            McapMessages::open(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
-        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
-        Ok(Box::new(McapScans { messages, topic, session, poses, tolerance, index: 0, range }))
+        Ok(Box::new(self.scans_of(path, poses, range)?))
     }
 }
 
@@ -184,6 +189,8 @@ impl Iterator for McapScans {
                 utime: None,
                 fingerprint: None,
                 error,
+                // A corrupt chunk hides the messages it held; a bad message is its own scan.
+                input_unread: index.is_none(),
             };
             let message = match self.messages.next()? {
                 Ok(m) => m,

@@ -126,6 +126,9 @@ pub struct ScanFailure {
     pub fingerprint: Option<u64>,
     /// The error, naming the file (and message or record).
     pub error: String,
+    /// Whether the input (a file, a session) could not be read whole: scans it holds may be
+    /// missing from the stream, so none of them is taken as gone (`run --prune` keeps them).
+    pub input_unread: bool,
 }
 
 impl ScanFailure {
@@ -139,6 +142,23 @@ impl ScanFailure {
             utime,
             fingerprint: None,
             error,
+            input_unread: false,
+        }
+    }
+
+    /// An input of `session` — a file or folder at `path` — that could not be read (whole or
+    /// from some point on): one failure, id `<session>/<file name>`, for every scan it holds.
+    pub fn of_input(session: &str, path: &Path, error: String) -> Self {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        ScanFailure {
+            id: format!("{session}/{name}"),
+            session: session.to_string(),
+            path: path.to_owned(),
+            message_index: None,
+            utime: None,
+            fingerprint: None,
+            error,
+            input_unread: true,
         }
     }
 

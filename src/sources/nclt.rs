@@ -130,55 +130,66 @@ impl NcltSpec {
         Ok(out)
     }
 
-    /// Opens the stream over all sessions, in order.
+    /// Opens the stream over all sessions, in order. A session that cannot be opened (its
+    /// ground truth unreadable, its scan folder or file missing) is one failure naming it, and
+    /// the other sessions are read.
     #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     pub fn open(&self) -> Result<ScanStream, SourceError> {
-        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
         let mut streams: Vec<ScanStream> = Vec::new();
         for dir in self.session_dirs()? {
             let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            let gt_path =
-                self.groundtruth.clone().or_else(|| super::groundtruth::find_for_session(&dir, &session));
-            let gt = match gt_path {
-                Some(p) => Some(Arc::new(GroundTruth::read(&p)?)),
-                None => {
-                    tracing::info!(
-                        "{}: no groundtruth_{session}.csv found; scans have no pose",
-                        dir.display()
-                    );
-                    None
-                }
-            };
-            match self.reader {
-                NcltReader::Sync => {
-                    let files = super::list_files(&dir.join("velodyne_sync"), "bin")?;
-                    let mut files: Vec<(Option<i64>, PathBuf)> = files
-                        .into_iter()
-                        .map(|p| (p.file_stem().and_then(|s| s.to_str()?.parse().ok()), p))
-                        .collect();
-                    files.sort();
-                    let session = session.clone();
-                    streams.push(Box::new(files.into_iter().map(move |(utime, path)| {
-                        sync_scan(&path, &session, utime, gt.as_deref(), tolerance)
-                    })));
-                }
-                NcltReader::Hits => {
-                    let path = dir.join("velodyne_hits.bin");
-                    let file = std::fs::File::open(&path)
-                        .map_err(|source| SourceError::Io { path: path.clone(), source })?;
-                    let period = self.hits_period_ms.map(|ms| (ms * 1000.0).round() as i64);
-                    streams.push(Box::new(HitsScans::new(
-                        std::io::BufReader::new(file),
-                        path,
-                        session,
-                        period,
-                        gt,
-                        tolerance,
-                    )));
+            match self.open_session(&dir, &session) {
+                Ok(stream) => streams.push(stream),
+                Err(e) => {
+                    let failure = ScanFailure::of_input(&session, &dir, e.to_string());
+                    streams.push(Box::new(std::iter::once(Err(failure))));
                 }
             }
         }
         Ok(Box::new(streams.into_iter().flatten()))
+    }
+
+    /// The scans of one session folder.
+    fn open_session(&self, dir: &Path, session: &str) -> Result<ScanStream, SourceError> {
+        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
+        let gt_path = self.groundtruth.clone().or_else(|| super::groundtruth::find_for_session(dir, session));
+        let gt = match gt_path {
+            Some(p) => Some(Arc::new(GroundTruth::read(&p)?)),
+            None => {
+                tracing::info!("{}: no groundtruth_{session}.csv found; scans have no pose", dir.display());
+                None
+            }
+        };
+        let session = session.to_string();
+        match self.reader {
+            NcltReader::Sync => {
+                let files = super::list_files(&dir.join("velodyne_sync"), "bin")?;
+                let mut files: Vec<(Option<i64>, PathBuf)> = files
+                    .into_iter()
+                    .map(|p| (p.file_stem().and_then(|s| s.to_str()?.parse().ok()), p))
+                    .collect();
+                files.sort();
+                Ok(Box::new(
+                    files.into_iter().map(move |(utime, path)| {
+                        sync_scan(&path, &session, utime, gt.as_deref(), tolerance)
+                    }),
+                ))
+            }
+            NcltReader::Hits => {
+                let path = dir.join("velodyne_hits.bin");
+                let file = std::fs::File::open(&path)
+                    .map_err(|source| SourceError::Io { path: path.clone(), source })?;
+                let period = self.hits_period_ms.map(|ms| (ms * 1000.0).round() as i64);
+                Ok(Box::new(HitsScans::new(
+                    std::io::BufReader::new(file),
+                    path,
+                    session,
+                    period,
+                    gt,
+                    tolerance,
+                )))
+            }
+        }
     }
 }
 
@@ -310,6 +321,8 @@ impl<R: std::io::Read> HitsScans<R> {
             utime: None,
             fingerprint: None,
             error: format!("{}: byte {}: {error}", self.path.display(), self.offset),
+            // Packets past a bad one may hold scans the stream does not yield.
+            input_unread: true,
         }
     }
 

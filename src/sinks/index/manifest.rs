@@ -115,6 +115,10 @@ pub struct Manifest {
     /// (parameters, length). Computed ones (ScanContext, M2DP) and imported ones.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub methods: BTreeMap<String, MethodEntry>,
+    /// The effective pipeline the index was made with (TOML: absolute paths, every default
+    /// filled in), once a run has recorded it; `pipeline.toml` beside it is a copy.
+    #[serde(default)]
+    pub pipeline: Option<String>,
     /// The committed part files, in commit order.
     pub files: Vec<FileEntry>,
 }
@@ -149,6 +153,7 @@ impl Manifest {
             descriptor_length: None,
             codebook: None,
             methods: BTreeMap::new(),
+            pipeline: None,
             files: Vec::new(),
         }
     }

@@ -3,17 +3,23 @@
 //!
 //! ```text
 //! INDEX/
-//!   scans/session=<s>/part-0.parquet      diagrams/session=<s>/part-0.parquet
-//!   descriptors/method=<m>/session=<s>/part-0.parquet
-//!   codebook.json   pipeline.toml   manifest.json
+//!   scans/session=<s>/part-<n>.parquet      diagrams/session=<s>/part-<n>.parquet
+//!   descriptors/method=<m>/session=<s>/part-<n>.parquet
+//!   manifest.json   codebook.json   pipeline.toml   .lock
+//!   .staging/part-<n>.staged                 files of a commit not yet in place
 //! ```
 //!
-//! [`writer`] stages a run's files and commits them; [`reader`] reads them back, checking
-//! every table against the schemas of [`super::schema`] so that a foreign or rewritten table
-//! gives an error, never a panic. This module owns the layout both agree on.
+//! [`writer`] stages a run's files and commits them; [`recovery`] completes a commit a kill
+//! interrupted and tells toporec's own files from foreign ones; [`reader`] reads the committed
+//! files back, checking every table against the schemas of [`super::schema`] so that a foreign
+//! or rewritten table gives an error, never a panic. This module owns the layout they agree on.
+//!
+//! Staged files live outside the table folders, under names that do not end in `.parquet`, so
+//! a glob of the tables (`scans/*/*.parquet`, `**/*.parquet`) never sees an uncommitted row.
 
 pub mod manifest;
 pub mod reader;
+pub mod recovery;
 pub mod writer;
 
 pub use reader::{IndexReader, IndexedScan, ScanRecord};
@@ -28,6 +34,48 @@ pub const CODEBOOK_FILE: &str = "codebook.json";
 pub const PIPELINE_FILE: &str = "pipeline.toml";
 /// The manifest: the committed files and counts.
 pub const MANIFEST_FILE: &str = "manifest.json";
+/// The writer's lock file.
+pub const LOCK_FILE: &str = ".lock";
+/// The staging folder: the files of a commit until they are renamed into place (and those of
+/// a `run --full` until it switches the index to them).
+pub const STAGING_DIR: &str = ".staging";
+/// The folder of a sharded run's per-shard indexes.
+pub const SHARDS_DIR: &str = "shards";
+/// The extension of a staged file.
+const STAGED_EXTENSION: &str = "staged";
+
+/// Where the file committed as `rel` (`<table>/…/part-<n>.parquet`) waits until it is put in
+/// place: `.staging/part-<n>.staged` (part numbers are unique across an index).
+pub fn staged_path(root: &Path, rel: &str) -> PathBuf {
+    let name = Path::new(rel).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    root.join(STAGING_DIR).join(format!("{name}.{STAGED_EXTENSION}"))
+}
+
+/// Where the bytes of the committed file `rel` are now: in place, or still staged when a
+/// commit is being completed (by its writer, or after a kill by the next process to open the
+/// index). The path in place when neither exists.
+pub fn resolve(root: &Path, rel: &str) -> PathBuf {
+    let placed = root.join(rel);
+    if placed.exists() {
+        return placed;
+    }
+    let staged = staged_path(root, rel);
+    if staged.exists() { staged } else { placed }
+}
+
+/// Whether `name` is the name of one of toporec's part files, `part-<digits>.parquet`.
+pub fn is_part_name(name: &str) -> bool {
+    name.strip_prefix("part-")
+        .and_then(|n| n.strip_suffix(".parquet"))
+        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+}
+
+/// Whether `name` is the name of a staged file, `part-<digits>.staged`.
+pub fn is_staged_name(name: &str) -> bool {
+    name.strip_prefix("part-")
+        .and_then(|n| n.strip_suffix(&format!(".{STAGED_EXTENSION}")))
+        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+}
 
 /// The partition folder name of a session: `session=<name>` with characters other than
 /// letters, digits, `-`, `_`, `.` percent-encoded (as Hive does).
@@ -55,8 +103,8 @@ pub fn partition_dir(table: &str, method: Option<&str>, session: &str) -> PathBu
     dir
 }
 
-/// Every file under the table folders of an index (any depth), with its path relative to
-/// the index (`/` separators), sorted.
+/// Every file under the table folders of an index (any depth), toporec's or not, with its
+/// path relative to the index (`/` separators), sorted.
 pub fn files_on_disk(root: &Path) -> Vec<(PathBuf, String)> {
     fn walk(root: &Path, dir: &Path, out: &mut Vec<(PathBuf, String)>) {
         let Ok(entries) = std::fs::read_dir(dir) else { return };

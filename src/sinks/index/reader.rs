@@ -9,7 +9,7 @@
 //! file and the column, never a panic.
 
 use super::manifest::Manifest;
-use super::{CODEBOOK_FILE, MANIFEST_FILE, table_files};
+use super::{CODEBOOK_FILE, MANIFEST_FILE, resolve, table_files};
 use crate::error::{Error, FileError, Result, ResultExt};
 use crate::homology::{Diagram, Pair};
 use crate::sinks::parquet::{ScanRow, Status};
@@ -48,6 +48,9 @@ fn sorted(files: impl Iterator<Item = (String, PathBuf)>) -> Vec<(String, PathBu
     files
 }
 
+/// How many times [`IndexReader::read_consistent`] starts a read over before it gives up.
+pub const READ_ATTEMPTS: u32 = 20;
+
 /// One row of `scans`, as stored.
 pub type ScanRecord = ScanRow;
 
@@ -61,13 +64,40 @@ pub struct IndexReader {
 }
 
 impl IndexReader {
-    /// Opens `root`; fails when it is not a folder or its manifest cannot be read.
+    /// Opens `root`; fails when it is not a folder or its manifest cannot be read. A commit a
+    /// kill left half done is completed first, when the writer's lock is free (see
+    /// [`super::recovery`]); the files it names are read where they are meanwhile.
     pub fn open(root: &Path) -> Result<Self> {
         if !root.is_dir() {
             return Err(Error::index(root, "no such index folder"));
         }
-        let manifest = Manifest::load(&root.join(MANIFEST_FILE))?;
+        let mut manifest = Manifest::load(&root.join(MANIFEST_FILE))?;
+        if let Some(m) = &manifest
+            && super::recovery::pending(root, m)
+            && let Some(recovered) = super::writer::recover_for_reader(root)
+        {
+            manifest = Some(recovered);
+        }
         Ok(IndexReader { root: root.to_owned(), manifest })
+    }
+
+    /// Runs `read` on the index at `root`, opened afresh. When a file its manifest named is
+    /// gone — a commit replaced it since — the index is opened again and `read` starts over on
+    /// the newer generation, up to [`READ_ATTEMPTS`] times: a read never mixes two generations
+    /// and never fails because a writer committed meanwhile.
+    pub fn read_consistent<T>(root: &Path, mut read: impl FnMut(&IndexReader) -> Result<T>) -> Result<T> {
+        let mut attempt = 1;
+        loop {
+            let reader = IndexReader::open(root)?;
+            match read(&reader) {
+                Err(e) if e.is_not_found() && reader.manifest.is_some() && attempt < READ_ATTEMPTS => {
+                    tracing::debug!("{}: {e}; reading the newer generation", root.display());
+                    std::thread::sleep(std::time::Duration::from_millis(5 * attempt as u64));
+                    attempt += 1;
+                }
+                other => return other,
+            }
+        }
     }
 
     /// The folder.
@@ -98,7 +128,9 @@ impl IndexReader {
             return self.descriptor_files(crate::baselines::TOPOREC);
         }
         match &self.manifest {
-            Some(m) => Ok(sorted(m.files_of(table).map(|f| (f.session.clone(), self.root.join(&f.path))))),
+            Some(m) => {
+                Ok(sorted(m.files_of(table).map(|f| (f.session.clone(), resolve(&self.root, &f.path)))))
+            }
             None => table_files(&self.root, table, None),
         }
     }
@@ -107,7 +139,7 @@ impl IndexReader {
     pub fn descriptor_files(&self, method: &str) -> Result<Vec<(String, PathBuf)>> {
         match &self.manifest {
             Some(m) => Ok(sorted(
-                m.descriptor_files_of(method).map(|f| (f.session.clone(), self.root.join(&f.path))),
+                m.descriptor_files_of(method).map(|f| (f.session.clone(), resolve(&self.root, &f.path))),
             )),
             None => table_files(&self.root, tables::DESCRIPTORS, Some(method)),
         }
@@ -330,13 +362,19 @@ impl CheckedTable {
             let column = table.columns.iter().find(|c| c.name == name).expect("a column of the table");
             let Some((i, field)) = arrow_schema.column_with_name(name) else {
                 let have: Vec<&str> = arrow_schema.fields().iter().map(|f| f.name().as_str()).collect();
+                // The table this file stands for: the one asked for, else the one its metadata
+                // or its folder names.
+                let what = match table_name
+                    .map(str::to_string)
+                    .or_else(|| get(meta::TABLE))
+                    .or_else(|| table_of_path(path))
+                {
+                    Some(t) => format!("this `{t}` table"),
+                    None => "this table".to_string(),
+                };
                 return Err(Error::table(
                     path,
-                    format!(
-                        "no column `{name}` in this `{}` table (columns: {})",
-                        table.name,
-                        have.join(", ")
-                    ),
+                    format!("no column `{name}` in {what} (columns: {})", have.join(", ")),
                 ));
             };
             let mut data_type = column.data_type.clone();
@@ -426,6 +464,15 @@ impl CheckedTable {
         }
         Ok(out)
     }
+}
+
+/// The index table a file's folder names (`…/descriptors/method=m/session=s/x.parquet`:
+/// `descriptors`), if any.
+fn table_of_path(path: &Path) -> Option<String> {
+    path.ancestors().skip(1).find_map(|dir| {
+        let name = dir.file_name()?.to_str()?;
+        tables::ALL.contains(&name).then(|| name.to_string())
+    })
 }
 
 /// The type a descriptor column is read as: `FixedSizeList<float32>` of the stored length

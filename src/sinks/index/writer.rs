@@ -1,23 +1,37 @@
 //! Writing an index: one writer at a time, rows committed in chunks.
 //!
-//! [`IndexWriter::open`] takes an OS advisory lock on `INDEX/.lock` (released by the OS when
-//! the process ends, however it ends: a killed writer leaves no stale lock), reads the
-//! manifest, and deletes every file the manifest does not name — the leftovers of a writer
-//! killed mid-chunk.
+//! [`IndexWriter::open`] refuses a folder that holds something but no index (it deletes
+//! nothing that is not its own), takes an OS advisory lock on `INDEX/.lock` (released by the
+//! OS when the process ends, however it ends: a killed writer leaves no stale lock), reads the
+//! manifest, and completes or undoes a commit a kill interrupted ([`super::recovery`]).
 //!
-//! Rows go into the open chunk's part files, written under hidden temporary names.
-//! [`IndexWriter::commit`] closes them (fsync), rewrites the committed files that hold rows
-//! being replaced or pruned, renames the new files into place, and then replaces the manifest
-//! atomically (temporary file, fsync, rename, fsync of the folder): that rename is the commit
-//! point. Files the new manifest no longer names are deleted last. Killed at any moment, the
-//! index keeps every chunk committed before; the next writer resumes from there.
+//! Rows go into the open chunk's part files, written in `.staging/` (outside the table
+//! folders, under names no `*.parquet` glob matches). [`IndexWriter::commit`] closes them
+//! (fsync), writes the committed files that hold rows being replaced or pruned again without
+//! them (checking each file it reads against its checksum), and then:
+//!
+//! 1. replaces the manifest atomically (temporary file, fsync, rename, fsync of the folder),
+//!    naming the new files at their places: **the commit point**;
+//! 2. renames the staged files into place;
+//! 3. deletes the files the new manifest no longer names.
+//!
+//! Killed before 1, the commit never happened; after it, the next process to open the index
+//! completes it. A plain glob of the tables sees committed files only, and a mix of two
+//! generations only for the milliseconds of steps 2 and 3 (no data is written then).
+//!
+//! A rebuild (`run --full`) writes the new generation beside the old one: its chunks stay in
+//! `.staging/` and the on-disk manifest keeps naming the old files until
+//! [`IndexWriter::finish`] switches to the new ones in one commit.
 
 use super::manifest::{Counts, FileEntry, MANIFEST_VERSION, Manifest, MethodEntry, file_checksum};
 use super::reader::{read_scans, scan_ids};
-use super::{CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, partition_dir};
+use super::recovery;
+use super::{
+    CODEBOOK_FILE, LOCK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path,
+};
 use crate::baselines::TOPOREC;
 use crate::error::{Error, Result, ResultExt};
-use crate::fsutil::{StagedFile, is_temp_name};
+use crate::fsutil::StagedFile;
 use crate::homology::Diagram;
 use crate::sinks::parquet::{
     DescriptorRow, DescriptorsFile, DiagramsFile, ScanRow, ScansFile, Status, TableFile,
@@ -28,8 +42,9 @@ use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-/// The lock file of an index.
-pub const LOCK_FILE: &str = ".lock";
+/// What a reader that completes a commit writes into the lock file after its holder line: a
+/// writer that finds the lock held so waits for it (milliseconds) instead of failing.
+const RECOVERING: &str = "completing a commit";
 
 /// What the index holds for one committed scan.
 #[derive(Clone, Debug, PartialEq)]
@@ -70,23 +85,44 @@ impl CommittedScan {
     }
 }
 
-/// The files of the open chunk, per session.
+/// The files of the open chunk, per session, each with its path once committed.
 #[derive(Default)]
 struct SessionFiles {
-    scans: Option<ScansFile>,
-    diagrams: Option<DiagramsFile>,
+    scans: Option<(String, ScansFile)>,
+    diagrams: Option<(String, DiagramsFile)>,
     /// By method.
-    descriptors: BTreeMap<String, DescriptorsFile>,
+    descriptors: BTreeMap<String, (String, DescriptorsFile)>,
 }
 
-/// A closed file waiting for its commit.
+/// A complete file in the staging folder, waiting for its commit.
 struct Staged {
-    table: &'static str,
-    /// The method, for descriptors.
-    method: Option<String>,
-    session: String,
-    file: StagedFile,
-    rows: u64,
+    /// Its manifest entry (its path in place, rows, size, checksum).
+    entry: FileEntry,
+}
+
+impl Staged {
+    /// Puts a closed file under its staged name, and takes its size and checksum.
+    fn of(
+        table: &str,
+        method: Option<String>,
+        session: &str,
+        rel: String,
+        file: StagedFile,
+        rows: u64,
+    ) -> Result<Self> {
+        let path = file.publish_unsynced()?;
+        let (bytes, xxh3) = file_checksum(&path)?;
+        let entry = FileEntry {
+            table: table.to_string(),
+            method,
+            session: session.to_string(),
+            path: rel,
+            rows,
+            bytes,
+            xxh3,
+        };
+        Ok(Staged { entry })
+    }
 }
 
 /// One descriptor of a scan, for [`IndexWriter::write_scan`].
@@ -104,7 +140,12 @@ pub struct MethodDescriptor {
 pub struct IndexWriter {
     root: PathBuf,
     _lock: std::fs::File,
+    /// The manifest of the last commit (of a rebuild: of its last chunk, not yet on disk).
     manifest: Manifest,
+    /// A rebuild's: the manifest on disk, whose files stay until the switch.
+    rebuild_of: Option<Manifest>,
+    /// A rebuild's: its committed chunks' files, staged until the switch.
+    held: Vec<Staged>,
     committed: HashMap<String, CommittedScan>,
     chunk: BTreeMap<String, SessionFiles>,
     chunk_rows: u64,
@@ -123,9 +164,9 @@ pub struct IndexWriter {
     compacted: Vec<Staged>,
     /// The methods to record with the next commit.
     pending_methods: Option<BTreeMap<String, MethodEntry>>,
-    /// A pause between publishing a chunk's files and committing its manifest
-    /// (`TOPOREC_COMMIT_PAUSE_MS`: fault injection for crash tests).
-    pause: Option<Duration>,
+    /// Whether `codebook.json` and `pipeline.toml` are to be written after the next commit
+    /// that reaches the disk.
+    copies_stale: bool,
     commits: u64,
 }
 
@@ -143,31 +184,32 @@ impl IndexWriter {
     }
 
     fn open_with(root: &Path, settings_hash: &str, full: bool, wait: bool) -> Result<Self> {
+        recovery::check_writable_folder(root)?;
         std::fs::create_dir_all(root).at(root)?;
         let lock = take_lock(root, wait)?;
-        if full {
-            for table in tables::ALL {
-                let dir = root.join(table);
-                if dir.exists() {
-                    std::fs::remove_dir_all(&dir).at(&dir)?;
-                }
-            }
-            for name in [MANIFEST_FILE, CODEBOOK_FILE, PIPELINE_FILE] {
-                let _ = std::fs::remove_file(root.join(name));
-            }
+        let on_disk = Manifest::load(&root.join(MANIFEST_FILE))?;
+        if let Some(m) = &on_disk {
+            recovery::recover(root, m)?;
+        } else {
+            recovery::recover(root, &Manifest::empty(settings_hash))?;
         }
-        let manifest =
-            Manifest::load(&root.join(MANIFEST_FILE))?.unwrap_or_else(|| Manifest::empty(settings_hash));
-        remove_uncommitted(root, &manifest)?;
+        // A rebuild starts from an empty manifest; the old one stays on disk until the switch.
+        let (manifest, rebuild_of) = match on_disk {
+            Some(old) if full && old.generation > 0 => {
+                let mut fresh = Manifest::empty(settings_hash);
+                fresh.next_part = old.next_part;
+                (fresh, Some(old))
+            }
+            Some(m) if !full => (m, None),
+            _ => (Manifest::empty(settings_hash), None),
+        };
         let committed = committed_scans(root, &manifest)?;
-        let pause = std::env::var("TOPOREC_COMMIT_PAUSE_MS")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .map(Duration::from_millis);
         Ok(IndexWriter {
             root: root.to_owned(),
             _lock: lock,
             manifest,
+            rebuild_of,
+            held: Vec::new(),
             committed,
             chunk: BTreeMap::new(),
             chunk_rows: 0,
@@ -179,7 +221,7 @@ impl IndexWriter {
             dropped: HashSet::new(),
             compacted: Vec::new(),
             pending_methods: None,
-            pause,
+            copies_stale: false,
             commits: 0,
         })
     }
@@ -214,10 +256,27 @@ impl IndexWriter {
         self.chunk_started.elapsed()
     }
 
-    fn next_part(&mut self, table: &str, method: Option<&str>, session: &str) -> PathBuf {
+    /// A new part file: its path in place (relative to the index) and where it is written
+    /// until its commit.
+    fn next_part(&mut self, table: &str, method: Option<&str>, session: &str) -> (String, PathBuf) {
         let n = self.manifest.next_part;
         self.manifest.next_part += 1;
-        self.root.join(partition_dir(table, method, session)).join(format!("part-{n:06}.parquet"))
+        let rel = partition_dir(table, method, session).join(format!("part-{n:06}.parquet"));
+        let rel = rel.to_string_lossy().replace('\\', "/");
+        let staged = staged_path(&self.root, &rel);
+        (rel, staged)
+    }
+
+    /// Where the bytes of a committed file are (in place, or staged: a rebuild's chunks).
+    pub fn path_of(&self, entry: &FileEntry) -> PathBuf {
+        resolve(&self.root, &entry.path)
+    }
+
+    /// [`IndexWriter::path_of`], after checking the file against its size and checksum: every
+    /// file a rewrite reads (compaction, replaced rows, a new codebook's descriptors) is
+    /// checked first, so damage is refused, never copied into a file with a fresh checksum.
+    pub fn verified_path(&self, entry: &FileEntry) -> Result<PathBuf> {
+        verified(&self.path_of(entry), entry)
     }
 
     fn session_files(&mut self, session: &str) -> &mut SessionFiles {
@@ -262,9 +321,13 @@ impl IndexWriter {
                 .find(|t| *t == f.table)
                 .ok_or_else(|| Error::index(other, format!("unknown table `{}` in its manifest", f.table)))?;
             let method = (table == tables::DESCRIPTORS).then(|| f.method_name().to_string());
-            let target = self.next_part(table, method.as_deref(), &f.session);
-            let file = StagedFile::link(&other.join(&f.path), &target)?;
-            self.compacted.push(Staged { table, method, session: f.session.clone(), file, rows: f.rows });
+            let source = resolve(other, &f.path);
+            if !f.xxh3.is_empty() {
+                verified(&source, f)?;
+            }
+            let (rel, staged) = self.next_part(table, method.as_deref(), &f.session);
+            let file = StagedFile::link(&source, &staged)?;
+            self.compacted.push(Staged::of(table, method, &f.session, rel, file, f.rows)?);
         }
         let taken = scans.len() as u64;
         for (id, scan) in scans {
@@ -388,18 +451,20 @@ impl IndexWriter {
         let session = row.session.clone();
         if let Some(d) = diagram {
             if self.session_files(&session).diagrams.is_none() {
-                let f = DiagramsFile::create(&self.next_part(tables::DIAGRAMS, None, &session))?;
-                self.session_files(&session).diagrams = Some(f);
+                let (rel, staged) = self.next_part(tables::DIAGRAMS, None, &session);
+                let f = DiagramsFile::create(&staged)?;
+                self.session_files(&session).diagrams = Some((rel, f));
             }
-            self.session_files(&session).diagrams.as_mut().expect("opened").push(&row.scan_id, d, dims)?;
+            self.session_files(&session).diagrams.as_mut().expect("opened").1.push(&row.scan_id, d, dims)?;
         }
         let has_descriptor = descriptors.iter().any(|d| d.method == TOPOREC);
         for d in descriptors {
             self.push_descriptor(&session, &d.method, d.row, || d.id.clone())?;
         }
         if self.session_files(&session).scans.is_none() {
-            let f = ScansFile::create(&self.next_part(tables::SCANS, None, &session))?;
-            self.session_files(&session).scans = Some(f);
+            let (rel, staged) = self.next_part(tables::SCANS, None, &session);
+            let f = ScansFile::create(&staged)?;
+            self.session_files(&session).scans = Some((rel, f));
         }
         let record = CommittedScan {
             session: session.clone(),
@@ -414,7 +479,7 @@ impl IndexWriter {
         tracing::debug!(scan = %row.scan_id, "row added to the open chunk");
         self.chunk_scans.push((row.scan_id.clone(), record));
         self.chunk_rows += 1;
-        self.session_files(&session).scans.as_mut().expect("opened").push(row)
+        self.session_files(&session).scans.as_mut().expect("opened").1.push(row)
     }
 
     /// Adds the TopoRec descriptor of a committed scan to the open chunk.
@@ -447,11 +512,11 @@ impl IndexWriter {
         id: impl FnOnce() -> String,
     ) -> Result<()> {
         if !self.session_files(session).descriptors.contains_key(method) {
-            let path = self.next_part(tables::DESCRIPTORS, Some(method), session);
-            let f = DescriptorsFile::create(&path, session, method, row.values.len(), &id())?;
-            self.session_files(session).descriptors.insert(method.to_string(), f);
+            let (rel, staged) = self.next_part(tables::DESCRIPTORS, Some(method), session);
+            let f = DescriptorsFile::create(&staged, session, method, row.values.len(), &id())?;
+            self.session_files(session).descriptors.insert(method.to_string(), (rel, f));
         }
-        self.session_files(session).descriptors.get_mut(method).expect("opened").push(row)
+        self.session_files(session).descriptors.get_mut(method).expect("opened").1.push(row)
     }
 
     /// Records the index's descriptor methods besides TopoRec with the next commit.
@@ -498,83 +563,144 @@ impl IndexWriter {
         let (mut merged, mut into) = (0, 0);
         for ((table, method, session), files) in groups.into_iter().filter(|(_, files)| files.len() > 1) {
             let table = tables::ALL.into_iter().find(|t| *t == table).expect("a table name");
-            let target = self.next_part(table, method.as_deref(), &session);
-            let first = self.root.join(&files[0].path);
-            let schema = {
-                let file = std::fs::File::open(&first).at(&first)?;
-                parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
-                    .at(&first)?
-                    .schema()
-                    .clone()
+            let length = match &method {
+                Some(m) if m != TOPOREC => self.manifest.methods.get(m).map(|e| e.length),
+                _ => self.manifest.descriptor_length,
             };
-            let mut out = TableFile::with_schema(&target, schema)?;
+            let (rel, target) = self.next_part(table, method.as_deref(), &session);
+            let mut out: Option<TableFile> = None;
             for f in &files {
-                let path = self.root.join(&f.path);
+                let path = self.verified_path(f)?;
+                // Each input is checked as its table first: an error names the input.
+                super::reader::check_file(&path, table, length)?;
                 let file = std::fs::File::open(&path).at(&path)?;
-                let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
-                    .at(&path)?
-                    .build()
-                    .at(&path)?;
-                for batch in reader {
+                let reader =
+                    parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).at(&path)?;
+                let schema = reader.schema().clone();
+                let out = match &mut out {
+                    Some(o) => o,
+                    None => out.insert(TableFile::with_schema(&target, schema.clone())?),
+                };
+                if out.schema().fields() != schema.fields() {
+                    return Err(Error::table(
+                        &path,
+                        format!(
+                            "its columns differ from those of the other part files of {}; \
+                             nothing was compacted",
+                            Path::new(&f.path).parent().unwrap_or(Path::new("")).display()
+                        ),
+                    ));
+                }
+                for batch in reader.build().at(&path)? {
                     out.write_batch(&batch.at(&path)?)?;
                 }
                 self.dropped.insert(f.path.clone());
             }
-            let (file, rows) = out.finish()?;
-            self.compacted.push(Staged { table, method, session, file, rows });
+            let (file, rows) = out.expect("two files or more").finish()?;
+            self.compacted.push(Staged::of(table, method, &session, rel, file, rows)?);
             merged += files.len();
             into += 1;
         }
+        crate::fault::point("compact-mid");
         self.commit()?;
         Ok((merged, into))
     }
 
-    /// Writes the effective pipeline (`pipeline.toml`) with the next commit.
+    /// Records the effective pipeline with the next commit (in the manifest, and its copy
+    /// `pipeline.toml`), when it is not the one recorded.
     pub fn set_pipeline(&mut self, text: String) {
-        self.pending_pipeline = Some(text);
+        if self.manifest.pipeline.as_deref() != Some(text.as_str()) {
+            self.pending_pipeline = Some(text);
+        }
     }
 
     /// Commits the open chunk (see the module doc). A no-op when there is nothing to commit.
+    /// In a rebuild, the chunk is committed to the rebuild only: the index on disk is
+    /// unchanged until [`IndexWriter::finish`].
     pub fn commit(&mut self) -> Result<()> {
         if self.chunk.is_empty()
             && self.compacted.is_empty()
             && self.removals.is_empty()
             && self.pending_codebook.is_none()
             && self.pending_methods.is_none()
+            && self.pending_pipeline.is_none()
             && self.dropped.is_empty()
         {
             return Ok(());
         }
-        // 1. The chunk's files, complete under their temporary names.
-        let mut staged: Vec<Staged> = std::mem::take(&mut self.compacted);
+        let mut staged: Vec<Staged> = Vec::new();
+        let outcome = self.stage(&mut staged);
+        let (manifest, superseded, removals) = match outcome {
+            Ok(x) => x,
+            Err(e) => {
+                // Not committed: what was staged is nobody's.
+                discard(&self.root, &staged);
+                return Err(e);
+            }
+        };
+        crate::fault::point("after-staging");
+        if self.rebuild_of.is_some() {
+            // A superseded file of the rebuild itself is still staged: gone now.
+            self.held.retain(|h| {
+                let keep = !superseded.contains(&h.entry.path);
+                if !keep {
+                    let _ = std::fs::remove_file(staged_path(&self.root, &h.entry.path));
+                }
+                keep
+            });
+            self.held.extend(staged);
+            self.settle(manifest, &removals);
+            crate::fault::point("full-mid");
+            return Ok(());
+        }
+        tracing::info!(generation = manifest.generation, files = staged.len(), "publishing a chunk");
+        let codebook_changed = self.pending_codebook.is_some() || self.copies_stale;
+        self.publish(&manifest, &staged, &superseded, codebook_changed)?;
+        self.settle(manifest, &removals);
+        Ok(())
+    }
+
+    /// Switches the index to what this writer committed: for a rebuild, the commit that
+    /// replaces the old generation by the new one (until then, readers and a killed run see the
+    /// old index whole); otherwise a plain [`IndexWriter::commit`].
+    pub fn finish(&mut self) -> Result<()> {
+        self.commit()?;
+        let Some(old) = self.rebuild_of.take() else { return Ok(()) };
+        let mut manifest = self.manifest.clone();
+        manifest.generation = old.generation + 1;
+        let superseded: Vec<String> = old.files.iter().map(|f| f.path.clone()).collect();
+        let staged = std::mem::take(&mut self.held);
+        tracing::info!(
+            generation = manifest.generation,
+            files = staged.len(),
+            "switching to the rebuilt index"
+        );
+        self.publish(&manifest, &staged, &superseded, true)?;
+        self.manifest = manifest;
+        self.commits += 1;
+        Ok(())
+    }
+
+    /// The first half of a commit: the chunk's files closed and staged, the committed files
+    /// holding removed rows rewritten (staged too), and the manifest that names them. Returns
+    /// that manifest, the files it supersedes and the scans it removes.
+    fn stage(&mut self, staged: &mut Vec<Staged>) -> Result<(Manifest, Vec<String>, HashSet<String>)> {
+        staged.append(&mut self.compacted);
         for (session, files) in std::mem::take(&mut self.chunk) {
-            if let Some(f) = files.scans {
+            if let Some((rel, f)) = files.scans {
                 let (file, rows) = f.finish()?;
-                staged.push(Staged {
-                    table: tables::SCANS,
-                    method: None,
-                    session: session.clone(),
-                    file,
-                    rows,
-                });
+                staged.push(Staged::of(tables::SCANS, None, &session, rel, file, rows)?);
             }
-            if let Some(f) = files.diagrams {
+            if let Some((rel, f)) = files.diagrams {
                 let (file, rows) = f.finish()?;
-                staged.push(Staged {
-                    table: tables::DIAGRAMS,
-                    method: None,
-                    session: session.clone(),
-                    file,
-                    rows,
-                });
+                staged.push(Staged::of(tables::DIAGRAMS, None, &session, rel, file, rows)?);
             }
-            for (method, f) in files.descriptors {
+            for (method, (rel, f)) in files.descriptors {
                 let (file, rows) = f.finish()?;
-                let (table, method, session) = (tables::DESCRIPTORS, Some(method), session.clone());
-                staged.push(Staged { table, method, session, file, rows });
+                staged.push(Staged::of(tables::DESCRIPTORS, Some(method), &session, rel, file, rows)?);
             }
         }
-        // 2. Committed files holding rows to remove: rewritten without them.
+        // Committed files holding rows to remove: written again without them.
         let removals = std::mem::take(&mut self.removals);
         let mut superseded: Vec<String> = std::mem::take(&mut self.dropped).into_iter().collect();
         if !removals.is_empty() {
@@ -588,7 +714,7 @@ impl IndexWriter {
                 .cloned()
                 .collect();
             for entry in affected {
-                let path = self.root.join(&entry.path);
+                let path = self.verified_path(&entry)?;
                 let ids = scan_ids(&path)?;
                 if !ids.iter().any(|id| removals.contains(id)) {
                     continue;
@@ -596,28 +722,20 @@ impl IndexWriter {
                 superseded.push(entry.path.clone());
                 let table = tables::ALL.into_iter().find(|t| *t == entry.table).expect("a table name");
                 let method = (table == tables::DESCRIPTORS).then(|| entry.method_name().to_string());
-                let target = self.next_part(table, method.as_deref(), &entry.session);
+                let (rel, target) = self.next_part(table, method.as_deref(), &entry.session);
                 if let Some((file, rows)) = rewrite_without(&path, &target, &removals)? {
-                    staged.push(Staged { table, method, session: entry.session.clone(), file, rows });
+                    staged.push(Staged::of(table, method, &entry.session, rel, file, rows)?);
                 }
             }
         }
-        // 3. The new manifest.
+        let staging = self.root.join(STAGING_DIR);
+        if staging.is_dir() {
+            std::fs::File::open(&staging).and_then(|d| d.sync_all()).at(&staging)?;
+        }
+        // The new manifest.
         let mut manifest = self.manifest.clone();
         manifest.files.retain(|f| !superseded.contains(&f.path));
-        for s in &staged {
-            let (bytes, xxh3) = file_checksum(s.file.temp())?;
-            let path = s.file.path().strip_prefix(&self.root).expect("inside the index");
-            manifest.files.push(FileEntry {
-                table: s.table.to_string(),
-                method: s.method.clone(),
-                session: s.session.clone(),
-                path: path.to_string_lossy().replace('\\', "/"),
-                rows: s.rows,
-                bytes,
-                xxh3,
-            });
-        }
+        manifest.files.extend(staged.iter().map(|s| s.entry.clone()));
         let mut counts = manifest.counts;
         for id in &removals {
             if let Some(c) = self.committed.get(id) {
@@ -634,72 +752,105 @@ impl IndexWriter {
         if let Some(methods) = &self.pending_methods {
             manifest.methods = methods.clone();
         }
-        if let Some((codebook, _)) = &self.pending_codebook {
+        if let Some((codebook, pipeline)) = &self.pending_codebook {
             manifest.codebook_id = Some(codebook.id());
             manifest.descriptor_length = Some(codebook.len());
             manifest.codebook = Some(codebook.to_json());
-        }
-        // 4. Files in place; the codebook's and the pipeline's convenience copies.
-        tracing::info!(generation = manifest.generation, files = staged.len(), "publishing a chunk");
-        let mut published: Vec<PathBuf> = Vec::new();
-        let outcome = self.publish_and_commit(staged, &manifest, &mut published);
-        if let Err(e) = outcome {
-            // Not committed: nothing the manifest does not name stays behind.
-            for path in published {
-                let _ = std::fs::remove_file(path);
+            if let Some(text) = pipeline {
+                manifest.pipeline = Some(text.clone());
             }
+        }
+        if let Some(text) = &self.pending_pipeline {
+            manifest.pipeline = Some(text.clone());
+        }
+        Ok((manifest, superseded, removals))
+    }
+
+    /// The second half of a commit that reaches the disk: the manifest (the commit point), the
+    /// staged files renamed into place, the superseded files deleted, then the convenience
+    /// copies of the codebook and the pipeline.
+    fn publish(
+        &mut self,
+        manifest: &Manifest,
+        staged: &[Staged],
+        superseded: &[String],
+        copies: bool,
+    ) -> Result<()> {
+        crate::fault::commit_pause();
+        if let Err(e) =
+            crate::fsutil::write_atomic(&self.root.join(MANIFEST_FILE), manifest.to_text().as_bytes())
+        {
+            discard(&self.root, staged);
             return Err(e);
         }
-        // 6. What the manifest no longer names.
-        for path in &superseded {
-            let _ = std::fs::remove_file(self.root.join(path));
+        crate::fault::point("after-manifest");
+        // Committed: a failure from here on leaves the rest to the next writer's recovery.
+        recovery::place(&self.root, staged.iter().map(|s| s.entry.path.as_str()))?;
+        for rel in superseded {
+            let _ = std::fs::remove_file(self.root.join(rel));
         }
-        for id in &removals {
+        let _ = std::fs::remove_dir(self.root.join(STAGING_DIR));
+        self.copies_stale = copies;
+        if copies {
+            if let Some(cb) = manifest.codebook(&self.root)? {
+                cb.save(&self.root.join(CODEBOOK_FILE))?;
+            }
+            if let Some(text) = &manifest.pipeline {
+                crate::fsutil::write_atomic(&self.root.join(PIPELINE_FILE), text.as_bytes())?;
+            }
+            self.copies_stale = false;
+        } else if manifest.pipeline != self.manifest.pipeline
+            && let Some(text) = &manifest.pipeline
+        {
+            crate::fsutil::write_atomic(&self.root.join(PIPELINE_FILE), text.as_bytes())?;
+        }
+        Ok(())
+    }
+
+    /// After a commit (of the index or of a rebuild): the writer's view of what is committed.
+    fn settle(&mut self, manifest: Manifest, removals: &HashSet<String>) {
+        for id in removals {
             self.committed.remove(id);
         }
         self.committed.extend(std::mem::take(&mut self.chunk_scans));
         self.manifest = manifest;
         self.pending_codebook = None;
         self.pending_methods = None;
+        self.pending_pipeline = None;
         self.commits += 1;
         self.chunk_rows = 0;
         self.chunk_started = Instant::now();
-        Ok(())
     }
 }
 
-impl IndexWriter {
-    /// Steps 4 and 5 of a commit: the files in place (listed in `published` as they go), the
-    /// codebook's and pipeline's copies, then the manifest.
-    fn publish_and_commit(
-        &mut self,
-        staged: Vec<Staged>,
-        manifest: &Manifest,
-        published: &mut Vec<PathBuf>,
-    ) -> Result<()> {
-        let mut folders: HashSet<PathBuf> = HashSet::new();
-        for s in staged {
-            let path = s.file.publish_unsynced()?;
-            folders.insert(path.parent().expect("in a partition").to_owned());
-            published.push(path);
-        }
-        for dir in &folders {
-            std::fs::File::open(dir).and_then(|d| d.sync_all()).at(dir)?;
-        }
-        if let Some((codebook, pipeline)) = &self.pending_codebook {
-            codebook.save(&self.root.join(CODEBOOK_FILE))?;
-            if let Some(text) = pipeline {
-                self.pending_pipeline = Some(text.clone());
-            }
-        }
-        if let Some(text) = self.pending_pipeline.take() {
-            crate::fsutil::write_atomic(&self.root.join(PIPELINE_FILE), text.as_bytes())?;
-        }
-        if let Some(pause) = self.pause {
-            std::thread::sleep(pause);
-        }
-        // 5. The commit point.
-        crate::fsutil::write_atomic(&self.root.join(MANIFEST_FILE), manifest.to_text().as_bytes())
+/// Deletes staged files that no commit will name.
+fn discard(root: &Path, staged: &[Staged]) {
+    for s in staged {
+        let _ = std::fs::remove_file(staged_path(root, &s.entry.path));
+    }
+}
+
+/// `path`, after checking its size and checksum against `entry`'s (see
+/// [`IndexWriter::verified_path`]).
+fn verified(path: &Path, entry: &FileEntry) -> Result<PathBuf> {
+    let (bytes, xxh3) = file_checksum(path)?;
+    if bytes != entry.bytes || xxh3 != entry.xxh3 {
+        return Err(Error::table(
+            path,
+            format!(
+                "{bytes} bytes with checksum {xxh3}, its commit says {} bytes with checksum {}: the file \
+                 changed after it was committed; nothing was rewritten (`toporec verify` lists the damage)",
+                entry.bytes, entry.xxh3
+            ),
+        ));
+    }
+    Ok(path.to_owned())
+}
+
+impl Drop for IndexWriter {
+    /// A rebuild that never switched (it failed): its staged files are nobody's.
+    fn drop(&mut self) {
+        discard(&self.root, &self.held);
     }
 }
 
@@ -713,7 +864,8 @@ fn count(c: &mut Counts, status: Status, delta: i64) {
     }
 }
 
-/// Takes the writer's lock, or explains who holds it.
+/// Takes the writer's lock, or explains who holds it. A reader completing a commit holds it
+/// for milliseconds: it is waited for.
 fn take_lock(root: &Path, wait: bool) -> Result<std::fs::File> {
     use std::io::{Read, Seek, Write};
     let path = root.join(LOCK_FILE);
@@ -724,72 +876,69 @@ fn take_lock(root: &Path, wait: bool) -> Result<std::fs::File> {
         .truncate(false)
         .open(&path)
         .at(&path)?;
-    let attempt = if wait { file.lock().map_err(std::fs::TryLockError::Error) } else { file.try_lock() };
-    match attempt {
-        Ok(()) => {}
-        Err(std::fs::TryLockError::WouldBlock) => {
-            let mut holder = String::new();
-            let _ = file.read_to_string(&mut holder);
-            let holder = holder.trim();
-            let holder = if holder.is_empty() { "another process".to_string() } else { holder.to_string() };
-            return Err(Error::Locked { path: root.to_owned(), holder });
+    let patience = Instant::now();
+    loop {
+        let attempt = if wait { file.lock().map_err(std::fs::TryLockError::Error) } else { file.try_lock() };
+        match attempt {
+            Ok(()) => break,
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let mut holder = String::new();
+                let _ = file.rewind();
+                let _ = file.read_to_string(&mut holder);
+                let holder = holder.trim();
+                if holder.ends_with(RECOVERING) && patience.elapsed() < Duration::from_secs(10) {
+                    std::thread::sleep(Duration::from_millis(10));
+                    continue;
+                }
+                let holder =
+                    if holder.is_empty() { "another process".to_string() } else { holder.to_string() };
+                return Err(Error::Locked { path: root.to_owned(), holder });
+            }
+            Err(std::fs::TryLockError::Error(e)) => return Err(e).at(&path),
         }
-        Err(std::fs::TryLockError::Error(e)) => return Err(e).at(&path),
     }
-    let host = gethostname::gethostname().to_string_lossy().into_owned();
-    let since = chrono::Utc::now().format("%Y-%m-%dT%H:%M:%SZ");
-    file.set_len(0).at(&path)?;
-    file.rewind().at(&path)?;
-    writeln!(file, "pid {} (host {host}) since {since}", std::process::id()).at(&path)?;
-    file.flush().at(&path)?;
+    write_holder(&mut file, "").at(&path)?;
+    let _ = file.flush();
     Ok(file)
 }
 
-/// Deletes what the manifest does not name: parts of uncommitted chunks, temporary files,
-/// staging folders of older writers, empty partitions.
-fn remove_uncommitted(root: &Path, manifest: &Manifest) -> Result<()> {
-    let named: HashSet<&str> = manifest.files.iter().map(|f| f.path.as_str()).collect();
-    for e in std::fs::read_dir(root).at(root)?.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        if name.starts_with(".staging-") {
-            let _ = std::fs::remove_dir_all(e.path());
-        } else if is_temp_name(&name) {
-            let _ = std::fs::remove_file(e.path());
-        }
-    }
-    for (path, rel) in super::files_on_disk(root) {
-        if !named.contains(rel.as_str()) {
-            tracing::info!("{}: removing a file no commit names", path.display());
-            let _ = std::fs::remove_file(&path);
-        }
-    }
-    // Partition folders left empty (a folder is removed only when empty).
-    for table in tables::ALL {
-        remove_empty_dirs(&root.join(table));
-    }
-    Ok(())
+/// Writes `pid N (host H) since T` and `note` into the held lock file.
+fn write_holder(file: &mut std::fs::File, note: &str) -> std::io::Result<()> {
+    use std::io::{Seek, Write};
+    let host = gethostname::gethostname().to_string_lossy().into_owned();
+    let since = chrono::Utc::now().format("%Y-%m-%dT%H:%M:%SZ");
+    file.set_len(0)?;
+    file.rewind()?;
+    writeln!(file, "pid {} (host {host}) since {since}{note}", std::process::id())?;
+    file.flush()
 }
 
-/// Removes the empty folders under `dir` (not `dir` itself), deepest first.
-fn remove_empty_dirs(dir: &Path) {
-    let Ok(entries) = std::fs::read_dir(dir) else { return };
-    for e in entries.flatten() {
-        if e.file_type().is_ok_and(|t| t.is_dir()) {
-            remove_empty_dirs(&e.path());
-            let _ = std::fs::remove_dir(e.path());
+/// Completes a half-done commit for a reader ([`recovery::pending`]), when the writer's lock
+/// can be taken at once (else a writer is at work, and completes it itself). Returns the
+/// manifest read under the lock when it did.
+pub fn recover_for_reader(root: &Path) -> Option<Manifest> {
+    let path = root.join(LOCK_FILE);
+    let mut file = std::fs::OpenOptions::new().read(true).write(true).open(&path).ok()?;
+    file.try_lock().ok()?;
+    write_holder(&mut file, &format!(", {RECOVERING}")).ok()?;
+    let manifest = Manifest::load(&root.join(MANIFEST_FILE)).ok()??;
+    match recovery::recover(root, &manifest) {
+        Ok(_) => Some(manifest),
+        Err(e) => {
+            tracing::warn!("{}: could not complete its last commit: {e}", root.display());
+            None
         }
     }
 }
 
-/// Every committed scan, by id, from the manifest's `scans` and `descriptors` files.
 /// What the index at `root` with `manifest` holds for each committed scan.
 pub fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
     let mut out = HashMap::new();
     for f in manifest.files_of(tables::SCANS) {
-        out.extend(read_scans(&root.join(&f.path), &f.session)?.into_iter().map(CommittedScan::of_row));
+        out.extend(read_scans(&resolve(root, &f.path), &f.session)?.into_iter().map(CommittedScan::of_row));
     }
     for f in manifest.descriptor_files_of(TOPOREC) {
-        for id in scan_ids(&root.join(&f.path))? {
+        for id in scan_ids(&resolve(root, &f.path))? {
             if let Some(c) = out.get_mut(&id) {
                 c.has_descriptor = true;
             }
