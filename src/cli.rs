@@ -66,6 +66,9 @@ enum Command {
     Revectorize(RevectorizeArgs),
     /// Merge an index's small part files (left by chunked commits) into one per partition.
     Compact(IndexArgs),
+    /// What an index holds: sessions with scans per status, descriptor methods, generation,
+    /// size, pipeline; or (`--files`) the committed files, one generation, for other readers.
+    Info(InfoArgs),
     /// Check an index against its manifest (files, sizes, checksums, rows, codebook, every ok
     /// scan's rows, part files no commit names); exit 1 with the list of problems.
     Verify(VerifyArgs),
@@ -80,6 +83,24 @@ struct IndexArgs {
     /// The index.
     #[arg(long)]
     index: PathBuf,
+}
+
+/// Arguments of `toporec info`.
+#[derive(clap::Args, Debug)]
+struct InfoArgs {
+    /// The index.
+    #[arg(long)]
+    index: PathBuf,
+    /// Print as JSON.
+    #[arg(long, conflicts_with = "files")]
+    json: bool,
+    /// Print the committed files (absolute paths, one per line) instead: all of them, or
+    /// those of one table (`scans`, `diagrams`, `descriptors`).
+    #[arg(long, value_name = "TABLE", num_args = 0..=1, default_missing_value = "")]
+    files: Option<String>,
+    /// With `--files descriptors`: only this method's files.
+    #[arg(long, requires = "files")]
+    method: Option<String>,
 }
 
 /// Arguments of `toporec verify`.
@@ -251,6 +272,7 @@ pub fn main() -> ExitCode {
         Command::Revectorize(args) => revectorize(args).map(|()| Done::All),
         Command::Compact(args) => compact(args).map(|()| Done::All),
         Command::Verify(args) => verify(args),
+        Command::Info(args) => info(args).map(|()| Done::All),
         Command::Import(args) => toporec::import::import(&args)
             .map_err(Into::into)
             .and_then(|r| {
@@ -521,6 +543,16 @@ fn compact(args: IndexArgs) -> Result<()> {
     let (merged, into) = toporec::maintenance::compact(&args.index)?;
     eprintln!("{}: {merged} part files merged into {into}", args.index.display());
     Ok(())
+}
+
+fn info(args: InfoArgs) -> Result<()> {
+    if let Some(table) = &args.files {
+        let table = Some(table.as_str()).filter(|t| !t.is_empty());
+        let files = toporec::info::files(&args.index, table, args.method.as_deref())?;
+        return print(&files.iter().map(|p| format!("{}\n", p.display())).collect::<String>());
+    }
+    let info = toporec::info::info(&args.index)?;
+    if args.json { print(&(serde_json::to_string_pretty(&info)? + "\n")) } else { print(&info.to_string()) }
 }
 
 fn verify(args: VerifyArgs) -> Result<Done> {

@@ -47,6 +47,7 @@ pub mod fingerprint;
 pub mod fsutil;
 pub mod homology;
 pub mod import;
+pub mod info;
 pub mod inspect;
 pub mod maintenance;
 pub mod offline;

@@ -139,18 +139,27 @@ impl std::fmt::Display for Verification {
 /// row count and reads as its table; the codebook ids agree; every ok scan has its diagram and
 /// descriptor rows; the counts add up.
 pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
-    // Opened as every reader opens it: a commit a kill left half done is completed first.
-    let reader = crate::sinks::index::IndexReader::open(index)?;
-    let manifest = reader
-        .manifest()
-        .cloned()
+    // Read as it is: a commit a kill left half done shows as files no commit names (the next
+    // reader or writer completes it).
+    let manifest = Manifest::load(&index.join(MANIFEST_FILE))?
         .ok_or_else(|| Error::index(index, "no manifest.json: not an index toporec wrote"))?;
     let mut v = Verification { files: manifest.files.len(), ..Default::default() };
     // toporec's own files that no commit names: what a glob of the tables would see (a writer
     // at work, or one killed: the next writer removes them).
     for rel in crate::sinks::index::recovery::orphans(index, &manifest) {
-        let what = format!("{rel}: not committed (a writer at work, or killed; the next writer removes it)");
-        if allow_orphans { v.notes.push(what) } else { v.problems.push(what) }
+        // Part files in the table folders are what a glob sees; staged and temporary files
+        // are not.
+        let visible = rel.ends_with(".parquet");
+        if visible && !allow_orphans {
+            v.problems.push(format!(
+                "{rel}: not committed, and seen by a glob of the table (a writer at work, or killed; \
+                 the next writer or reader removes it)"
+            ));
+        } else {
+            v.notes.push(format!(
+                "{rel}: not committed (a writer at work, or killed; the next writer removes it)"
+            ));
+        }
     }
     for rel in crate::sinks::index::recovery::foreign(index) {
         v.notes.push(format!("{rel}: foreign (not toporec's; left alone)"));

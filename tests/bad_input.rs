@@ -398,6 +398,64 @@ fn bad_inputs_table() {
         2,
         &["a-file"],
     );
+
+    // 10. An index folder that is someone else's: refused, naming what it holds, untouched.
+    std::fs::create_dir_all(d.join("theirs/scans")).unwrap();
+    std::fs::write(d.join("theirs/notes.csv"), b"a\n").unwrap();
+    check(
+        "an index folder that is not an index",
+        &run(&["run", "p.toml", "--index", "theirs", "--no-progress"]),
+        2,
+        &["theirs", "not a toporec index", "notes.csv, scans/"],
+    );
+    assert!(d.join("theirs/notes.csv").is_file() && !d.join("theirs/manifest.json").exists());
+
+    // 11. A cloud whose Delaunay triangulation needs more cells than the engine numbers (the
+    //     limit lowered to 100 cells, as a cloud of points on a few curves reaches 2^30).
+    let cube = root().join("tests/fixtures/clouds/unit_cube_300_rng1.csv");
+    let o = Command::new(env!("CARGO_BIN_EXE_toporec"))
+        .args(["diagram", cube.to_str().unwrap()])
+        .env("TOPOREC_CELL_LIMIT", "100")
+        .output()
+        .unwrap();
+    check("a cloud past the engine's cell limit", &o, 2, &["unit_cube_300_rng1.csv", "more than 100 cells"]);
+}
+
+#[test]
+fn plot_file_names_keep_every_dot_of_the_scan_id() {
+    // Session `drive.v2`: the default names of two scans' plots differ (`diagram_drive.v2_<n>`).
+    let dir = scratch_dir("bad_inputs_plot_names");
+    let from = root().join("samples/town/velodyne_data/2026-01-01/velodyne_sync");
+    let sync = dir.join("data/drive.v2/velodyne_sync");
+    std::fs::create_dir_all(&sync).unwrap();
+    let mut bins: Vec<PathBuf> = std::fs::read_dir(&from).unwrap().flatten().map(|e| e.path()).collect();
+    bins.sort();
+    for b in &bins[..2] {
+        std::fs::copy(b, sync.join(b.file_name().unwrap())).unwrap();
+    }
+    let p = dir.join("p.toml");
+    let body = format!(
+        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n\
+         [preprocess]\nsubsample = 512\nnormalize = true\n[vectorize]\nb = 2\n",
+        dir.join("data").display().to_string()
+    );
+    std::fs::write(&p, body).unwrap();
+    let o = within_20s(&["run", p.to_str().unwrap(), "--no-progress"], &dir);
+    check("a session named drive.v2", &o, 0, &[]);
+    let mut made = Vec::new();
+    for b in &bins[..2] {
+        let scan = format!("drive.v2/{}", b.file_stem().unwrap().to_string_lossy());
+        let o = within_20s(&["plot", "diagram", "--index", "idx", "--scan", &scan], &dir);
+        check("plot diagram of a scan of drive.v2", &o, 0, &[]);
+        made.push(text(&o.stdout));
+    }
+    assert_ne!(made[0], made[1], "two scans, two files");
+    let stem = format!("diagram_drive.v2_{}", bins[0].file_stem().unwrap().to_string_lossy());
+    assert!(
+        made[0].contains(&format!("{stem}.png")) && dir.join(format!("{stem}.svg")).is_file(),
+        "{}",
+        made[0]
+    );
 }
 
 #[test]
@@ -405,9 +463,10 @@ fn a_write_failure_keeps_committed_chunks_and_leaves_no_file_behind() {
     let dir = scratch_dir("bad_inputs_write_failure");
     let index = dir.join("idx");
     let pipeline = root().join("pipelines/sample.toml");
-    // 600 KiB per file, SIGXFSZ ignored: a write past it fails with EFBIG.
+    // 600 KiB per file: toporec ignores SIGXFSZ, so a write past it fails with EFBIG, an error
+    // with its path, instead of killing the process without a word.
     let script = format!(
-        "ulimit -f 600; trap '' XFSZ; exec {} run {} --index {} --no-progress --commit-every 4",
+        "ulimit -f 600; exec {} run {} --index {} --no-progress --commit-every 4",
         env!("CARGO_BIN_EXE_toporec"),
         pipeline.display(),
         index.display()

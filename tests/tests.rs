@@ -9,6 +9,7 @@ mod eval;
 mod homology;
 mod incremental;
 mod index;
+mod integrity;
 mod pipeline;
 mod pointnetvlad;
 mod shard;

@@ -164,3 +164,88 @@ pub fn eval_days(index: &Path, out: &Path, extra: &[&str]) -> std::process::Outp
     args.extend(extra);
     toporec(&args)
 }
+
+/// `toporec run` with extra flags; returns the output and the summary JSON.
+pub fn run_with(pipeline: &Path, index: &Path, extra: &[&str]) -> (std::process::Output, serde_json::Value) {
+    let summary = index.with_extension("summary.json");
+    let _ = std::fs::remove_file(&summary);
+    let mut args = vec![
+        "run",
+        pipeline.to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "-t",
+        "2",
+        "--no-progress",
+        "--summary-json",
+        summary.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = toporec(&args);
+    let json = std::fs::read_to_string(&summary).ok().and_then(|t| serde_json::from_str(&t).ok());
+    (o, json.unwrap_or(serde_json::Value::Null))
+}
+
+pub fn counter(summary: &serde_json::Value, key: &str) -> u64 {
+    summary["scans"][key].as_u64().unwrap_or_else(|| panic!("no scans.{key} in {summary}"))
+}
+
+/// Every committed row of a table as text, sorted (file layout aside, the table's content).
+pub fn rows(index: &Path, table: &str) -> Vec<String> {
+    use arrow::util::display::{ArrayFormatter, FormatOptions};
+    let mut out = Vec::new();
+    let reader = toporec::sinks::index::IndexReader::open(index).unwrap();
+    for (session, path) in reader.files(table).unwrap() {
+        let f = std::fs::File::open(&path).unwrap();
+        for batch in parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(f)
+            .unwrap()
+            .build()
+            .unwrap()
+        {
+            let batch = batch.unwrap();
+            let options = FormatOptions::default();
+            let columns: Vec<ArrayFormatter> = batch
+                .columns()
+                .iter()
+                .map(|c| ArrayFormatter::try_new(c.as_ref(), &options).unwrap())
+                .collect();
+            for i in 0..batch.num_rows() {
+                let cells: Vec<String> = columns.iter().map(|c| c.value(i).to_string()).collect();
+                out.push(format!("{session}|{}", cells.join("|")));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// A copy of the sample drive (both sessions, or only the first).
+pub fn sample_copy(dir: &Path, sessions: &[&str]) -> PathBuf {
+    let data = dir.join("town");
+    for s in sessions {
+        let from = root().join(format!("samples/town/velodyne_data/{s}"));
+        let to = data.join(format!("velodyne_data/{s}"));
+        std::fs::create_dir_all(to.join("velodyne_sync")).unwrap();
+        for f in std::fs::read_dir(from.join("velodyne_sync")).unwrap().flatten() {
+            std::fs::copy(f.path(), to.join("velodyne_sync").join(f.file_name())).unwrap();
+        }
+        let gt = format!("ground_truth/groundtruth_{s}.csv");
+        std::fs::create_dir_all(data.join("ground_truth")).unwrap();
+        std::fs::copy(root().join("samples/town").join(&gt), data.join(&gt)).unwrap();
+    }
+    data
+}
+
+/// The sample pipeline over `data`, with `subsample` points.
+pub fn sample_pipeline(dir: &Path, data: &Path, subsample: usize) -> PathBuf {
+    let text = std::fs::read_to_string(root().join("pipelines/sample.toml")).unwrap();
+    let text = text
+        .replace(
+            "\"../samples/town/velodyne_data\"",
+            &format!("{:?}", data.join("velodyne_data").display().to_string()),
+        )
+        .replace("subsample = 4096", &format!("subsample = {subsample}"));
+    let p = dir.join(format!("sample-{subsample}.toml"));
+    std::fs::write(&p, text).unwrap();
+    p
+}

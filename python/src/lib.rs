@@ -462,6 +462,25 @@ fn index_methods(py: Python<'_>, index: PathBuf) -> PyResult<Vec<String>> {
     py.detach(|| toporec::sinks::index::reader::IndexReader::open(&index)?.methods()).map_err(toporec_error)
 }
 
+/// What an index holds (`toporec info --json`), as JSON text.
+#[pyfunction]
+fn index_info(py: Python<'_>, index: PathBuf) -> PyResult<String> {
+    let info = py.detach(|| toporec::info::info(&index)).map_err(toporec_error)?;
+    serde_json::to_string(&info).map_err(value_error)
+}
+
+/// The committed files of one generation of an index (`toporec info --files`).
+#[pyfunction]
+#[pyo3(signature = (index, table, method))]
+fn index_files(
+    py: Python<'_>,
+    index: PathBuf,
+    table: Option<String>,
+    method: Option<String>,
+) -> PyResult<Vec<PathBuf>> {
+    py.detach(|| toporec::info::files(&index, table.as_deref(), method.as_deref())).map_err(toporec_error)
+}
+
 /// Answers queries against one method of an index.
 #[pyclass(module = "toporec._toporec")]
 struct QueryEngine {
@@ -785,6 +804,8 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(mcap_scan_count, m)?)?;
     m.add_function(wrap_pyfunction!(index_table, m)?)?;
     m.add_function(wrap_pyfunction!(index_methods, m)?)?;
+    m.add_function(wrap_pyfunction!(index_info, m)?)?;
+    m.add_function(wrap_pyfunction!(index_files, m)?)?;
     m.add_class::<ArrowStream>()?;
     m.add_class::<QueryEngine>()?;
     m.add_class::<BatchDescriber>()?;

@@ -249,6 +249,21 @@ class Index:
         """The descriptor methods the index holds (``toporec``, ``scancontext``, ...)."""
         return list(_toporec.index_methods(self.path))
 
+    def info(self) -> Dict[str, Any]:
+        """What the index holds, as ``toporec info --json`` prints it: ``sessions`` with scans
+        per status, ``methods`` (length, codebook or method id, settings, rows), ``generation``,
+        ``files`` and ``bytes`` on disk, and the ``pipeline`` it was made with."""
+        return json.loads(_toporec.index_info(self.path))
+
+    def files(self, table: Optional[str] = None, method: Optional[str] = None) -> List[str]:
+        """The committed files of one generation (absolute paths), as ``toporec info --files``
+        prints them: all of them, or those of ``table`` (``scans``, ``diagrams``,
+        ``descriptors``; of ``method`` for descriptors). Hand them to another reader to see
+        exactly what toporec sees, for example
+        ``duckdb.read_parquet(Index(p).files("scans"), hive_partitioning=True)``. A file a
+        later commit replaced is gone: list the files again and read again."""
+        return [os.fspath(p) for p in _toporec.index_files(self.path, table, method)]
+
     def scans(self) -> pa.Table:
         """One row per scan read: ok, skipped or error."""
         return _table(_toporec.index_table(self.path, "scans", None))

@@ -133,7 +133,6 @@ impl NcltSpec {
     /// Opens the stream over all sessions, in order. A session that cannot be opened (its
     /// ground truth unreadable, its scan folder or file missing) is one failure naming it, and
     /// the other sessions are read.
-    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     pub fn open(&self) -> Result<ScanStream, SourceError> {
         let mut streams: Vec<ScanStream> = Vec::new();
         for dir in self.session_dirs()? {
@@ -150,6 +149,7 @@ impl NcltSpec {
     }
 
     /// The scans of one session folder.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     fn open_session(&self, dir: &Path, session: &str) -> Result<ScanStream, SourceError> {
         let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
         let gt_path = self.groundtruth.clone().or_else(|| super::groundtruth::find_for_session(dir, session));

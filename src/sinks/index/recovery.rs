@@ -52,14 +52,18 @@ pub fn place<'a>(root: &Path, rels: impl IntoIterator<Item = &'a str>) -> Result
     Ok(placed)
 }
 
-/// Whether the index holds a commit not yet complete: a file its manifest names still staged,
-/// or a part file it does not name still in a table folder (superseded, or left by a writer
-/// killed before an older protocol's commit point).
+/// Whether the index holds a commit not yet complete, in a way a glob of the tables sees: a
+/// file its manifest names still staged, or a part file it does not name still in a table
+/// folder (superseded, or left by a writer killed before an older protocol's commit point).
 pub fn pending(root: &Path, manifest: &Manifest) -> bool {
     if manifest.files.iter().any(|f| !root.join(&f.path).exists() && staged_path(root, &f.path).exists()) {
         return true;
     }
-    !orphans(root, manifest).is_empty()
+    let named: HashSet<&str> = manifest.files.iter().map(|f| f.path.as_str()).collect();
+    super::files_on_disk(root).iter().any(|(path, rel)| {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        is_part_name(&name) && !named.contains(rel.as_str())
+    })
 }
 
 /// Completes or undoes an interrupted commit (see the module doc), given the manifest read

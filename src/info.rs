@@ -1,0 +1,195 @@
+//! `toporec info`: what an index holds, in one screen or as JSON — its sessions with scans per
+//! status, its descriptor methods (length, codebook or method id, settings), the manifest
+//! generation, its size on disk and the pipeline it was made with — and the list of its
+//! committed files, for readers outside toporec that want exactly one generation.
+
+use crate::error::{Error, Result};
+use crate::sinks::index::IndexReader;
+use crate::sinks::index::manifest::{Counts, Manifest};
+use crate::sinks::parquet::Status;
+use crate::sinks::schema::tables;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// What an index holds (see the module doc).
+#[derive(Clone, Debug, Serialize)]
+pub struct IndexInfo {
+    /// The index folder.
+    pub index: PathBuf,
+    /// The manifest generation (commits so far).
+    pub generation: u64,
+    /// The toporec version of the last commit.
+    pub toporec_version: String,
+    /// The fingerprint of the preprocess and persistence settings.
+    pub settings_hash: String,
+    /// Scans per status, over the whole index.
+    pub counts: Counts,
+    /// Scans per status, by session.
+    pub sessions: BTreeMap<String, Counts>,
+    /// The descriptor methods, by name.
+    pub methods: BTreeMap<String, MethodInfo>,
+    /// Committed part files.
+    pub files: usize,
+    /// Their bytes on disk.
+    pub bytes: u64,
+    /// The effective pipeline the index was made with (TOML), when it records one.
+    pub pipeline: Option<String>,
+}
+
+/// One descriptor method of an index.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodInfo {
+    /// `toporec`, `scancontext`, `m2dp`, `toporec-plus` or `imported`.
+    pub kind: String,
+    /// Descriptor length.
+    pub length: usize,
+    /// The codebook id (TopoRec) or the method's id (the others).
+    pub id: String,
+    /// Its settings: the codebook's (TopoRec), the method's parameters (the others).
+    pub settings: serde_json::Value,
+    /// Descriptor rows.
+    pub rows: u64,
+}
+
+/// Reads what the index at `index` holds.
+pub fn info(index: &Path) -> Result<IndexInfo> {
+    IndexReader::read_consistent(index, |reader| {
+        let manifest = committed(reader)?;
+        let mut sessions: BTreeMap<String, Counts> = BTreeMap::new();
+        for scan in reader.scans()? {
+            let c = sessions.entry(scan.session.clone()).or_default();
+            c.scans += 1;
+            match scan.status {
+                Status::Ok => c.ok += 1,
+                Status::Skipped => c.skipped += 1,
+                Status::Error => c.errors += 1,
+            }
+        }
+        let rows = |method: &str| manifest.descriptor_files_of(method).map(|f| f.rows).sum();
+        let mut methods = BTreeMap::new();
+        if let (Some(id), Some(length), Some(codebook)) =
+            (&manifest.codebook_id, manifest.descriptor_length, &manifest.codebook)
+        {
+            // The codebook's settings, without its fitted centres.
+            let mut settings = codebook.clone();
+            if let Some(s) = settings.as_object_mut() {
+                for key in ["parts", "format", "format_version", "toporec_version"] {
+                    s.remove(key);
+                }
+            }
+            let method = crate::baselines::TOPOREC;
+            let kind = method.to_string();
+            methods.insert(
+                method.to_string(),
+                MethodInfo { kind, length, id: id.clone(), settings, rows: rows(method) },
+            );
+        }
+        for (name, e) in &manifest.methods {
+            let m = MethodInfo {
+                kind: e.kind.clone(),
+                length: e.length,
+                id: e.id.clone(),
+                settings: e.params.clone(),
+                rows: rows(name),
+            };
+            methods.insert(name.clone(), m);
+        }
+        Ok(IndexInfo {
+            index: index.to_owned(),
+            generation: manifest.generation,
+            toporec_version: manifest.toporec_version.clone(),
+            settings_hash: manifest.settings_hash.clone(),
+            counts: manifest.counts,
+            sessions,
+            methods,
+            files: manifest.files.len(),
+            bytes: manifest.files.iter().map(|f| f.bytes).sum(),
+            pipeline: manifest.pipeline.clone(),
+        })
+    })
+}
+
+/// The committed files of one generation, absolute paths: every file, or those of `table`
+/// (for `descriptors`, of `method` when given), sorted by (table, method, session, part).
+pub fn files(index: &Path, table: Option<&str>, method: Option<&str>) -> Result<Vec<PathBuf>> {
+    if let Some(t) = table
+        && !tables::ALL.contains(&t)
+    {
+        return Err(Error::invalid(format!("`{t}` is not a table of an index ({})", tables::ALL.join(", "))));
+    }
+    let reader = IndexReader::open(index)?;
+    let manifest = committed(&reader)?;
+    let root = std::path::absolute(index).unwrap_or_else(|_| index.to_owned());
+    let mut out: Vec<(String, Option<&str>, &str, PathBuf)> = manifest
+        .files
+        .iter()
+        .filter(|f| table.is_none_or(|t| f.table == t))
+        .filter(|f| method.is_none_or(|m| f.table == tables::DESCRIPTORS && f.method_name() == m))
+        .map(|f| {
+            let m = (f.table == tables::DESCRIPTORS).then(|| f.method_name());
+            (f.table.clone(), m, f.session.as_str(), crate::sinks::index::resolve(&root, &f.path))
+        })
+        .collect();
+    out.sort();
+    Ok(out.into_iter().map(|(_, _, _, p)| p).collect())
+}
+
+fn committed(reader: &IndexReader) -> Result<&Manifest> {
+    reader.manifest().ok_or_else(|| {
+        Error::index(
+            reader.root(),
+            "no manifest.json: not an index toporec wrote (or its first run has not committed)",
+        )
+    })
+}
+
+/// A byte count in B, kB, MB, GB (powers of 1000).
+fn human_bytes(bytes: u64) -> String {
+    let units = ["B", "kB", "MB", "GB", "TB"];
+    let mut v = bytes as f64;
+    let mut u = 0;
+    while v >= 1000.0 && u + 1 < units.len() {
+        v /= 1000.0;
+        u += 1;
+    }
+    if u == 0 { format!("{bytes} B") } else { format!("{v:.1} {}", units[u]) }
+}
+
+impl std::fmt::Display for IndexInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "index: {}", self.index.display())?;
+        writeln!(
+            f,
+            "generation {}, {} files, {} (toporec {}, settings {})",
+            self.generation,
+            self.files,
+            human_bytes(self.bytes),
+            self.toporec_version,
+            self.settings_hash
+        )?;
+        let c = self.counts;
+        writeln!(f, "scans: {} ({} ok, {} skipped, {} errors)", c.scans, c.ok, c.skipped, c.errors)?;
+        let width = self.sessions.keys().map(|s| s.chars().count()).max().unwrap_or(0).max(7);
+        writeln!(f, "  {:<width$}  {:>8} {:>8} {:>8} {:>8}", "session", "scans", "ok", "skipped", "errors")?;
+        for (s, c) in &self.sessions {
+            writeln!(f, "  {s:<width$}  {:>8} {:>8} {:>8} {:>8}", c.scans, c.ok, c.skipped, c.errors)?;
+        }
+        writeln!(f, "methods:")?;
+        for (name, m) in &self.methods {
+            let id = if m.kind == crate::baselines::TOPOREC { "codebook" } else { "id" };
+            let settings = serde_json::to_string(&m.settings).unwrap_or_default();
+            writeln!(f, "  {name}: length {}, {id} {}, {} rows, {settings}", m.length, m.id, m.rows)?;
+        }
+        match &self.pipeline {
+            Some(p) => {
+                writeln!(f, "pipeline:")?;
+                for line in p.lines() {
+                    writeln!(f, "  {line}")?;
+                }
+                Ok(())
+            }
+            None => writeln!(f, "pipeline: not recorded (see pipeline.toml)"),
+        }
+    }
+}
