@@ -229,49 +229,24 @@ fn read_csv(path: &Path) -> Result<Rows> {
 }
 
 fn read_npy(path: &Path, ids_path: &Path) -> Result<Rows> {
-    let bytes = std::fs::read(path).at(path)?;
     let bad = |m: &str| Error::table(path, format!("not a .npy array this reads: {m}"));
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err(bad("no NUMPY magic"));
-    }
-    let (header_len, start) = match bytes[6] {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 if bytes.len() >= 12 => {
-            (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
-        }
-        _ => return Err(bad("unknown version")),
+    let file = std::io::BufReader::new(std::fs::File::open(path).at(path)?);
+    let npy = npyz::NpyFile::new(file).map_err(|e| bad(&e.to_string()))?;
+    let shape = npy.shape().to_vec();
+    let [n, d] = shape[..] else {
+        return Err(bad(&format!("shape {shape:?}; expected 2 dimensions (scans, values)")));
     };
-    let header = bytes.get(start..start + header_len).ok_or_else(|| bad("header cut short"))?;
-    let header = String::from_utf8_lossy(header);
-    let field = |key: &str| -> Option<String> {
-        let at = header.find(&format!("'{key}'"))? + key.len() + 2;
-        let rest = header[at..].trim_start().strip_prefix(':')?.trim_start();
-        let end = if rest.starts_with('(') { rest.find(')')? + 1 } else { rest.find([',', '}'])? };
-        Some(rest[..end].trim().to_string())
+    let (n, d) = (n as usize, d as usize);
+    let fortran = npy.order() == npyz::Order::Fortran;
+    let descr = npy.dtype().descr();
+    let cut = |e: std::io::Error| bad(&format!("the data of shape ({n}, {d}) cannot be read whole ({e})"));
+    let values: Vec<f32> = match descr.trim_matches('\'').trim_start_matches(['<', '>', '=']) {
+        "f4" => npy.into_vec::<f32>().map_err(cut)?,
+        "f8" => npy.into_vec::<f64>().map_err(cut)?.into_iter().map(|v| v as f32).collect(),
+        _ => return Err(bad(&format!("dtype {descr}; expected float32 or float64"))),
     };
-    let descr = field("descr").ok_or_else(|| bad("no descr"))?;
-    let width = match descr.trim_matches('\'') {
-        "<f4" => 4,
-        "<f8" => 8,
-        other => return Err(bad(&format!("dtype {other}; expected little-endian float32 or float64"))),
-    };
-    if field("fortran_order").as_deref() != Some("False") {
-        return Err(bad("Fortran order; save it with numpy's default (C) order"));
-    }
-    let shape = field("shape").ok_or_else(|| bad("no shape"))?;
-    let dims: Vec<usize> = shape
-        .trim_matches(|c| c == '(' || c == ')')
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| s.parse().map_err(|_| bad("shape")))
-        .collect::<Result<_>>()?;
-    let [n, d] = dims[..] else {
-        return Err(bad(&format!("shape {shape}; expected 2 dimensions (scans, values)")));
-    };
-    let data = &bytes[start + header_len..];
-    if data.len() != n * d * width {
-        return Err(bad(&format!("{} data bytes for shape ({n}, {d})", data.len())));
+    if values.len() != n * d {
+        return Err(bad(&format!("{} values for shape ({n}, {d})", values.len())));
     }
     let text = std::fs::read_to_string(ids_path).at(ids_path)?;
     let ids: Vec<String> = text.lines().map(|l| l.trim().to_string()).filter(|l| !l.is_empty()).collect();
@@ -281,13 +256,7 @@ fn read_npy(path: &Path, ids_path: &Path) -> Result<Rows> {
             format!("{} scan ids for the {n} rows of {}", ids.len(), path.display()),
         ));
     }
-    let value = |k: usize| -> f32 {
-        let b = &data[k * width..(k + 1) * width];
-        if width == 4 {
-            f32::from_le_bytes([b[0], b[1], b[2], b[3]])
-        } else {
-            f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]) as f32
-        }
-    };
-    Ok(ids.into_iter().enumerate().map(|(i, id)| (id, (0..d).map(|j| value(i * d + j)).collect())).collect())
+    // Row i, column j: at i·d + j in C order, at j·n + i in Fortran order.
+    let at = |i: usize, j: usize| if fortran { values[j * n + i] } else { values[i * d + j] };
+    Ok(ids.into_iter().enumerate().map(|(i, id)| (id, (0..d).map(|j| at(i, j)).collect())).collect())
 }

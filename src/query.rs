@@ -82,6 +82,76 @@ impl Search {
     }
 }
 
+/// How much a method's search re-ranks (`eval --search`), so that methods compare at equal
+/// budgets. Methods searched by exact k-NN (TopoRec, M2DP) search every entry at any budget.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SearchBudget {
+    /// Each method's own settings (ScanContext: 10 ring-key candidates, ±3 sectors around
+    /// the sector-key alignment; toporec-plus: 100 candidates).
+    #[default]
+    Default,
+    /// Every database entry re-ranked at every shift (toporec-plus: of every turned grid).
+    Exhaustive,
+    /// The same for every method that has them: this many re-ranked candidates, and the
+    /// shifts within ±[`MATCHED_SHIFTS`] sectors of the coarse alignment.
+    Matched(usize),
+}
+
+/// The shift range of a matched budget, in sectors each side (ScanContext's default).
+pub const MATCHED_SHIFTS: usize = 3;
+
+impl std::str::FromStr for SearchBudget {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "default" => Ok(SearchBudget::Default),
+            "exhaustive" => Ok(SearchBudget::Exhaustive),
+            _ => match s.strip_prefix("matched:").map(str::parse::<usize>) {
+                Some(Ok(n)) if n >= 1 => Ok(SearchBudget::Matched(n)),
+                _ => Err(format!("`{s}`: expected default, exhaustive or matched:N (N ≥ 1 candidates)")),
+            },
+        }
+    }
+}
+
+impl std::fmt::Display for SearchBudget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SearchBudget::Default => f.write_str("default"),
+            SearchBudget::Exhaustive => f.write_str("exhaustive"),
+            SearchBudget::Matched(n) => write!(f, "matched:{n}"),
+        }
+    }
+}
+
+impl SearchBudget {
+    /// `method` with its search settings set to this budget over a database of `entries`
+    /// (its descriptor settings, and so its id, unchanged).
+    pub fn apply(self, method: &Method, entries: usize) -> Method {
+        // A share of the sectors that gives `shifts` each side: round(0.5 · ratio · sectors).
+        let ratio = |shifts: usize, sectors: usize| (2.0 * shifts as f64 / sectors.max(1) as f64).min(1.0);
+        let mut m = method.clone();
+        match (&mut m.kind, self) {
+            (_, SearchBudget::Default) => {}
+            (MethodKind::ScanContext(p), SearchBudget::Exhaustive) => {
+                (p.candidates, p.search_ratio) = (entries.max(1), 1.0)
+            }
+            (MethodKind::ToporecPlus(p), SearchBudget::Exhaustive) => {
+                (p.candidates, p.search_ratio) = (entries.max(1), 1.0)
+            }
+            (MethodKind::ScanContext(p), SearchBudget::Matched(n)) => {
+                (p.candidates, p.search_ratio) = (n, ratio(MATCHED_SHIFTS, p.sectors))
+            }
+            (MethodKind::ToporecPlus(p), SearchBudget::Matched(n)) => {
+                (p.candidates, p.search_ratio) = (n, ratio(MATCHED_SHIFTS, p.sectors))
+            }
+            _ => {}
+        }
+        m
+    }
+}
+
 /// An opened index, ready to answer queries with one method.
 pub struct Engine {
     /// How a scan becomes this method's descriptor (the index's preprocessing, persistence
@@ -187,6 +257,16 @@ impl Engine {
         let describer =
             Describer { topological: false, ..Describer::toporec(Default::default(), true, None) };
         Engine { describer, method, id, scans, search }
+    }
+
+    /// The engine searching at `budget` instead of its method's own settings.
+    pub fn with_budget(mut self, budget: SearchBudget) -> Self {
+        if budget != SearchBudget::Default {
+            let length = self.scans.first().map_or(0, |s| s.descriptor.len());
+            let searched = budget.apply(&self.method, self.scans.len());
+            self.search = Search::over(&searched, &self.scans, length);
+        }
+        self
     }
 
     /// The index's codebook (TopoRec engines).

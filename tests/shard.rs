@@ -90,6 +90,43 @@ fn three_concurrent_shards_equal_one_unsharded_run() {
 }
 
 #[test]
+fn shards_of_a_pipeline_with_a_saved_codebook_start_a_new_index() {
+    // `[vectorize] codebook = FILE`: no fit first; the first shard freezes the file's codebook
+    // into the new index, the others use it.
+    let dir = scratch_dir("shards-saved-codebook");
+    let first = dir.join("first");
+    assert!(run_pipeline(&root().join("pipelines/sample.toml"), &first, 2).status.success());
+    // The sample pipeline up to its `[vectorize]` keys (the last section), which name the file.
+    let sample = std::fs::read_to_string(root().join("pipelines/sample.toml")).unwrap();
+    let samples = format!("{:?}", root().join("samples/town/velodyne_data").display().to_string());
+    let body =
+        sample.split("[vectorize]").next().unwrap().replace("\"../samples/town/velodyne_data\"", &samples)
+            + &format!("[vectorize]\ncodebook = {:?}\n", first.join("codebook.json").display().to_string());
+    let pipeline = dir.join("saved.toml");
+    std::fs::write(&pipeline, body).unwrap();
+    let (one, sharded) = (dir.join("one"), dir.join("sharded"));
+    assert!(run_pipeline(&pipeline, &one, 2).status.success());
+    let shards: Vec<_> = (0..3)
+        .map(|i| {
+            Command::new(env!("CARGO_BIN_EXE_toporec"))
+                .args(["run", pipeline.to_str().unwrap(), "--index", sharded.to_str().unwrap()])
+                .args(["-t", "1", "--no-progress", "--shard", &format!("{i}/3")])
+                .output_async()
+        })
+        .collect();
+    for (i, shard) in shards.into_iter().enumerate() {
+        let o = shard.wait_with_output().unwrap();
+        assert!(o.status.success(), "shard {i}/3: {}", text(&o.stderr));
+    }
+    let o = toporec(&["verify", "--index", sharded.to_str().unwrap()]);
+    assert!(o.status.success(), "verify: {}", text(&o.stdout));
+    let codebook = |i: &Path| IndexReader::open(i).unwrap().codebook().unwrap().id();
+    assert_eq!(codebook(&sharded), codebook(&first), "the saved codebook, frozen");
+    let (a, b) = (rows(&one), rows(&sharded));
+    assert_eq!((a.0.len(), &a.1, &a.2), (b.0.len(), &b.1, &b.2), "the rows of one unsharded run");
+}
+
+#[test]
 fn shard_flags_are_checked() {
     let dir = scratch_dir("shard-flags");
     let pipeline = root().join("pipelines/sample.toml");

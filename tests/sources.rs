@@ -661,7 +661,7 @@ fn velodyne_hits_cut_by_revolution_or_period_and_resync_after_garbage() {
 
 // ---------------------------------------------------------------- fuzzing
 
-/// Inputs per fuzz target (4 targets; stated in the README).
+/// Inputs per fuzz target (4 targets: 6,000 inputs in all, a few seconds).
 const FUZZ_CASES: u32 = 1500;
 
 proptest! {

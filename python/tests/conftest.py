@@ -31,12 +31,19 @@ def sample_index(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
     return index
 
 
+def data_required() -> bool:
+    """Whether missing data or tools fail a test instead of skipping it: TOPOREC_REQUIRE_DATA
+    set, not empty and not 0 (as the Rust tests read it; CI sets it to 1)."""
+    value = os.environ.get("TOPOREC_REQUIRE_DATA", "")
+    return value not in ("", "0")
+
+
 def require(module: str):
     """The module, or a skip (a failure with TOPOREC_REQUIRE_DATA=1, as in CI)."""
     try:
         return importlib.import_module(module)
     except ImportError:
-        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+        if data_required():
             raise
         pytest.skip(f"{module} is not installed")
 
@@ -46,7 +53,7 @@ def binary() -> pathlib.Path:
     """The release binary the README builds, or a skip (a failure with TOPOREC_REQUIRE_DATA=1)."""
     path = REPO / "target" / "release" / "toporec"
     if not path.exists():
-        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+        if data_required():
             pytest.fail(f"{path} is missing: build it with `cargo build --release`")
         pytest.skip(f"{path} is missing (cargo build --release)")
     return path

@@ -128,3 +128,23 @@ def test_batch_names_the_bad_cloud():
 def test_help_shows_the_api():
     assert "(k, 2)" in toporec.alpha_persistence.__doc__
     assert toporec.AlphaComplex.__doc__ and toporec.Atol.__doc__ and toporec.Index.__doc__
+
+
+def test_located_pairs_are_the_diagram_with_where_each_class_dies(fixtures):
+    points = read_cloud(fixtures, "uniform_cube_500")
+    pairs, where = toporec.alpha_persistence_located(points)
+    assert pairs.shape == where.shape and pairs.shape[1] == 3
+    diagram = toporec.alpha_persistence(points)
+    for dim in (0, 1, 2):
+        mine = pairs[pairs[:, 0] == dim][:, 1:]
+        mine = mine[np.lexsort((mine[:, 1], mine[:, 0]))]
+        assert np.array_equal(mine, diagram[dim]), f"H{dim}: the same pairs, bit for bit"
+    # One class never dies and has no place; every other dies at the centroid of a simplex of
+    # the cloud, so inside its bounding box.
+    essential = np.isinf(pairs[:, 2])
+    assert essential.sum() == 1 and np.isnan(where[essential]).all()
+    finite = where[~essential]
+    assert np.isfinite(finite).all()
+    assert (finite >= points.min(axis=0)).all() and (finite <= points.max(axis=0)).all()
+    with pytest.raises(ValueError, match="non-finite"):
+        toporec.alpha_persistence_located(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.nan]]))

@@ -2,7 +2,6 @@
 same scan and diagram rows, descriptors within 1e-6, the same query answers and Recall@N."""
 
 import json
-import os
 import shutil
 import subprocess
 
@@ -10,14 +9,14 @@ import numpy as np
 import pytest
 
 import toporec
-from conftest import REPO, require
+from conftest import REPO, data_required, require
 
 
 @pytest.fixture(scope="module")
 def spark():
     require("pyspark")
     if shutil.which("java") is None:
-        if os.environ.get("TOPOREC_REQUIRE_DATA") == "1":
+        if data_required():
             pytest.fail("java is not on PATH (Spark needs Java 17)")
         pytest.skip("java is not on PATH")
     from pyspark.sql import SparkSession

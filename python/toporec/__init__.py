@@ -54,6 +54,7 @@ __all__ = [
     "PaperDescriptor",
     "alpha_persistence",
     "alpha_persistence_batch",
+    "alpha_persistence_located",
     "describe_batch",
     "fit",
     "paper_diagram",
@@ -112,6 +113,24 @@ def alpha_persistence_batch(
     """
     arrays = [_points(c, f"cloud {i}") for i, c in enumerate(clouds)]
     return _toporec.alpha_persistence_batch(arrays, _dims(dims), bool(squared))
+
+
+def alpha_persistence_located(points: Any) -> Tuple[np.ndarray, np.ndarray]:
+    """The pairs of :func:`alpha_persistence` (every dimension, squared radii) with where each
+    class dies: the centroid of the simplex whose entrance kills it (H0: the merging edge's
+    midpoint; H1: the triangle that fills the loop; H2: the tetrahedron that fills the void),
+    in the input's coordinates. ``toporec-plus`` places each class on its grid by it.
+
+    Returns:
+        ``(pairs, locations)``: an ``(n, 3)`` array of ``dim, birth, death`` rows and an
+        ``(n, 3)`` array of ``x, y, z``, row for row, in no particular order. The pairs are those
+        of ``alpha_persistence(points)``; the essential H0 class dies at ``inf`` and has no
+        location (NaN).
+
+    Raises:
+        ValueError: as :func:`alpha_persistence`.
+    """
+    return _toporec.alpha_persistence_located(_points(points))
 
 
 class AlphaSimplexTree:

@@ -108,6 +108,19 @@ impl Condition {
         }
     }
 
+    /// Its label in tables: [`Condition::name`], and for the paper's translation its mean
+    /// length in metres (`mean_unit`: the queries' mean normalization scale), so that
+    /// `(0.2, 0.2, 0.1)` in units of the scale does not read as 20 cm.
+    pub fn label(&self, mean_unit: Option<f64>) -> String {
+        match (self, mean_unit) {
+            (Condition::Paper(Perturbation::Translate(t)), Some(unit)) => {
+                let length = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt() * unit;
+                format!("{} × scale (mean {length:.1} m)", self.name())
+            }
+            _ => self.name(),
+        }
+    }
+
     /// Applies it to a raw scan: `points` with their ring ids (when the source has them),
     /// seeded by `seed`; `unit` is the scan's normalization scale (for the paper's lengths).
     pub fn apply(
@@ -257,5 +270,15 @@ mod tests {
         for bad in ["drop=1.5", "beams=2.5", "offset=x", "nonsense", "as-recorded=3"] {
             assert!(Condition::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn the_papers_translation_is_labelled_in_metres() {
+        let paper = Condition::parse("paper").unwrap();
+        let translate = paper.iter().find(|c| c.name().contains("translate")).unwrap();
+        // |(0.2, 0.2, 0.1)| = 0.3 units; scans of scale 52 m on average: 15.6 m.
+        assert_eq!(translate.label(Some(52.0)), "paper: translate (0.2, 0.2, 0.1) × scale (mean 15.6 m)");
+        assert_eq!(translate.label(None), translate.name());
+        assert_eq!(Condition::Occlusion(90.0).label(Some(52.0)), "occlusion 90°");
     }
 }

@@ -205,6 +205,10 @@ pub struct PerturbationArgs {
     /// can describe a scan, i.e. not imported ones).
     #[arg(long = "method")]
     pub methods: Vec<String>,
+    /// The search budget of every method: `default`, `exhaustive` or `matched:N` (see
+    /// `eval places --help`).
+    #[arg(long, default_value = "default")]
+    pub search: crate::query::SearchBudget,
     /// Output folder.
     #[arg(long, short)]
     pub out: PathBuf,
@@ -240,8 +244,10 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         return Err(Error::invalid("no method of the index can describe a perturbed scan"));
     }
     let methods = names(&methods);
-    let engines: Vec<Engine> =
-        methods.iter().map(|m| Engine::open(&a.index, &[], m)).collect::<Result<Vec<_>>>()?;
+    let engines: Vec<Engine> = methods
+        .iter()
+        .map(|m| Ok(Engine::open(&a.index, &[], m)?.with_budget(a.search)))
+        .collect::<Result<Vec<_>>>()?;
     // The queries: a seeded share of the first method's scans.
     let first = &engines[0];
     let n = first.scans.len();
@@ -283,6 +289,7 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         "queries": clouds.len(),
         "fraction": a.fraction,
         "seed": a.seed,
+        "search": a.search.to_string(),
         "methods": entries,
         "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
     });

@@ -94,6 +94,11 @@ pub struct PlacesArgs {
     /// Descriptor methods to compare (repeatable; default: every method both indexes hold).
     #[arg(long = "method")]
     pub methods: Vec<String>,
+    /// The search budget of every method: `default` (each method's own settings),
+    /// `exhaustive` (every database entry re-ranked at every shift), or `matched:N` (N
+    /// re-ranked candidates and shifts within ±3 sectors, for every method that has them).
+    #[arg(long, default_value = "default")]
+    pub search: crate::query::SearchBudget,
     /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
     /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
     #[arg(long, value_enum, default_value = "places")]
@@ -112,31 +117,29 @@ pub enum Protocol {
     Pointnetvlad,
 }
 
-/// Whether `text` matches the glob `pattern` (`*`: any run of characters, `?`: one).
-pub fn glob_match(pattern: &str, text: &str) -> bool {
-    let (p, t): (Vec<char>, Vec<char>) = (pattern.chars().collect(), text.chars().collect());
-    let (mut i, mut j) = (0usize, 0usize);
-    let mut star: Option<(usize, usize)> = None;
-    while j < t.len() {
-        if i < p.len() && (p[i] == '?' || p[i] == t[j]) {
-            i += 1;
-            j += 1;
-        } else if i < p.len() && p[i] == '*' {
-            star = Some((i, j));
-            i += 1;
-        } else if let Some((si, sj)) = star {
-            i = si + 1;
-            j = sj + 1;
-            star = Some((si, sj + 1));
-        } else {
-            return false;
-        }
-    }
-    p[i..].iter().all(|&c| c == '*')
-}
+/// The scans `--db-scan` or `--query-scan` choose: those whose id matches one of the globs
+/// (`*`: any run of characters, `/` included; `?`: one; `[…]`: one of), every scan when none
+/// is given.
+pub struct Chooser(Option<globset::GlobSet>);
 
-fn chosen(patterns: &[String], id: &str) -> bool {
-    patterns.is_empty() || patterns.iter().any(|p| glob_match(p, id))
+impl Chooser {
+    /// The chooser of `patterns`, given with `flag`; an error names a pattern that is no glob.
+    pub fn new(flag: &str, patterns: &[String]) -> Result<Self> {
+        if patterns.is_empty() {
+            return Ok(Chooser(None));
+        }
+        let mut set = globset::GlobSetBuilder::new();
+        for p in patterns {
+            let glob = globset::Glob::new(p).map_err(|e| Error::invalid(format!("{flag} `{p}`: {e}")))?;
+            set.add(glob);
+        }
+        set.build().map(|s| Chooser(Some(s))).map_err(|e| Error::invalid(format!("{flag}: {e}")))
+    }
+
+    /// Whether the scan `id` is chosen.
+    pub fn chosen(&self, id: &str) -> bool {
+        self.0.as_ref().is_none_or(|s| s.is_match(id))
+    }
 }
 
 fn xy(s: &IndexedScan) -> [f64; 2] {
@@ -196,11 +199,13 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
     std::fs::create_dir_all(&a.out).at(&a.out)?;
     let prepared: Vec<Prepared> =
         methods.iter().map(|m| Prepared::new(a, &queries_index, m)).collect::<Result<_>>()?;
-    let redescribed = if conditions.iter().any(|c| *c != Condition::AsRecorded) {
+    let (redescribed, mean_unit) = if conditions.iter().any(|c| *c != Condition::AsRecorded) {
         redescribe(a, &queries_index, &prepared, &conditions)?
     } else {
-        HashMap::new()
+        (HashMap::new(), None)
     };
+    // The paper's lengths are in units of each scan's normalization scale: labelled in metres.
+    let labels: Vec<String> = conditions.iter().map(|c| c.label(mean_unit)).collect();
     let several = methods.len() > 1;
     let (mut entries, mut curves, mut plots, mut pr, mut summary) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -208,8 +213,8 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         let mut per_condition = Vec::new();
         for (ci, condition) in conditions.iter().enumerate() {
             let described = redescribed.get(&(ci, mi));
-            let r = p.evaluate(a, condition, described, several, ci == 0, &mut table)?;
-            let label = if several { format!("{}, {}", p.name, condition.name()) } else { condition.name() };
+            let r = p.evaluate(a, condition, &labels[ci], described, several, ci == 0, &mut table)?;
+            let label = if several { format!("{}, {}", p.name, labels[ci]) } else { labels[ci].clone() };
             if let Some(lc) = &r.loop_closure {
                 pr.push((label.clone(), lc.curve.iter().map(|q| (q.recall, q.precision)).collect()));
             }
@@ -218,7 +223,7 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
                 curves.extend(r.curves.iter().map(|(name, v)| (format!("{prefix}{name}"), v.clone())));
                 plots.extend(r.plots.iter().cloned());
             }
-            summary.push((condition.name(), p.name.clone(), r.summary.clone()));
+            summary.push((labels[ci].clone(), p.name.clone(), r.summary.clone()));
             per_condition.push(r.json);
         }
         let mut entry = p.json.clone();
@@ -247,7 +252,8 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         "min_time_gap_s": a.min_time_gap,
         "revisit_radius_m": a.revisit_radius,
         "seed": a.seed,
-        "conditions": conditions.iter().map(Condition::name).collect::<Vec<_>>(),
+        "search": a.search.to_string(),
+        "conditions": labels,
         "threads": rayon::current_num_threads(),
         "methods": entries,
         "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
@@ -335,12 +341,14 @@ impl Prepared {
             ));
         }
         let mut db_loaded = db_loaded;
+        let (db_chooser, query_chooser) =
+            (Chooser::new("--db-scan", &a.db_scans)?, Chooser::new("--query-scan", &a.query_scans)?);
         let db_all: Vec<IndexedScan> = std::mem::take(&mut db_loaded.scans)
             .into_iter()
-            .filter(|s| chosen(&a.db_scans, &s.scan_id))
+            .filter(|s| db_chooser.chosen(&s.scan_id))
             .collect();
         let queries: Vec<IndexedScan> =
-            q_loaded.scans.into_iter().filter(|s| chosen(&a.query_scans, &s.scan_id)).collect();
+            q_loaded.scans.into_iter().filter(|s| query_chooser.chosen(&s.scan_id)).collect();
         let db_unposed = db_all.iter().filter(|s| s.pose.is_none()).count();
         let query_unposed = queries.iter().filter(|s| s.pose.is_none()).count();
         let db_scans = subsample(db_all.into_iter().filter(|s| s.pose.is_some()).collect(), a.map_every);
@@ -356,7 +364,7 @@ impl Prepared {
         let (id, length) = (db_loaded.id.clone(), db_loaded.length);
         db_loaded.scans = db_scans;
         let n_db = db_loaded.scans.len();
-        let engine = Engine::from_loaded(&a.db, db_loaded)?;
+        let engine = Engine::from_loaded(&a.db, db_loaded)?.with_budget(a.search);
         let json = json!({
             "method": method,
             "id": id,
@@ -390,10 +398,12 @@ impl Prepared {
         (p[0] - r[0]).hypot(p[1] - r[1])
     }
 
+    #[expect(clippy::too_many_arguments, reason = "one call site, each argument a different input")]
     fn evaluate(
         &self,
         a: &PlacesArgs,
         condition: &Condition,
+        label: &str,
         described: Option<&HashMap<String, Redescribed>>,
         several: bool,
         detailed: bool,
@@ -433,7 +443,7 @@ impl Prepared {
             _ => Vec::new(),
         };
         let condition_json = |extra: serde_json::Value| {
-            let mut j = json!({"condition": condition.name(), "queries": self.queries.len()});
+            let mut j = json!({"condition": label, "queries": self.queries.len()});
             if let (Some(o), Some(e)) = (j.as_object_mut(), extra.as_object()) {
                 o.extend(e.clone());
             }
@@ -442,7 +452,7 @@ impl Prepared {
         if vectors.iter().all(Option::is_none) {
             let why = failures.first().copied().unwrap_or("no query could be described");
             let name = if several { format!("{}: ", self.name) } else { String::new() };
-            line!(table, "{name}{}: not applicable ({why})", condition.name());
+            line!(table, "{name}{label}: not applicable ({why})");
             return Ok(Evaluated {
                 json: condition_json(json!({"not_applicable": why})),
                 curves: Vec::new(),
@@ -654,7 +664,7 @@ fn redescribe(
     queries_index: &Path,
     prepared: &[Prepared],
     conditions: &[Condition],
-) -> Result<HashMap<(usize, usize), HashMap<String, Redescribed>>> {
+) -> Result<(HashMap<(usize, usize), HashMap<String, Redescribed>>, Option<f64>)> {
     let wanted: HashSet<&str> =
         prepared.iter().flat_map(|p| p.queries.iter().map(|q| q.scan_id.as_str())).collect();
     let pipeline = crate::pipeline::config::Pipeline::of_index(queries_index)?;
@@ -663,9 +673,10 @@ fn redescribe(
     metric.normalize = false;
     let mut found = 0usize;
     let mut per_scan: Vec<(String, Vec<Vec<Redescribed>>)> = Vec::new();
+    let mut units: Vec<f64> = Vec::new();
     for spec in &pipeline.sources {
         let scans = spec.open()?.filter_map(|item| item.ok()).filter(|s| wanted.contains(s.id.as_str()));
-        let described: Vec<(String, Vec<Vec<Redescribed>>)> = scans
+        let described: Vec<(String, Vec<Vec<Redescribed>>, f64)> = scans
             .par_bridge()
             .map(|scan| {
                 let unit = if needs_unit {
@@ -700,11 +711,14 @@ fn redescribe(
                             .collect()
                     })
                     .collect();
-                (scan.id.clone(), per_condition)
+                (scan.id.clone(), per_condition, unit)
             })
             .collect();
         found += described.len();
-        per_scan.extend(described);
+        for (id, per_condition, unit) in described {
+            per_scan.push((id, per_condition));
+            units.push(unit);
+        }
     }
     if found < wanted.len() {
         return Err(Error::index(
@@ -720,7 +734,8 @@ fn redescribe(
             }
         }
     }
-    Ok(out)
+    let mean_unit = (needs_unit && !units.is_empty()).then(|| units.iter().sum::<f64>() / units.len() as f64);
+    Ok((out, mean_unit))
 }
 
 /// A scan's identity (id, fingerprint, session, path, time, pose) without its points.
@@ -749,7 +764,7 @@ fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
         ));
     }
     let methods = names(&chosen_methods(&[&a.db], &a.methods)?);
-    let (table, report, curves) = super::pointnetvlad::evaluate(&a.db, &methods)?;
+    let (table, report, curves) = super::pointnetvlad::evaluate(&a.db, &methods, a.search)?;
     std::fs::create_dir_all(&a.out).at(&a.out)?;
     let plots =
         crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
@@ -763,15 +778,19 @@ fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
 
 #[cfg(test)]
 mod tests {
-    use super::glob_match;
+    use super::Chooser;
 
     #[test]
     fn globs() {
-        assert!(glob_match("*/000003", "05/000003"));
-        assert!(glob_match("00/00009?", "00/000095"));
-        assert!(!glob_match("*/000003", "05/000033"));
-        assert!(glob_match("*", ""));
-        assert!(glob_match("a*b*c", "axxbyyc"));
-        assert!(!glob_match("a*b*c", "axxbyy"));
+        let one = |p: &str, id: &str| Chooser::new("--db-scan", &[p.to_string()]).unwrap().chosen(id);
+        assert!(one("*/000003", "05/000003"));
+        assert!(one("00/00009?", "00/000095"));
+        assert!(!one("*/000003", "05/000033"));
+        assert!(one("*", ""));
+        assert!(one("a*b*c", "axxbyyc"));
+        assert!(!one("a*b*c", "axxbyy"));
+        assert!(Chooser::new("--db-scan", &[]).unwrap().chosen("anything"));
+        let e = Chooser::new("--query-scan", &["05/[0-9".into()]).err().unwrap().to_string();
+        assert!(e.contains("--query-scan `05/[0-9`"), "{e}");
     }
 }

@@ -129,7 +129,12 @@ pub struct DatasetRecall {
 }
 
 /// The protocol on one method's descriptors.
-pub fn evaluate_method(index: &Path, method: &str, sets: &[Dataset]) -> Result<(String, Vec<DatasetRecall>)> {
+pub fn evaluate_method(
+    index: &Path,
+    method: &str,
+    sets: &[Dataset],
+    budget: crate::query::SearchBudget,
+) -> Result<(String, Vec<DatasetRecall>)> {
     let loaded = load_method(index, method, &[])?;
     let (id, length, method_def) = (loaded.id.clone(), loaded.length, loaded.method.clone());
     let mut by_run: BTreeMap<String, Vec<IndexedScan>> = BTreeMap::new();
@@ -151,6 +156,7 @@ pub fn evaluate_method(index: &Path, method: &str, sets: &[Dataset]) -> Result<(
                         codebook: None,
                         scans: scans.to_vec(),
                     })
+                    .with_budget(budget)
                 })
             })
             .collect();
@@ -201,7 +207,11 @@ pub fn evaluate_method(index: &Path, method: &str, sets: &[Dataset]) -> Result<(
 }
 
 /// Runs the protocol on every chosen method of `index`; returns the report text and JSON.
-pub fn evaluate(index: &Path, methods: &[String]) -> Result<(String, serde_json::Value, Vec<super::Curve>)> {
+pub fn evaluate(
+    index: &Path,
+    methods: &[String],
+    budget: crate::query::SearchBudget,
+) -> Result<(String, serde_json::Value, Vec<super::Curve>)> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
     let Some(SourceSpec::PointNetVlad(spec)) =
         pipeline.sources.iter().find(|s| matches!(s, SourceSpec::PointNetVlad(_)))
@@ -235,7 +245,7 @@ pub fn evaluate(index: &Path, methods: &[String]) -> Result<(String, serde_json:
         "method", "dataset", "pairs", "R@1", "R@5", "R@25", "R@1%"
     ));
     for method in methods {
-        let (id, results) = evaluate_method(index, method, &sets)?;
+        let (id, results) = evaluate_method(index, method, &sets, budget)?;
         for r in &results {
             table.push_str(&format!(
                 "{:<14} {:<12} {:>6} {:>9.2} {:>9.2} {:>9.2} {:>9.2}\n",

@@ -12,7 +12,7 @@
 //! range = { min = 1.0, max = 80.0 }  # metres from the sensor
 //! ground = { method = "plane", threshold = 0.15 }   # or { method = "height", below = -1.5 }
 //! voxel = 0.2                        # voxel-grid cell (m)
-//! subsample = 4096                   # at most this many points, seeded by scan id
+//! subsample = 4096                   # at most this many points, seeded by the scan's bytes
 //! normalize = true                   # zero mean, max |coordinate| = 1
 //! min_points = 16                    # fewer left: the scan is skipped with the reason
 //! [persistence]

@@ -78,8 +78,9 @@ pub(super) fn run(p: &Pipeline, opts: &RunOptions, shard: Shard) -> Result<RunSu
         ));
     }
     let needs = "a sharded run needs the index's codebook first: `toporec fit --pipeline FILE --sample F` (or one unsharded run)";
-    let manifest = Manifest::load(&main.join(MANIFEST_FILE))?.ok_or_else(|| Error::index(&main, needs))?;
     let settings = p.settings_hash();
+    freeze_saved_codebook(p, &main, &settings)?;
+    let manifest = Manifest::load(&main.join(MANIFEST_FILE))?.ok_or_else(|| Error::index(&main, needs))?;
     if manifest.settings_hash != settings {
         return Err(Error::index(
             &main,
@@ -93,6 +94,19 @@ pub(super) fn run(p: &Pipeline, opts: &RunOptions, shard: Shard) -> Result<RunSu
         true => Some(manifest.codebook(&main)?.ok_or_else(|| Error::index(&main, needs))?),
         false => None,
     };
+    if let (Vectorize::Load(path, wanted), Some(held)) = (&p.vectorize, &codebook)
+        && wanted.id() != held.id()
+    {
+        return Err(Error::index(
+            &main,
+            format!(
+                "holds codebook {}, the pipeline asks for {} ({}); switch codebooks with `toporec revectorize`",
+                held.id(),
+                wanted.id(),
+                path.display()
+            ),
+        ));
+    }
     let known = committed_scans(&main, &manifest)?;
     let dir = shard.dir(&main);
     let shard_opts = RunOptions { index: Some(dir.clone()), shard: None, ..opts.clone() };
@@ -111,6 +125,34 @@ pub(super) fn run(p: &Pipeline, opts: &RunOptions, shard: Shard) -> Result<RunSu
     summary.index = main;
     summary.wall = start.elapsed();
     Ok(summary)
+}
+
+/// A pipeline that needs no fitted codebook — it names a saved one (`[vectorize] codebook`),
+/// or has no TopoRec descriptor — starts a new index for its shards itself: the first shard to
+/// take the index's lock records the settings, the methods and the codebook in its manifest;
+/// the others find them there.
+fn freeze_saved_codebook(p: &Pipeline, main: &Path, settings: &str) -> Result<()> {
+    let saved = match &p.vectorize {
+        Vectorize::Load(_, cb) if p.methods.toporec => Some((**cb).clone()),
+        _ if !p.methods.toporec => None,
+        _ => return Ok(()),
+    };
+    if Manifest::load(&main.join(MANIFEST_FILE))?.is_some_and(|m| m.generation > 0) {
+        return Ok(());
+    }
+    let mut writer = IndexWriter::open_waiting(main, settings)?;
+    if writer.manifest().generation > 0 {
+        return Ok(()); // another shard was first
+    }
+    let mut methods = writer.manifest().methods.clone();
+    methods.retain(|_, e| e.kind == crate::baselines::IMPORTED);
+    methods.extend(MethodEntry::of_computed(&p.methods));
+    writer.set_methods(methods);
+    match saved {
+        Some(cb) => writer.set_codebook(cb, Some(p.effective_toml(main))),
+        None => writer.set_pipeline(p.effective_toml(main)),
+    }
+    writer.commit()
 }
 
 /// `toporec fit --pipeline`: fits the pipeline's codebook on the scans whose id hashes below

@@ -77,18 +77,15 @@ pub fn is_staged_name(name: &str) -> bool {
         .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
 }
 
+/// The bytes of a session name kept as they are in its partition folder name: letters, digits,
+/// `-`, `_`, `.` (every other byte is percent-encoded, as Hive does).
+const SESSION_ESCAPES: &percent_encoding::AsciiSet =
+    &percent_encoding::NON_ALPHANUMERIC.remove(b'-').remove(b'_').remove(b'.');
+
 /// The partition folder name of a session: `session=<name>` with characters other than
 /// letters, digits, `-`, `_`, `.` percent-encoded (as Hive does).
 pub fn partition(session: &str) -> String {
-    let mut s = String::from("session=");
-    for b in session.bytes() {
-        if b.is_ascii_alphanumeric() || b"-_.".contains(&b) {
-            s.push(b as char);
-        } else {
-            s.push_str(&format!("%{b:02X}"));
-        }
-    }
-    s
+    format!("session={}", percent_encoding::utf8_percent_encode(session, SESSION_ESCAPES))
 }
 
 /// The folder of a table's part files, relative to the index: `<table>/session=<s>`, and
@@ -106,21 +103,16 @@ pub fn partition_dir(table: &str, method: Option<&str>, session: &str) -> PathBu
 /// Every file under the table folders of an index (any depth), toporec's or not, with its
 /// path relative to the index (`/` separators), sorted.
 pub fn files_on_disk(root: &Path) -> Vec<(PathBuf, String)> {
-    fn walk(root: &Path, dir: &Path, out: &mut Vec<(PathBuf, String)>) {
-        let Ok(entries) = std::fs::read_dir(dir) else { return };
-        for e in entries.flatten() {
-            let path = e.path();
-            if e.file_type().is_ok_and(|t| t.is_dir()) {
-                walk(root, &path, out);
-            } else if let Ok(rel) = path.strip_prefix(root) {
-                let rel = rel.to_string_lossy().replace('\\', "/");
-                out.push((path, rel));
-            }
-        }
-    }
     let mut out = Vec::new();
     for table in crate::sinks::schema::tables::ALL {
-        walk(root, &root.join(table), &mut out);
+        for e in walkdir::WalkDir::new(root.join(table)).into_iter().flatten() {
+            if e.file_type().is_file()
+                && let Ok(rel) = e.path().strip_prefix(root)
+            {
+                let rel = rel.to_string_lossy().replace('\\', "/");
+                out.push((e.path().to_owned(), rel));
+            }
+        }
     }
     out.sort();
     out
@@ -128,21 +120,8 @@ pub fn files_on_disk(root: &Path) -> Vec<(PathBuf, String)> {
 
 /// Decodes a `session=<name>` partition folder name.
 pub fn session_of(partition: &str) -> Option<String> {
-    let enc = partition.strip_prefix("session=")?;
-    let bytes = enc.as_bytes();
-    let mut out = Vec::with_capacity(bytes.len());
-    let mut i = 0;
-    while i < bytes.len() {
-        if bytes[i] == b'%' && i + 2 < bytes.len() {
-            let hex = std::str::from_utf8(&bytes[i + 1..i + 3]).ok()?;
-            out.push(u8::from_str_radix(hex, 16).ok()?);
-            i += 3;
-        } else {
-            out.push(bytes[i]);
-            i += 1;
-        }
-    }
-    String::from_utf8(out).ok()
+    let encoded = partition.strip_prefix("session=")?;
+    percent_encoding::percent_decode_str(encoded).decode_utf8().ok().map(|s| s.into_owned())
 }
 
 /// The part number of a `part-<n>.parquet` file.

@@ -146,17 +146,17 @@ pub fn foreign(root: &Path) -> Vec<String> {
 }
 
 /// The foreign entries under one table folder: files that are not part or temporary files,
-/// folders that are not `method=` or `session=` partitions.
+/// folders that are not `method=` or `session=` partitions (not entered).
 fn foreign_in_table(root: &Path, dir: &Path, out: &mut Vec<String>) {
-    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+    let mut entries = walkdir::WalkDir::new(dir).min_depth(1).into_iter();
+    while let Some(Ok(e)) = entries.next() {
         let name = e.file_name().to_string_lossy().into_owned();
         let rel =
             e.path().strip_prefix(root).map(|r| r.to_string_lossy().replace('\\', "/")).unwrap_or_default();
-        if e.file_type().is_ok_and(|t| t.is_dir()) {
-            if name.starts_with("session=") || name.starts_with("method=") {
-                foreign_in_table(root, &e.path(), out);
-            } else {
+        if e.file_type().is_dir() {
+            if !(name.starts_with("session=") || name.starts_with("method=")) {
                 out.push(format!("{rel}/"));
+                entries.skip_current_dir();
             }
         } else if !(is_part_name(&name) || is_temp_name(&name)) {
             out.push(rel);
@@ -201,12 +201,9 @@ pub fn check_writable_folder(root: &Path) -> Result<()> {
 
 /// Removes the empty partition folders (`session=…`, `method=…`) under `dir`, deepest first.
 fn remove_empty_partitions(dir: &Path) {
-    let Ok(entries) = std::fs::read_dir(dir) else { return };
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let partition = name.starts_with("session=") || name.starts_with("method=");
-        if partition && e.file_type().is_ok_and(|t| t.is_dir()) {
-            remove_empty_partitions(&e.path());
+    for e in walkdir::WalkDir::new(dir).min_depth(1).contents_first(true).into_iter().flatten() {
+        let name = e.file_name().to_string_lossy();
+        if e.file_type().is_dir() && (name.starts_with("session=") || name.starts_with("method=")) {
             let _ = std::fs::remove_dir(e.path());
         }
     }
