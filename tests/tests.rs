@@ -5,6 +5,7 @@ mod bad_input;
 mod baselines;
 mod cli;
 mod codebook;
+mod docs;
 mod eval;
 mod homology;
 mod incremental;
