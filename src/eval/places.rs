@@ -656,6 +656,9 @@ impl Prepared {
     }
 }
 
+/// `(condition, method) → scan id → descriptor`.
+type Redescriptions = HashMap<(usize, usize), HashMap<String, Redescribed>>;
+
 /// Re-reads every query scan through the query index's sources and describes it, under each
 /// condition other than as-recorded, with each method: `(condition, method) → scan id →
 /// descriptor`. Each raw scan is read once and dropped once described.
@@ -664,7 +667,7 @@ fn redescribe(
     queries_index: &Path,
     prepared: &[Prepared],
     conditions: &[Condition],
-) -> Result<(HashMap<(usize, usize), HashMap<String, Redescribed>>, Option<f64>)> {
+) -> Result<(Redescriptions, Option<f64>)> {
     let wanted: HashSet<&str> =
         prepared.iter().flat_map(|p| p.queries.iter().map(|q| q.scan_id.as_str())).collect();
     let pipeline = crate::pipeline::config::Pipeline::of_index(queries_index)?;
@@ -726,7 +729,7 @@ fn redescribe(
             format!("{found} of {} query scans could be re-read from the index's sources", wanted.len()),
         ));
     }
-    let mut out: HashMap<(usize, usize), HashMap<String, Redescribed>> = HashMap::new();
+    let mut out: Redescriptions = HashMap::new();
     for (id, per_condition) in per_scan {
         for (ci, per_method) in per_condition.into_iter().enumerate() {
             for (mi, r) in per_method.into_iter().enumerate() {
