@@ -14,7 +14,7 @@ fn sh_blocks(text: &str) -> Vec<Vec<String>> {
     let mut current: Option<Vec<String>> = None;
     for line in text.lines() {
         match (&mut current, line.trim_start()) {
-            (None, l) if l == "```sh" => current = Some(Vec::new()),
+            (None, "```sh") => current = Some(Vec::new()),
             (Some(_), "```") => out.push(current.take().expect("in a block")),
             (Some(block), _) => block.push(line.to_string()),
             _ => {}
