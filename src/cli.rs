@@ -50,7 +50,7 @@ enum Command {
     Validate(ValidateArgs),
     /// Generate multi-session LiDAR drives through a procedural town (NCLT, MCAP, KITTI files).
     Simulate(SimulateArgs),
-    /// Write the Parquet table schemas as JSON (what `schemas/` holds).
+    /// Write the Parquet table schemas and the report's JSON Schema (what `schemas/` holds).
     #[command(hide = true)]
     Schemas(SchemasArgs),
     /// Print the persistence diagram of one cloud's alpha complex as CSV (dim,birth,death).
@@ -447,8 +447,13 @@ fn schemas(args: SchemasArgs) -> Result<()> {
         let path = args.dir.join(format!("{}.json", t.name));
         toporec::fsutil::write_atomic(&path, toporec::sinks::schema::render_json(&t).as_bytes())?;
     }
+    let report = args.dir.join(REPORT_SCHEMA);
+    toporec::fsutil::write_atomic(&report, toporec::eval::report::schema().as_bytes())?;
     Ok(())
 }
+
+/// The file of `report.json`'s schema in `schemas/`.
+const REPORT_SCHEMA: &str = "report.json";
 
 /// Minimum number of input points for `toporec diagram`.
 const MIN_POINTS: usize = 4;

@@ -58,6 +58,21 @@ fn every_search_route_equals_brute_force() {
     }
 }
 
+/// A real `report.json` validates against `schemas/report.json` (a JSON Schema validator, where
+/// one is installed).
+fn assert_matches_report_schema(report: &std::path::Path) {
+    if !python_with("report JSON Schema validation", &["jsonschema"]) {
+        return;
+    }
+    let script = format!(
+        "import json, jsonschema; jsonschema.validate(json.load(open({:?})), json.load(open({:?})))",
+        report.display().to_string(),
+        root().join("schemas/report.json").display().to_string()
+    );
+    let o = std::process::Command::new("python3").args(["-c", &script]).output().unwrap();
+    assert!(o.status.success(), "{}: {}", report.display(), text(&o.stderr));
+}
+
 #[test]
 fn query_and_eval_places_on_the_sample_and_on_nclt() {
     let dir = scratch_dir("eval_places");
@@ -82,6 +97,7 @@ fn query_and_eval_places_on_the_sample_and_on_nclt() {
     let o = eval_days(&index, &eval, &[]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let report: serde_json::Value = read_json(&eval.join("report.json"));
+    assert_matches_report_schema(&eval.join("report.json"));
     let m = &report["methods"][0];
     assert_eq!(m["method"], "toporec");
     assert_eq!(m["database_scans"], 32);
@@ -177,6 +193,7 @@ fn perturbation_protocol_on_kitti() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     println!("{}", text(&o.stdout));
     let report: serde_json::Value = read_json(&out.join("report.json"));
+    assert_matches_report_schema(&out.join("report.json"));
     assert_eq!(report["queries"], 48);
     // Original, translation and rotations about z: the descriptor is invariant, so 48 of 48.
     // Jitter and scaling: regression values (toporec's own output: 45, 48 and 47 of 48; the

@@ -311,6 +311,11 @@ fn schema_files_equal_the_code() {
             path.display()
         );
     }
+    let on_disk = std::fs::read_to_string(root().join("schemas/report.json")).unwrap_or_default();
+    assert!(
+        on_disk == toporec::eval::report::schema(),
+        "schemas/report.json is stale: run `cargo run -- schemas schemas`"
+    );
 }
 
 #[test]

@@ -8,7 +8,7 @@
 //! all queries (RING / NCLT: a query without any match counts as a failure).
 
 /// Which queries the recall is divided by.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Denominator {
     /// Queries with at least one true match (PointNetVLAD).
@@ -28,7 +28,7 @@ pub fn first_hit(retrieved: &[usize], is_match: impl Fn(usize) -> bool) -> Optio
 }
 
 /// Recall figures for one set of queries.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, schemars::JsonSchema)]
 pub struct Recall {
     /// The denominator used.
     pub denominator: Denominator,
@@ -69,7 +69,7 @@ pub fn recall(
 
 /// One point of a precision–recall curve: queries whose top-1 distance is at most
 /// `threshold` are accepted as loop closures.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, schemars::JsonSchema)]
 pub struct PrPoint {
     /// Descriptor-distance threshold.
     pub threshold: f64,
@@ -84,7 +84,7 @@ pub struct PrPoint {
 /// the query is a true positive, one farther a false positive; a rejected query that has a
 /// database scan within the radius is a false negative. The threshold is swept over every
 /// top-1 distance.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, schemars::JsonSchema)]
 pub struct LoopClosure {
     /// Queries.
     pub queries: usize,

@@ -17,6 +17,7 @@ pub mod conditions;
 pub mod metrics;
 pub mod places;
 pub mod pointnetvlad;
+pub mod report;
 
 pub use places::{PlacesArgs, Protocol, places};
 
@@ -34,7 +35,6 @@ use crate::query::{Engine, StepTimes, index_methods, step_stats, step_summary};
 use crate::rng::SplitMix64;
 use metrics::{Denominator, first_hit, one_percent_k, recall};
 use rayon::prelude::*;
-use serde_json::json;
 use std::path::{Path, PathBuf};
 
 /// The methods to evaluate, as the first of `indexes` records them: those asked for, or every
@@ -82,12 +82,16 @@ fn names(methods: &[Method]) -> Vec<String> {
 pub(crate) type Curve = (String, Vec<f64>);
 
 /// Mean and p95 (ms) of each step a method has (or of its search steps).
-fn timing_json(method: &Method, times: &[StepTimes], search_only: bool) -> serde_json::Value {
-    let mut out = serde_json::Map::new();
-    for (name, mean, p95) in step_stats(method, times, search_only) {
-        out.insert(name.to_string(), json!({"mean": mean, "p95": p95}));
-    }
-    serde_json::Value::Object(out)
+fn timing_of(method: &Method, times: &[StepTimes], search_only: bool) -> report::Timing {
+    step_stats(method, times, search_only)
+        .into_iter()
+        .map(|(name, mean, p95)| (name.to_string(), report::StepTiming { mean, p95 }))
+        .collect()
+}
+
+/// The file names of plots written beside a report.
+fn file_names(plots: &[PathBuf]) -> Vec<String> {
+    plots.iter().filter_map(|p| p.file_name()).map(|n| n.to_string_lossy().into_owned()).collect()
 }
 
 /// `--max-n` clamped to the database size, with a warning.
@@ -98,14 +102,6 @@ fn clamp_max_n(max_n: usize, n_db: usize) -> usize {
         );
     }
     max_n.min(n_db).max(1)
-}
-
-fn write_report(out: &Path, report: &serde_json::Value, table: &str) -> Result<()> {
-    crate::fsutil::write_atomic(
-        &out.join("report.json"),
-        (serde_json::to_string_pretty(report).expect("JSON of plain values") + "\n").as_bytes(),
-    )?;
-    crate::fsutil::write_atomic(&out.join("report.txt"), table.as_bytes())
 }
 
 /// A perturbation of a preprocessed cloud.
@@ -282,18 +278,18 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
     std::fs::create_dir_all(&a.out).at(&a.out)?;
     let plots =
         crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N under perturbations", &curves)?;
-    let report = json!({
-        "protocol": "perturbation",
-        "toporec_version": env!("CARGO_PKG_VERSION"),
-        "index": a.index,
-        "queries": clouds.len(),
-        "fraction": a.fraction,
-        "seed": a.seed,
-        "search": a.search.to_string(),
-        "methods": entries,
-        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
-    });
-    write_report(&a.out, &report, &table)?;
+    let report = report::PerturbationReport {
+        protocol: report::Protocol::Perturbation,
+        toporec_version: env!("CARGO_PKG_VERSION").into(),
+        index: a.index.clone(),
+        queries: clouds.len(),
+        fraction: a.fraction,
+        seed: a.seed,
+        search: a.search.to_string(),
+        methods: entries,
+        plots: file_names(&plots),
+    };
+    report::write(&a.out, &report::Report::Perturbation(report), &table)?;
     Ok(table)
 }
 
@@ -351,7 +347,7 @@ fn perturbation_of(
     kinds: &[Perturbation],
     several: bool,
     table: &mut String,
-) -> Result<(serde_json::Value, Vec<Curve>)> {
+) -> Result<(report::PerturbationMethod, Vec<Curve>)> {
     let n = engine.scans.len();
     let rows: std::collections::HashMap<&str, usize> =
         engine.scans.iter().enumerate().map(|(r, s)| (s.scan_id.as_str(), r)).collect();
@@ -401,18 +397,18 @@ fn perturbation_of(
         );
         let prefix = if several { format!("{}, ", method.name) } else { String::new() };
         curves.push((format!("{prefix}{}", kind.name()), rc.at_n.clone()));
-        results.push(json!({"perturbation": kind.name(), "recall": rc}));
+        results.push(report::PerturbationResult { perturbation: kind.name(), recall: rc });
     }
     line!(table, "per query (mean / p95 ms): {}", step_summary(method, &times, false));
-    let json = json!({
-        "method": method.name,
-        "id": engine.id,
-        "descriptor_length": engine.scans.first().map_or(0, |s| s.descriptor.len()),
-        "database_scans": n,
-        "queries": present.len(),
-        "one_percent_k": k1,
-        "results": results,
-        "timing_ms": timing_json(method, &times, false),
-    });
-    Ok((json, curves))
+    let entry = report::PerturbationMethod {
+        method: method.name.clone(),
+        id: engine.id.clone(),
+        descriptor_length: engine.scans.first().map_or(0, |s| s.descriptor.len()),
+        database_scans: n,
+        queries: present.len(),
+        one_percent_k: k1,
+        results,
+        timing_ms: timing_of(method, &times, false),
+    };
+    Ok((entry, curves))
 }

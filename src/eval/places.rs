@@ -19,13 +19,16 @@
 
 use super::conditions::{Condition, NotApplicable};
 use super::metrics::{Denominator, LoopClosure, Recall, first_hit, loop_closure, one_percent_k, recall};
-use super::{Curve, chosen_methods, clamp_max_n, names, timing_json, write_report};
+use super::report::{
+    self, ConditionResult, DatabaseSide, EvaluatedCondition, LoopClosureResult, Nearest, PlacesMethod,
+    PlacesReport, QuerySide, Report, ThresholdResult, Top1, Top1Row,
+};
+use super::{Curve, chosen_methods, clamp_max_n, file_names, names, timing_of};
 use crate::baselines::TOPOREC;
 use crate::error::{Error, Result, ResultExt};
 use crate::query::{Engine, Found, StepTimes, load_method, step_summary};
 use crate::sinks::index::IndexedScan;
 use rayon::prelude::*;
-use serde_json::json;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -224,12 +227,14 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
                 plots.extend(r.plots.iter().cloned());
             }
             summary.push((labels[ci].clone(), p.name.clone(), r.summary.clone()));
-            per_condition.push(r.json);
+            per_condition.push(r.result);
         }
-        let mut entry = p.json.clone();
-        entry["results"] = per_condition[0]["results"].clone();
-        entry["timing_ms"] = per_condition[0]["timing_ms"].clone();
-        entry["conditions"] = json!(per_condition);
+        let mut entry = p.entry.clone();
+        if let Some(first) = per_condition.first().and_then(|c| c.evaluated.as_ref()) {
+            entry.results = Some(first.results.clone());
+            entry.timing_ms = Some(first.timing_ms.clone());
+        }
+        entry.conditions = per_condition;
         entries.push(entry);
     }
     write_summary(&mut table, a, &summary);
@@ -243,22 +248,32 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         &format!("Loop closure: top-1 within {} m", a.revisit_radius),
         &pr,
     )?);
-    let report = json!({
-        "protocol": "places",
-        "toporec_version": env!("CARGO_PKG_VERSION"),
-        "database": {"index": a.db, "sessions": a.db_sessions, "scans": a.db_scans, "map_every_m": a.map_every},
-        "queries": {"index": queries_index, "sessions": a.query_sessions, "scans": a.query_scans, "query_every_m": a.query_every},
-        "within_session": a.within_session,
-        "min_time_gap_s": a.min_time_gap,
-        "revisit_radius_m": a.revisit_radius,
-        "seed": a.seed,
-        "search": a.search.to_string(),
-        "conditions": labels,
-        "threads": rayon::current_num_threads(),
-        "methods": entries,
-        "plots": plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>(),
-    });
-    write_report(&a.out, &report, &table)?;
+    let report = PlacesReport {
+        protocol: report::Protocol::Places,
+        toporec_version: env!("CARGO_PKG_VERSION").into(),
+        database: DatabaseSide {
+            index: a.db.clone(),
+            sessions: a.db_sessions.clone(),
+            scans: a.db_scans.clone(),
+            map_every_m: a.map_every,
+        },
+        queries: QuerySide {
+            index: queries_index.clone(),
+            sessions: a.query_sessions.clone(),
+            scans: a.query_scans.clone(),
+            query_every_m: a.query_every,
+        },
+        within_session: a.within_session,
+        min_time_gap_s: a.min_time_gap,
+        revisit_radius_m: a.revisit_radius,
+        seed: a.seed,
+        search: a.search.to_string(),
+        conditions: labels,
+        threads: rayon::current_num_threads(),
+        methods: entries,
+        plots: file_names(&plots),
+    };
+    report::write(&a.out, &Report::Places(report), &table)?;
     Ok(table)
 }
 
@@ -304,12 +319,38 @@ struct Prepared {
     queries: Vec<IndexedScan>,
     db_unposed: usize,
     query_unposed: usize,
-    json: serde_json::Value,
+    /// Its report entry, without results yet.
+    entry: PlacesMethod,
 }
 
-/// One (method, condition)'s results.
+/// What one (method, condition) computed: the numbers, before any text or plot.
+struct Computed {
+    /// Why the condition does not apply (no query could be described under it).
+    not_applicable: Option<String>,
+    /// Queries described, and those that could not be.
+    described: usize,
+    not_described: usize,
+    /// Database scans, Recall@1 % k, Recall@N's largest N, descriptor length.
+    n_db: usize,
+    k1: usize,
+    max_n: usize,
+    length: usize,
+    /// Per threshold: (threshold, with a match, all queries).
+    recalls: Vec<(f64, Recall, Recall)>,
+    /// Whether each query's top-1 is within the first threshold.
+    success_first: Vec<bool>,
+    /// The nearest database scan as the top-1: queries judged, and the share (%).
+    nearest: Nearest,
+    loop_closure: Option<LoopClosure>,
+    top1: Vec<Top1Row>,
+    search_times: Vec<StepTimes>,
+    describe_times: Vec<StepTimes>,
+    wall: f64,
+}
+
+/// One (method, condition)'s results, as reported.
 struct Evaluated {
-    json: serde_json::Value,
+    result: ConditionResult,
     curves: Vec<Curve>,
     plots: Vec<PathBuf>,
     loop_closure: Option<LoopClosure>,
@@ -365,18 +406,21 @@ impl Prepared {
         db_loaded.scans = db_scans;
         let n_db = db_loaded.scans.len();
         let engine = Engine::from_loaded(&a.db, db_loaded)?.with_budget(a.search);
-        let json = json!({
-            "method": method,
-            "id": id,
-            "descriptor_length": length,
-            "database_scans": n_db,
-            "database_without_pose": db_unposed,
-            "query_scans": queries.len(),
-            "queries_without_pose": query_unposed,
-            "one_percent_k": one_percent_k(n_db),
-            "max_n": clamp_max_n(a.max_n, n_db),
-        });
-        Ok(Prepared { name: method.to_string(), engine, queries, db_unposed, query_unposed, json })
+        let entry = PlacesMethod {
+            method: method.to_string(),
+            id,
+            descriptor_length: length,
+            database_scans: n_db,
+            database_without_pose: db_unposed,
+            query_scans: queries.len(),
+            queries_without_pose: query_unposed,
+            one_percent_k: one_percent_k(n_db),
+            max_n: clamp_max_n(a.max_n, n_db),
+            results: None,
+            timing_ms: None,
+            conditions: Vec::new(),
+        };
+        Ok(Prepared { name: method.to_string(), engine, queries, db_unposed, query_unposed, entry })
     }
 
     /// Whether database row `d` may not be retrieved for query `q` (itself, or too close in
@@ -398,6 +442,8 @@ impl Prepared {
         (p[0] - r[0]).hypot(p[1] - r[1])
     }
 
+    /// A (method, condition): computed, written into the text table, plotted (the first
+    /// condition's trajectory), and put in the report's form.
     #[expect(clippy::too_many_arguments, reason = "one call site, each argument a different input")]
     fn evaluate(
         &self,
@@ -409,6 +455,20 @@ impl Prepared {
         detailed: bool,
         table: &mut String,
     ) -> Result<Evaluated> {
+        let c = self.compute(a, condition, described);
+        self.write_table(a, &c, label, several, detailed, table);
+        let plots =
+            if detailed && c.not_applicable.is_none() { self.plot(a, &c, several)? } else { Vec::new() };
+        Ok(self.reported(a, c, label, plots))
+    }
+
+    /// The numbers of one condition.
+    fn compute(
+        &self,
+        a: &PlacesArgs,
+        condition: &Condition,
+        described: Option<&HashMap<String, Redescribed>>,
+    ) -> Computed {
         let db = &self.engine.scans;
         let n_db = db.len();
         let max_n = clamp_max_n(a.max_n, n_db);
@@ -442,35 +502,39 @@ impl Prepared {
                 .collect(),
             _ => Vec::new(),
         };
-        let condition_json = |extra: serde_json::Value| {
-            let mut j = json!({"condition": label, "queries": self.queries.len()});
-            if let (Some(o), Some(e)) = (j.as_object_mut(), extra.as_object()) {
-                o.extend(e.clone());
-            }
-            j
+        let mut c = Computed {
+            not_applicable: None,
+            described: 0,
+            not_described: failures.len(),
+            n_db,
+            k1,
+            max_n,
+            length: 0,
+            recalls: Vec::new(),
+            success_first: Vec::new(),
+            nearest: Nearest { queries: 0, recall_at_1: None },
+            loop_closure: None,
+            top1: Vec::new(),
+            search_times: Vec::new(),
+            describe_times,
+            wall: 0.0,
         };
         if vectors.iter().all(Option::is_none) {
-            let why = failures.first().copied().unwrap_or("no query could be described");
-            let name = if several { format!("{}: ", self.name) } else { String::new() };
-            line!(table, "{name}{label}: not applicable ({why})");
-            return Ok(Evaluated {
-                json: condition_json(json!({"not_applicable": why})),
-                curves: Vec::new(),
-                plots: Vec::new(),
-                loop_closure: None,
-                summary: None,
-            });
+            c.not_applicable =
+                Some(failures.first().copied().unwrap_or("no query could be described").to_string());
+            return c;
         }
         let skips: Vec<usize> =
             self.queries.par_iter().map(|q| db.iter().filter(|d| self.excluded(a, q, d)).count()).collect();
         let k = (want + skips.iter().copied().max().unwrap_or(0)).min(n_db);
         let start = Instant::now();
-        let length = vectors.iter().flatten().next().map_or(0, |v| v.len());
+        c.length = vectors.iter().flatten().next().map_or(0, |v| v.len());
         let mut retrieved: Vec<Option<(Vec<Found>, StepTimes)>> = vec![None; self.queries.len()];
         let described_rows: Vec<usize> = (0..self.queries.len()).filter(|&i| vectors[i].is_some()).collect();
+        c.described = described_rows.len();
         for block in described_rows.chunks(256) {
             let flat: Vec<f32> = block.iter().flat_map(|&i| vectors[i].unwrap().iter().copied()).collect();
-            debug_assert_eq!(flat.len(), block.len() * length);
+            debug_assert_eq!(flat.len(), block.len() * c.length);
             for (&i, (hits, t)) in block.iter().zip(self.engine.find_many(&flat, k)) {
                 let q = &self.queries[i];
                 let kept: Vec<Found> =
@@ -478,8 +542,8 @@ impl Prepared {
                 retrieved[i] = Some((kept, t));
             }
         }
-        let wall = start.elapsed().as_secs_f64();
-        let search_times: Vec<StepTimes> = retrieved.iter().flatten().map(|r| r.1).collect();
+        c.wall = start.elapsed().as_secs_f64();
+        c.search_times = retrieved.iter().flatten().map(|r| r.1).collect();
         let rows_of = |i: usize| -> Vec<usize> {
             retrieved[i].as_ref().map_or_else(Vec::new, |(h, _)| h.iter().map(|f| f.row).collect())
         };
@@ -494,40 +558,6 @@ impl Prepared {
                     .fold(f64::INFINITY, f64::min)
             })
             .collect();
-        let name = if several { format!("{}: ", self.name) } else { String::new() };
-        if detailed {
-            line!(
-                table,
-                "{name}{n_db} database scans, {} queries (length {length}); Recall@1% uses the top {k1}",
-                self.queries.len()
-            );
-            if self.db_unposed + self.query_unposed > 0 {
-                line!(
-                    table,
-                    "left out, without a pose: {} database and {} query scans",
-                    self.db_unposed,
-                    self.query_unposed
-                );
-            }
-        }
-        let (n5, n25) = (5.min(max_n), 25.min(max_n));
-        if detailed {
-            line!(
-                table,
-                "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} | {:>9} {:>9} {:>10}",
-                "R (m)",
-                "w/ match",
-                "R@1",
-                format!("R@{n5}"),
-                format!("R@{n25}"),
-                "R@1%",
-                "all: R@1",
-                format!("R@{n5}"),
-                "R@1%"
-            );
-        }
-        let (mut results, mut curves, mut r1) = (Vec::new(), Vec::new(), Vec::new());
-        let mut success_first = Vec::new();
         for &r in &a.thresholds {
             let has: Vec<bool> = nearest.iter().map(|&d| d <= r).collect();
             let hits: Vec<Option<usize>> = self
@@ -536,29 +566,12 @@ impl Prepared {
                 .enumerate()
                 .map(|(i, q)| first_hit(&rows_of(i), |row| self.distance(a, q, row) <= r))
                 .collect();
-            if success_first.is_empty() {
-                success_first = hits.iter().map(|h| *h == Some(0)).collect();
+            if c.success_first.is_empty() {
+                c.success_first = hits.iter().map(|h| *h == Some(0)).collect();
             }
             let with = recall(&hits, &has, max_n, n_db, Denominator::WithMatch);
             let all = recall(&hits, &has, max_n, n_db, Denominator::All);
-            let at = |rc: &Recall, n: usize| rc.at_n[n - 1];
-            if detailed {
-                line!(
-                    table,
-                    "{r:>7} {:>10} {:>9.2} {:>9.2} {:>9.2} {:>10.2} | {:>9.2} {:>9.2} {:>10.2}",
-                    with.evaluated,
-                    at(&with, 1),
-                    at(&with, n5),
-                    at(&with, n25),
-                    with.at_one_percent,
-                    at(&all, 1),
-                    at(&all, n5),
-                    all.at_one_percent
-                );
-            }
-            r1.push((with.evaluated > 0).then(|| at(&with, 1)));
-            curves.push((format!("R = {r} m"), with.at_n.clone()));
-            results.push(json!({"threshold_m": r, "queries_with_match": with.evaluated, "with_match": with, "all_queries": all}));
+            c.recalls.push((r, with, all));
         }
         // Nearest database scan: the top-1 is the closest eligible one.
         let judged: Vec<usize> = (0..self.queries.len()).filter(|&i| nearest[i].is_finite()).collect();
@@ -570,7 +583,10 @@ impl Prepared {
                     .is_some_and(|&top| self.distance(a, &self.queries[i], top) <= nearest[i] + 1e-6)
             })
             .count();
-        let nearest_pct = (!judged.is_empty()).then(|| 100.0 * nearest_hits as f64 / judged.len() as f64);
+        c.nearest = Nearest {
+            queries: judged.len(),
+            recall_at_1: (!judged.is_empty()).then(|| 100.0 * nearest_hits as f64 / judged.len() as f64),
+        };
         // Loop closure at the revisit radius.
         let (mut top_distance, mut top_within) = (Vec::new(), Vec::new());
         for (i, q) in self.queries.iter().enumerate() {
@@ -586,73 +602,164 @@ impl Prepared {
             }
         }
         let has_revisit: Vec<bool> = nearest.iter().map(|&d| d <= a.revisit_radius).collect();
+        c.loop_closure = Some(loop_closure(&top_distance, &top_within, &has_revisit));
         // Each query's top-1 (id, descriptor distance, metres), for finding the failures.
-        let top1: Vec<serde_json::Value> = self
+        let finite = |x: f64| x.is_finite().then_some(x);
+        c.top1 = self
             .queries
             .iter()
             .enumerate()
             .map(|(i, q)| match retrieved[i].as_ref().and_then(|(h, _)| h.first()) {
-                Some(f) => {
-                    json!([q.scan_id, db[f.row].scan_id, f.distance, self.distance(a, q, f.row), nearest[i]])
-                }
-                None => json!([q.scan_id, null, null, null, nearest[i]]),
+                Some(f) => (
+                    q.scan_id.clone(),
+                    Some(db[f.row].scan_id.clone()),
+                    finite(f.distance),
+                    finite(self.distance(a, q, f.row)),
+                    finite(nearest[i]),
+                ),
+                None => (q.scan_id.clone(), None, None, None, finite(nearest[i])),
             })
             .collect();
-        let lc = loop_closure(&top_distance, &top_within, &has_revisit);
+        c
+    }
+
+    /// One condition's lines of the text table (the detailed block for the first condition).
+    fn write_table(
+        &self,
+        a: &PlacesArgs,
+        c: &Computed,
+        label: &str,
+        several: bool,
+        detailed: bool,
+        table: &mut String,
+    ) {
+        let name = if several { format!("{}: ", self.name) } else { String::new() };
+        if let Some(why) = &c.not_applicable {
+            line!(table, "{name}{label}: not applicable ({why})");
+            return;
+        }
+        if !detailed {
+            return;
+        }
+        line!(
+            table,
+            "{name}{} database scans, {} queries (length {}); Recall@1% uses the top {}",
+            c.n_db,
+            self.queries.len(),
+            c.length,
+            c.k1
+        );
+        if self.db_unposed + self.query_unposed > 0 {
+            line!(
+                table,
+                "left out, without a pose: {} database and {} query scans",
+                self.db_unposed,
+                self.query_unposed
+            );
+        }
+        let (n5, n25) = (5.min(c.max_n), 25.min(c.max_n));
+        line!(
+            table,
+            "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} | {:>9} {:>9} {:>10}",
+            "R (m)",
+            "w/ match",
+            "R@1",
+            format!("R@{n5}"),
+            format!("R@{n25}"),
+            "R@1%",
+            "all: R@1",
+            format!("R@{n5}"),
+            "R@1%"
+        );
+        let at = |rc: &Recall, n: usize| rc.at_n[n - 1];
+        for (r, with, all) in &c.recalls {
+            line!(
+                table,
+                "{r:>7} {:>10} {:>9.2} {:>9.2} {:>9.2} {:>10.2} | {:>9.2} {:>9.2} {:>10.2}",
+                with.evaluated,
+                at(with, 1),
+                at(with, n5),
+                at(with, n25),
+                with.at_one_percent,
+                at(all, 1),
+                at(all, n5),
+                all.at_one_percent
+            );
+        }
+        let lc = c.loop_closure.as_ref().expect("computed with the results");
+        line!(
+            table,
+            "nearest database scan: {} %; loop closure within {} m: F1 max {:.1} %, recall at 100 % precision {:.1} %",
+            c.nearest.recall_at_1.map_or("-".into(), |v| format!("{v:.2}")),
+            a.revisit_radius,
+            lc.f1_max,
+            lc.recall_at_full_precision
+        );
+        line!(
+            table,
+            "search per query (mean / p95 ms): {} ({} threads, {:.2} s wall)",
+            step_summary(&self.engine.method, &c.search_times, true),
+            rayon::current_num_threads(),
+            c.wall
+        );
+    }
+
+    /// The bird's-eye trajectory of one condition: queries by top-1 success at the first
+    /// threshold.
+    fn plot(&self, a: &PlacesArgs, c: &Computed, several: bool) -> Result<Vec<PathBuf>> {
+        let qpts: Vec<([f64; 2], bool)> =
+            self.queries.iter().zip(&c.success_first).map(|(q, &ok)| (xy(q), ok)).collect();
+        let dpts: Vec<[f64; 2]> = self.engine.scans.iter().map(xy).collect();
+        let name = if several { format!("{}: ", self.name) } else { String::new() };
+        let title = format!("{name}top-1 within {} m", a.thresholds.first().copied().unwrap_or(0.0));
+        let stem = if several { format!("trajectory_{}", self.name) } else { "trajectory".into() };
+        crate::plot::trajectory(&a.out.join(stem), &title, &dpts, &qpts)
+    }
+
+    /// One condition in the report's form, with its curves and summary row.
+    fn reported(&self, a: &PlacesArgs, c: Computed, label: &str, plots: Vec<PathBuf>) -> Evaluated {
+        let mut result = ConditionResult {
+            condition: label.to_string(),
+            queries: self.queries.len(),
+            not_applicable: None,
+            evaluated: None,
+        };
+        if let Some(why) = c.not_applicable {
+            result.not_applicable = Some(why);
+            return Evaluated { result, curves: Vec::new(), plots, loop_closure: None, summary: None };
+        }
         let method = &self.engine.method;
-        if detailed {
-            line!(
-                table,
-                "nearest database scan: {} %; loop closure within {} m: F1 max {:.1} %, recall at 100 % precision {:.1} %",
-                nearest_pct.map_or("-".into(), |v| format!("{v:.2}")),
-                a.revisit_radius,
-                lc.f1_max,
-                lc.recall_at_full_precision
-            );
-            line!(
-                table,
-                "search per query (mean / p95 ms): {} ({} threads, {:.2} s wall)",
-                step_summary(method, &search_times, true),
-                rayon::current_num_threads(),
-                wall
-            );
-        }
-        let mut plots = Vec::new();
-        if detailed {
-            let qpts: Vec<([f64; 2], bool)> =
-                self.queries.iter().zip(&success_first).map(|(q, &ok)| (xy(q), ok)).collect();
-            let dpts: Vec<[f64; 2]> = db.iter().map(xy).collect();
-            let title = format!("{name}top-1 within {} m", a.thresholds.first().copied().unwrap_or(0.0));
-            let stem = if several { format!("trajectory_{}", self.name) } else { "trajectory".into() };
-            plots = crate::plot::trajectory(&a.out.join(stem), &title, &dpts, &qpts)?;
-        }
-        let mut timing = timing_json(method, &search_times, true);
-        if !describe_times.is_empty() {
-            let steps = timing_json(method, &describe_times, false);
-            if let (Some(t), Some(d)) = (timing.as_object_mut(), steps.as_object()) {
-                for (k, v) in d {
-                    if !t.contains_key(k) {
-                        t.insert(k.clone(), v.clone());
-                    }
-                }
+        let mut timing = timing_of(method, &c.search_times, true);
+        if !c.describe_times.is_empty() {
+            for (step, t) in timing_of(method, &c.describe_times, false) {
+                timing.entry(step).or_insert(t);
             }
         }
-        let json = condition_json(json!({
-            "described": described_rows.len(),
-            "not_described": failures.len(),
-            "results": results,
-            "nearest": {"queries": judged.len(), "recall_at_1": nearest_pct},
-            "loop_closure": {"radius_m": a.revisit_radius, "result": lc},
-            "top1": {"columns": ["query", "top1", "distance", "metres", "nearest_metres"], "rows": top1},
-            "timing_ms": timing,
+        let lc = c.loop_closure.expect("computed with the results");
+        let r1 = c.recalls.iter().map(|(_, with, _)| (with.evaluated > 0).then(|| with.at_n[0])).collect();
+        let curves = c.recalls.iter().map(|(r, with, _)| (format!("R = {r} m"), with.at_n.clone())).collect();
+        let results = c
+            .recalls
+            .into_iter()
+            .map(|(threshold_m, with_match, all_queries)| ThresholdResult {
+                threshold_m,
+                queries_with_match: with_match.evaluated,
+                with_match,
+                all_queries,
+            })
+            .collect();
+        let columns = ["query", "top1", "distance", "metres", "nearest_metres"].map(String::from).to_vec();
+        let summary = Some((r1, c.nearest.recall_at_1, lc.f1_max, lc.recall_at_full_precision));
+        result.evaluated = Some(Box::new(EvaluatedCondition {
+            described: c.described,
+            not_described: c.not_described,
+            results,
+            nearest: c.nearest,
+            loop_closure: LoopClosureResult { radius_m: a.revisit_radius, result: lc.clone() },
+            top1: Top1 { columns, rows: c.top1 },
+            timing_ms: timing,
         }));
-        Ok(Evaluated {
-            json,
-            curves,
-            plots,
-            summary: Some((r1, nearest_pct, lc.f1_max, lc.recall_at_full_precision)),
-            loop_closure: Some(lc),
-        })
+        Evaluated { result, curves, plots, summary, loop_closure: Some(lc) }
     }
 }
 
@@ -772,10 +879,8 @@ fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
     let plots =
         crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
     let mut report = report;
-    report["plots"] = json!(
-        plots.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect::<Vec<_>>()
-    );
-    write_report(&a.out, &report, &table)?;
+    report.plots = file_names(&plots);
+    report::write(&a.out, &Report::PointNetVlad(report), &table)?;
     Ok(table)
 }
 

@@ -19,7 +19,6 @@ use crate::error::{Error, Result};
 use crate::query::{Engine, Loaded, load_method};
 use crate::sinks::index::IndexedScan;
 use crate::sources::SourceSpec;
-use serde_json::json;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -113,7 +112,7 @@ fn is_query(p: [f64; 3], regions: Option<&[[f64; 2]]>) -> bool {
 }
 
 /// One method on one dataset: the mean over run pairs.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, schemars::JsonSchema)]
 pub struct DatasetRecall {
     /// The dataset.
     pub dataset: &'static str,
@@ -211,7 +210,7 @@ pub fn evaluate(
     index: &Path,
     methods: &[String],
     budget: crate::query::SearchBudget,
-) -> Result<(String, serde_json::Value, Vec<super::Curve>)> {
+) -> Result<(String, super::report::PointNetVladReport, Vec<super::Curve>)> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
     let Some(SourceSpec::PointNetVlad(spec)) =
         pipeline.sources.iter().find(|s| matches!(s, SourceSpec::PointNetVlad(_)))
@@ -260,17 +259,22 @@ pub fn evaluate(
             let prefix = if methods.len() > 1 { format!("{method}, ") } else { String::new() };
             curves.push((format!("{prefix}{}", r.dataset), r.recall_at_n.clone()));
         }
-        entries.push(json!({"method": method, "id": id, "datasets": results}));
+        entries.push(super::report::PointNetVladMethod { method: method.clone(), id, datasets: results });
     }
-    let report = json!({
-        "protocol": "pointnetvlad",
-        "toporec_version": env!("CARGO_PKG_VERSION"),
-        "index": index,
-        "match_radius_m": MATCH_RADIUS,
-        "neighbours": NEIGHBOURS,
-        "datasets": sets.iter().map(|s| json!({"name": s.name, "runs": s.runs})).collect::<Vec<_>>(),
-        "notes": notes,
-        "methods": entries,
-    });
+    let report = super::report::PointNetVladReport {
+        protocol: super::report::Protocol::Pointnetvlad,
+        toporec_version: env!("CARGO_PKG_VERSION").into(),
+        index: index.to_owned(),
+        match_radius_m: MATCH_RADIUS,
+        neighbours: NEIGHBOURS,
+        search: budget.to_string(),
+        datasets: sets
+            .iter()
+            .map(|s| super::report::DatasetRuns { name: s.name.to_string(), runs: s.runs.clone() })
+            .collect(),
+        notes,
+        methods: entries,
+        plots: Vec::new(),
+    };
     Ok((table, report, curves))
 }
