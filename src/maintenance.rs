@@ -19,19 +19,15 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `toporec revectorize`.
-#[derive(clap::Args, Clone, Debug)]
+#[derive(Clone, Debug)]
 pub struct RevectorizeArgs {
     /// The index.
-    #[arg(long)]
     pub index: PathBuf,
     /// Use this saved codebook (else fit one on the stored diagrams with the settings below).
-    #[arg(long, conflicts_with_all = ["b", "dims", "contrast", "weighting", "kmeans", "sample_size", "seed"])]
     pub codebook: Option<PathBuf>,
     /// The settings of the codebook to fit.
-    #[command(flatten)]
     pub fit: CodebookArgs,
     /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = crate::ranges::count)]
     pub threads: Option<usize>,
 }
 

@@ -21,28 +21,21 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Arguments of `toporec query`.
-#[derive(clap::Args, Clone, Debug)]
+#[derive(Clone, Debug)]
 pub struct QueryArgs {
     /// The index to search.
-    #[arg(long)]
     pub index: PathBuf,
     /// Query inputs: cloud files, MCAPs, NCLT sessions, KITTI sequences.
-    #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// Neighbours per query: [1, ∞), clamped to the database size.
-    #[arg(short, default_value_t = 25, value_parser = crate::ranges::count)]
     pub k: usize,
     /// The descriptor method to search with (one the index holds; `toporec info` lists them).
-    #[arg(long, default_value = TOPOREC)]
     pub method: String,
     /// Database sessions (default: all).
-    #[arg(long = "session")]
     pub sessions: Vec<String>,
     /// MCAP topic.
-    #[arg(long)]
     pub topic: Option<String>,
     /// Output CSV (default stdout).
-    #[arg(long, short)]
     pub out: Option<PathBuf>,
 }
 

@@ -183,30 +183,23 @@ impl Perturbation {
 }
 
 /// Settings of `eval perturbation` (its command-line arguments).
-#[derive(clap::Args, Clone, Debug)]
+#[derive(Clone, Debug)]
 pub struct PerturbationArgs {
     /// The index.
-    #[arg(long)]
     pub index: PathBuf,
     /// Share of the scans used as queries: (0, 1].
-    #[arg(long, default_value_t = 0.2, value_parser = crate::ranges::fraction)]
     pub fraction: f64,
     /// Seed of the choice and of the jitter.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Largest N of Recall@N: [1, ∞), clamped to the database size.
-    #[arg(long, default_value_t = 25, value_parser = crate::ranges::count)]
     pub max_n: usize,
     /// Descriptor methods to compare (repeatable; default: every method the index holds that
     /// can describe a scan, i.e. not imported ones).
-    #[arg(long = "method")]
     pub methods: Vec<String>,
     /// The search budget of every method: `default`, `exhaustive` or `matched:N` (see
     /// `eval places --help`).
-    #[arg(long, default_value = "default")]
     pub search: crate::query::SearchBudget,
     /// Output folder.
-    #[arg(long, short)]
     pub out: PathBuf,
 }
 

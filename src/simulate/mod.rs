@@ -34,7 +34,7 @@ pub struct Sensor {
 }
 
 /// Sensor models.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SensorModel {
     /// 32 beams, −30.67° to +10.67° (Velodyne HDL-32E, NCLT's sensor).
     Hdl32,
@@ -94,7 +94,7 @@ pub struct SimScan {
 }
 
 /// Output formats.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
     /// NCLT layout.
     Nclt,
@@ -147,61 +147,43 @@ impl Default for SimParams {
 }
 
 /// Arguments of `toporec simulate`.
-#[derive(clap::Args, Debug)]
+#[derive(Debug)]
 pub struct SimulateArgs {
     /// Output folder.
-    #[arg(long, short)]
     pub out: PathBuf,
     /// Formats to write.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "nclt")]
     pub format: Vec<Format>,
     /// Sessions (days) driving the same loop: [1, 1000].
-    #[arg(long, default_value_t = 2, value_parser = |s: &str| crate::ranges::count_within(s, 1, 1000))]
     pub sessions: usize,
     /// Seed of the town, routes and noise.
-    #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Scans per session, [1, ∞) (default: one loop).
-    #[arg(long, value_parser = crate::ranges::count)]
     pub scans: Option<usize>,
     /// Sensor model.
-    #[arg(long, value_enum, default_value = "hdl32")]
     pub sensor: SensorModel,
     /// Azimuth resolution (degrees): [0.01, 10].
-    #[arg(long, default_value_t = 0.2, value_parser = crate::ranges::azimuth_resolution)]
     pub azimuth_res: f64,
     /// Driving speed (m/s): (0, ∞).
-    #[arg(long, default_value_t = 10.0, value_parser = crate::ranges::positive)]
     pub speed: f64,
     /// Scan rate (Hz): (0, ∞).
-    #[arg(long, default_value_t = 10.0, value_parser = crate::ranges::positive)]
     pub rate: f64,
     /// Blocks per side of the town: [1, 50].
-    #[arg(long, default_value_t = 3, value_parser = crate::ranges::blocks)]
     pub blocks: usize,
     /// Street spacing (m): (20, 10000].
-    #[arg(long, default_value_t = 60.0, value_parser = crate::ranges::block_size)]
     pub block_size: f64,
     /// Ground slope along x and y (dz/dx,dz/dy), each in [-1, 1].
-    #[arg(long, value_delimiter = ',', default_value = "0,0", value_parser = |s: &str| crate::ranges::within(s, -1.0, 1.0))]
     pub slope: Vec<f64>,
     /// Odd sessions drive the loop in the opposite direction.
-    #[arg(long)]
     pub reverse: bool,
     /// Probability that a return is lost: [0, 1).
-    #[arg(long, default_value_t = 0.08, value_parser = crate::ranges::probability)]
     pub dropout: f64,
     /// Maximum range (m): (0, 10000].
-    #[arg(long, default_value_t = 100.0, value_parser = |s: &str| crate::ranges::within(s, f64::MIN_POSITIVE, 10_000.0))]
     pub max_range: f64,
     /// Range noise σ (m): [0, ∞).
-    #[arg(long, default_value_t = 0.02, value_parser = crate::ranges::non_negative)]
     pub range_noise: f64,
     /// Sensor height above the ground (m): [-100, 100].
-    #[arg(long, default_value_t = 1.9, value_parser = |s: &str| crate::ranges::within(s, -100.0, 100.0))]
     pub height: f64,
     /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = crate::ranges::count)]
     pub threads: Option<usize>,
 }
 

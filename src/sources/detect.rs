@@ -10,7 +10,7 @@ use super::{SourceError, SourceSpec};
 use std::path::{Path, PathBuf};
 
 /// A single-cloud file format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CloudFormat {
     /// CSV with a header naming columns `x`, `y`, `z`.
     Csv,

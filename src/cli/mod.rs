@@ -3,6 +3,8 @@
 //! was written), 2 = failed. Errors are printed once, on one line naming the input; a closed
 //! output pipe ends a command quietly.
 
+mod args;
+
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use std::io::Write;
@@ -19,7 +21,7 @@ use toporec::query::QueryArgs;
 use toporec::simulate::SimulateArgs;
 use toporec::sinks::index::IndexReader;
 use toporec::sources::mcap::McapSpec;
-use toporec::sources::{CloudFormat, InputKind, read_cloud};
+use toporec::sources::{InputKind, read_cloud};
 
 /// Topological place descriptors from LiDAR logs.
 #[derive(Parser, Debug)]
@@ -39,7 +41,7 @@ enum Command {
     /// Run a pipeline file: sources → preprocess → persistence → vectorize → Parquet index.
     Run(RunArgs),
     /// Find the k nearest indexed scans of new scans (files, MCAPs, sessions, sequences).
-    Query(QueryArgs),
+    Query(args::QueryArgs),
     /// Evaluate place recognition on indexes (Recall@N, Recall@1%), with a JSON report and plots.
     #[command(subcommand)]
     Eval(EvalCommand),
@@ -49,7 +51,7 @@ enum Command {
     /// Check a pipeline file (every error at once, with key paths) without reading data.
     Validate(ValidateArgs),
     /// Generate multi-session LiDAR drives through a procedural town (NCLT, MCAP, KITTI files).
-    Simulate(SimulateArgs),
+    Simulate(args::SimulateArgs),
     /// Write the Parquet table schemas and the report's JSON Schema (what `schemas/` holds).
     #[command(hide = true)]
     Schemas(SchemasArgs),
@@ -58,12 +60,12 @@ enum Command {
     /// Describe what a file or folder holds (format, scans, topics, points, time span, poses).
     Inspect(InspectArgs),
     /// Fit an ATOL codebook on diagram CSV files or index folders and save it as JSON.
-    Fit(FitArgs),
+    Fit(args::FitArgs),
     /// Turn diagram CSV files or index folders into descriptors with a saved codebook.
-    Vectorize(VectorizeArgs),
+    Vectorize(args::VectorizeArgs),
     /// Rebuild an index's descriptors from its stored diagrams with a new codebook (no source
     /// is read, no persistence computed), switching to it atomically.
-    Revectorize(RevectorizeArgs),
+    Revectorize(args::RevectorizeArgs),
     /// Merge an index's small part files (left by chunked commits) into one per partition.
     Compact(IndexArgs),
     /// What an index holds: sessions with scans per status, descriptor methods, generation,
@@ -74,7 +76,7 @@ enum Command {
     Verify(VerifyArgs),
     /// Store descriptors made elsewhere (Parquet, .npy with scan ids, CSV) as one more method
     /// of an index, matched to its scans by id.
-    Import(toporec::import::ImportArgs),
+    Import(args::ImportArgs),
 }
 
 /// An index folder.
@@ -155,9 +157,9 @@ struct RunArgs {
 #[derive(Subcommand, Debug)]
 enum EvalCommand {
     /// Database scans vs query scans, true matches within R metres, under conditions.
-    Places(Box<PlacesArgs>),
+    Places(Box<args::PlacesArgs>),
     /// The paper's object protocol: perturbed index scans must find themselves.
-    Perturbation(PerturbationArgs),
+    Perturbation(args::PerturbationArgs),
 }
 
 /// `toporec plot` kinds.
@@ -215,7 +217,7 @@ struct DiagramArgs {
     radius: bool,
     /// The file format; detected from the path when omitted (MCAP by its magic).
     #[arg(long, value_enum)]
-    format: Option<CloudFormat>,
+    format: Option<args::CloudFormat>,
     /// MCAP: the Nth point-cloud message (0-based) of the topic.
     #[arg(long, default_value_t = 0)]
     index: u64,
@@ -251,41 +253,23 @@ pub fn main() -> ExitCode {
         Command::Run(args) => run(args),
         Command::Validate(args) => validate(args).map(|()| Done::All),
         Command::Schemas(args) => schemas(args).map(|()| Done::All),
-        Command::Query(args) => query(args),
-        Command::Eval(EvalCommand::Places(a)) => toporec::eval::places(&a)
-            .map_err(Into::into)
-            .and_then(|t| print(&format!("{t}written: {}\n", a.out.join("report.json").display())))
-            .map(|()| Done::All),
-        Command::Eval(EvalCommand::Perturbation(a)) => toporec::eval::perturbation(&a)
-            .map_err(Into::into)
-            .and_then(|t| print(&format!("{t}written: {}\n", a.out.join("report.json").display())))
-            .map(|()| Done::All),
+        Command::Query(args) => query(args.into()),
+        Command::Eval(EvalCommand::Places(a)) => places((*a).into()),
+        Command::Eval(EvalCommand::Perturbation(a)) => perturbation(a.into()),
         Command::Plot(PlotCommand::Diagram(a)) => plot_diagram(a).map(|()| Done::All),
-        Command::Simulate(args) => simulate(args).map(|()| Done::All),
+        Command::Simulate(args) => simulate(args.into()).map(|()| Done::All),
         Command::Diagram(args) => diagram(args).map(|()| Done::All),
         Command::Inspect(args) => toporec::inspect::inspect(&args.path)
             .map_err(Into::into)
             .and_then(|r| print(&r))
             .map(|()| Done::All),
-        Command::Fit(args) => fit(args).map(|()| Done::All),
-        Command::Vectorize(args) => vectorize(args).map(|()| Done::All),
-        Command::Revectorize(args) => revectorize(args).map(|()| Done::All),
+        Command::Fit(args) => fit(args.into()).map(|()| Done::All),
+        Command::Vectorize(args) => vectorize(args.into()).map(|()| Done::All),
+        Command::Revectorize(args) => revectorize(args.into()).map(|()| Done::All),
         Command::Compact(args) => compact(args).map(|()| Done::All),
         Command::Verify(args) => verify(args),
         Command::Info(args) => info(args).map(|()| Done::All),
-        Command::Import(args) => toporec::import::import(&args)
-            .map_err(Into::into)
-            .and_then(|r| {
-                print(&format!(
-                    "{}: method {} stored: {} scans, length {}, id {}\n",
-                    args.index.display(),
-                    args.method,
-                    r.rows,
-                    r.length,
-                    r.id
-                ))
-            })
-            .map(|()| Done::All),
+        Command::Import(args) => import(args.into()).map(|()| Done::All),
     };
     match result {
         Ok(Done::All) => ExitCode::SUCCESS,
@@ -393,6 +377,30 @@ fn validate(args: ValidateArgs) -> Result<()> {
     ))
 }
 
+fn import(a: toporec::import::ImportArgs) -> Result<()> {
+    let r = toporec::import::import(&a)?;
+    print(&format!(
+        "{}: method {} stored: {} scans, length {}, id {}\n",
+        a.index.display(),
+        a.method,
+        r.rows,
+        r.length,
+        r.id
+    ))
+}
+
+fn places(a: PlacesArgs) -> Result<Done> {
+    let table = toporec::eval::places(&a)?;
+    print(&format!("{table}written: {}\n", a.out.join("report.json").display()))?;
+    Ok(Done::All)
+}
+
+fn perturbation(a: PerturbationArgs) -> Result<Done> {
+    let table = toporec::eval::perturbation(&a)?;
+    print(&format!("{table}written: {}\n", a.out.join("report.json").display()))?;
+    Ok(Done::All)
+}
+
 fn simulate(a: SimulateArgs) -> Result<()> {
     let params = a.params()?;
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads(a.threads)).build()?;
@@ -463,7 +471,7 @@ fn diagram(args: DiagramArgs) -> Result<()> {
         bail!("--dims: dimension {d} is not one of 0, 1, 2");
     }
     let points = match args.format {
-        Some(f) => read_cloud(&args.cloud, Some(f))?,
+        Some(f) => read_cloud(&args.cloud, Some(f.into()))?,
         None if InputKind::detect(&args.cloud)? == InputKind::Mcap => mcap_cloud(&args)?,
         None => read_cloud(&args.cloud, None)?,
     };
