@@ -245,3 +245,50 @@ fn inspect_and_diagram_of_an_mcap_message() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("Cargo.toml: unknown cloud format"), "{}", stderr(&o));
 }
+
+#[test]
+fn info_says_what_an_index_holds() {
+    let dir = scratch_dir("cli_info");
+    let index = dir.join("index");
+    let pipeline = root().join("pipelines/compare.toml");
+    assert!(run_pipeline(&pipeline, &index, 2).status.success());
+    let idx = index.to_str().unwrap();
+    let o = toporec(&["info", "--index", idx]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    for needle in [
+        "scans: 64 (64 ok, 0 skipped, 0 errors)",
+        "2026-01-01        32       32        0        0",
+        "toporec: length 50, codebook ",
+        "scancontext: length 1200, id ",
+        "toporec-plus: length 7200, id ",
+        "m2dp: length 192, id ",
+        "[descriptors]",
+    ] {
+        assert!(out.contains(needle), "`{needle}` missing from:\n{out}");
+    }
+    // The JSON form: counts per session, every method with its settings and rows, the size.
+    let o = toporec(&["info", "--index", idx, "--json"]);
+    let info: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(info["sessions"]["2026-01-02"]["ok"], 32);
+    assert_eq!(info["methods"]["scancontext"]["settings"]["rings"], 20);
+    assert_eq!(info["methods"]["toporec"]["settings"]["b"], 50);
+    for m in ["toporec", "toporec-plus", "scancontext", "m2dp"] {
+        assert_eq!(info["methods"][m]["rows"], 64, "{m}");
+    }
+    let manifest = read_json(&index.join("manifest.json"));
+    assert_eq!(info["generation"], manifest["generation"]);
+    let bytes: u64 = manifest["files"].as_array().unwrap().iter().map(|f| f["bytes"].as_u64().unwrap()).sum();
+    assert_eq!(info["bytes"], bytes);
+    // --files: one generation's files; of one table, of one method.
+    let o = toporec(&["info", "--index", idx, "--files", "descriptors", "--method", "m2dp"]);
+    let files: Vec<String> = stdout(&o).lines().map(String::from).collect();
+    assert_eq!(files.len(), 2, "{files:?}");
+    assert!(files.iter().all(|f| f.contains("/descriptors/method=m2dp/session=") && Path::new(f).is_file()));
+    let o = toporec(&["info", "--index", idx, "--files", "tables"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("`tables` is not a table"), "{}", stderr(&o));
+    let o = toporec(&["info", "--index", dir.join("missing").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("no such index folder"), "{}", stderr(&o));
+}

@@ -164,3 +164,21 @@ def test_local_listing_equals_binary_file_listing(spark, tmp_path):
     assert not _local_inputs(spark, [str(tmp_path / "*")])
     with pytest.raises(FileNotFoundError, match="missing: no such file or folder"):
         _local_files([str(tmp_path / "missing")], "*.bin")
+
+
+def test_the_summary_speaks_as_toporec_run(spark, tmp_path, binary):
+    """The job prints the lines `toporec run` prints for the same counts, word for word."""
+    from toporec.spark import summary
+
+    text = summary({"index": "out/x", "scans": 64, "ok": 62, "skipped": 1, "errors": 1}, 2.0)
+    assert text.splitlines() == [
+        "index: out/x",
+        "scans: 64 read, 62 indexed, 1 skipped, 1 errors",
+        "wall time: 2.00 s, 32.0 scans/s",
+    ]
+    run = subprocess.run([binary, "run", REPO / "pipelines" / "sample.toml", "--index", tmp_path / "i", "--no-progress"], capture_output=True, text=True, check=True)
+    ours = [line.split(":")[0] for line in text.splitlines()]
+    theirs = [line.split(":")[0] for line in run.stderr.splitlines()]
+    assert all(word in theirs for word in ours), (ours, theirs)
+    scans = next(line for line in run.stderr.splitlines() if line.startswith("scans:"))
+    assert scans == "scans: 64 read, 64 indexed, 0 skipped, 0 errors"

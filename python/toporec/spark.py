@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 import uuid
 from typing import Any, Dict, List, Optional, Sequence, Union
 
@@ -394,14 +395,30 @@ def main(argv: Optional[List[str]] = None) -> None:
     ap.add_argument("--read", choices=["auto", "spark"], default="auto", help="who reads the scan files: the tasks when local (auto), or Spark's binaryFile rows")
     ap.add_argument("--messages-per-task", type=int, default=64, help="scans per MCAP task")
     ap.add_argument("--master", help="Spark master (default: spark-submit's)")
+    ap.add_argument("--verbose", action="store_true", help="keep Spark's INFO log lines (default: warnings only)")
     args = ap.parse_args(argv)
     builder = SparkSession.builder.appName("toporec-index")
+    if not args.verbose:
+        # Spark's INFO lines (a few hundred a job) would drown the summary.
+        builder = builder.config("spark.log.level", "WARN")
     if args.master:
         builder = builder.master(args.master)
     spark = builder.getOrCreate()
+    start = time.monotonic()
     result = index_files(spark, args.inputs, args.index, pipeline=args.pipeline, sample=args.sample, scans_per_task=args.scans_per_task, read=args.read, messages_per_task=args.messages_per_task)
-    print(result)
+    print(summary(result, time.monotonic() - start))
     spark.stop()
+
+
+def summary(result: Dict[str, Any], seconds: float) -> str:
+    """The job's summary in the words of ``toporec run``'s."""
+    return "\n".join(
+        [
+            f"index: {result['index']}",
+            f"scans: {result['scans']} read, {result['ok']} indexed, {result['skipped']} skipped, {result['errors']} errors",
+            f"wall time: {seconds:.2f} s, {result['scans'] / max(seconds, 1e-9):.1f} scans/s",
+        ]
+    )
 
 
 if __name__ == "__main__":
