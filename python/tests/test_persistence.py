@@ -146,5 +146,5 @@ def test_located_pairs_are_the_diagram_with_where_each_class_dies(fixtures):
     finite = where[~essential]
     assert np.isfinite(finite).all()
     assert (finite >= points.min(axis=0)).all() and (finite <= points.max(axis=0)).all()
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(ValueError, match="point 3 is not finite"):
         toporec.alpha_persistence_located(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.nan]]))
