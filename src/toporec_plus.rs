@@ -22,7 +22,9 @@
 //! [sector]`). Two scans compare as ScanContext's do, by columns: for each shift of the
 //! sectors and each rotation of the candidate, `1 −` the mean cosine of the columns (the
 //! `2 · rings` values of one sector) filled in both — a sector hidden in one scan is left out,
-//! not counted as a difference — and the smallest wins; the shift and rotation give the yaw.
+//! not counted as a difference, and a scan cut at a shorter range is compared on the rings
+//! both reach, its outermost ring (half filled, shared with the ring beyond) left out — and the
+//! smallest wins; the shift and rotation give the yaw.
 //! A [`Searcher`] takes candidates from two keys that do not depend on the yaw, in turn, and
 //! re-ranks them by that distance.
 //!
@@ -299,6 +301,9 @@ struct Ready {
     filled: Vec<bool>,
     h0: Vec<f32>,
     h0_filled: Vec<bool>,
+    /// Per entry: the rings out to the outermost one holding a value (a scan cut at a shorter
+    /// range reaches fewer).
+    reach: Vec<u8>,
 }
 
 /// Borrowed parts of a [`Ready`] (one entry of a [`Searcher`]).
@@ -308,6 +313,7 @@ struct ReadyRef<'a> {
     filled: &'a [bool],
     h0: &'a [f32],
     h0_filled: &'a [bool],
+    reach: usize,
 }
 
 /// The unit columns of `rows` consecutive rows of a grid (column `s` = the rows' values in
@@ -322,12 +328,67 @@ fn unit_columns(grid: &[f32], rows: usize, sectors: usize, columns: &mut [f32], 
     }
 }
 
+/// The rings of a descriptor's unturned grid out to the outermost one holding a value.
+fn reach(descriptor: &[f32], p: &PlusParams) -> usize {
+    let (rings, sectors) = (p.rings, p.sectors);
+    (0..rings)
+        .rev()
+        .find(|&r| {
+            (0..CHANNELS).any(|ch| {
+                let row = (ch * rings + r) * sectors;
+                descriptor[row..row + sectors].iter().any(|v| *v != 0.0)
+            })
+        })
+        .map_or(0, |r| r + 1)
+}
+
+/// As [`column_distance`], over the first `reach` of the `rings` rings of each channel of the
+/// columns only (`channels` channels), the columns renormalized there: two scans compare where
+/// both reach.
+#[expect(clippy::too_many_arguments, reason = "the columns, their shape and the cut")]
+fn column_distance_within(
+    q: &[f32],
+    qf: &[bool],
+    c: &[f32],
+    cf: &[bool],
+    channels: usize,
+    rings: usize,
+    reach: usize,
+    shift: usize,
+) -> f64 {
+    let sectors = qf.len();
+    let height = channels * rings;
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for b in 0..sectors {
+        let a = (b + shift) % sectors;
+        if !(qf[a] && cf[b]) {
+            continue;
+        }
+        let (qa, cb) = (&q[a * height..(a + 1) * height], &c[b * height..(b + 1) * height]);
+        let (mut dot, mut nq, mut nc) = (0.0f64, 0.0f64, 0.0f64);
+        for ch in 0..channels {
+            for r in 0..reach {
+                let (x, y) = (qa[ch * rings + r] as f64, cb[ch * rings + r] as f64);
+                dot += x * y;
+                nq += x * x;
+                nc += y * y;
+            }
+        }
+        if nq > 0.0 && nc > 0.0 {
+            sum += dot / (nq * nc).sqrt();
+            count += 1;
+        }
+    }
+    if count > 0 { 1.0 - sum / count as f64 } else { 1.0 }
+}
+
 /// Mutable parts of one entry's [`Ready`] form.
 struct ReadyMut<'a> {
     columns: &'a mut [f32],
     filled: &'a mut [bool],
     h0: &'a mut [f32],
     h0_filled: &'a mut [bool],
+    reach: &'a mut u8,
 }
 
 impl ReadyMut<'_> {
@@ -340,6 +401,7 @@ impl ReadyMut<'_> {
             unit_columns(grid, height, sectors, columns, filled);
         }
         unit_columns(&descriptor[..p.rings * sectors], p.rings, sectors, self.h0, self.h0_filled);
+        *self.reach = reach(descriptor, p) as u8;
     }
 }
 
@@ -351,6 +413,7 @@ impl Ready {
             filled: vec![false; n * p.rotations * p.sectors],
             h0: vec![0.0; n * p.rings * p.sectors],
             h0_filled: vec![false; n * p.sectors],
+            reach: vec![0; n],
         }
     }
 
@@ -361,13 +424,20 @@ impl Ready {
             filled: &mut out.filled,
             h0: &mut out.h0,
             h0_filled: &mut out.h0_filled,
+            reach: &mut out.reach[0],
         }
         .fill(descriptor, p);
         out
     }
 
     fn as_ref(&self) -> ReadyRef<'_> {
-        ReadyRef { columns: &self.columns, filled: &self.filled, h0: &self.h0, h0_filled: &self.h0_filled }
+        ReadyRef {
+            columns: &self.columns,
+            filled: &self.filled,
+            h0: &self.h0,
+            h0_filled: &self.h0_filled,
+            reach: self.reach[0] as usize,
+        }
     }
 }
 
@@ -440,13 +510,22 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
 /// of the best one, for each of the candidate's grids, on all channels.
 fn distance_to(q: ReadyRef<'_>, c: ReadyRef<'_>, p: &PlusParams) -> (f64, f64) {
     let (height, sectors) = (CHANNELS * p.rings, p.sectors);
+    // Compared where both reach: a scan cut at a shorter range leaves the outer rings out.
+    let reach = q.reach.min(c.reach).max(1);
+    let cut = reach < p.rings;
+    // The outermost ring of a cut scan is half empty (shared with the ring beyond): left out.
+    let reach = if cut { (reach - 1).max(1) } else { reach };
     let radius = (0.5 * p.search_ratio * sectors as f64).round() as usize;
     let shifts: Vec<usize> = if 2 * radius + 1 >= sectors {
         (0..sectors).collect()
     } else {
         let mut coarse = (f64::INFINITY, 0usize);
         for shift in 0..sectors {
-            let d = column_distance(q.h0, q.h0_filled, c.h0, c.h0_filled, p.rings, shift);
+            let d = if cut {
+                column_distance_within(q.h0, q.h0_filled, c.h0, c.h0_filled, 1, p.rings, reach, shift)
+            } else {
+                column_distance(q.h0, q.h0_filled, c.h0, c.h0_filled, p.rings, shift)
+            };
             if d < coarse.0 {
                 coarse = (d, shift);
             }
@@ -463,7 +542,11 @@ fn distance_to(q: ReadyRef<'_>, c: ReadyRef<'_>, p: &PlusParams) -> (f64, f64) {
         let cc = &c.columns[r * sectors * height..(r + 1) * sectors * height];
         let cf = &c.filled[r * sectors..(r + 1) * sectors];
         for &shift in &shifts {
-            let d = column_distance(qc, qf, cc, cf, height, shift);
+            let d = if cut {
+                column_distance_within(qc, qf, cc, cf, CHANNELS, p.rings, reach, shift)
+            } else {
+                column_distance(qc, qf, cc, cf, height, shift)
+            };
             if d < best.0 {
                 let yaw = (shift as f64 * p.sector_degrees() + p.rotation_degrees(r)).rem_euclid(360.0);
                 best = (d, yaw);
@@ -580,8 +663,9 @@ impl Searcher {
             .zip(ready.h0_filled.par_chunks_exact_mut(p.sectors))
             .zip(shapes.par_chunks_exact_mut(shape_len(p)))
             .zip(profiles.par_chunks_exact_mut(profile_len(p)))
-            .for_each(|((((((d, columns), filled), h0), h0_filled), shape), profile)| {
-                ReadyMut { columns, filled, h0, h0_filled }.fill(d, p);
+            .zip(ready.reach.par_iter_mut())
+            .for_each(|(((((((d, columns), filled), h0), h0_filled), shape), profile), reach)| {
+                ReadyMut { columns, filled, h0, h0_filled, reach }.fill(d, p);
                 shape.copy_from_slice(&shape_key(d, p));
                 profile.copy_from_slice(&profile_key(d, p));
             });
@@ -616,6 +700,7 @@ impl Searcher {
             filled: &self.ready.filled[row * grids..(row + 1) * grids],
             h0: &self.ready.h0[row * sectors * p.rings..(row + 1) * sectors * p.rings],
             h0_filled: &self.ready.h0_filled[row * sectors..(row + 1) * sectors],
+            reach: self.ready.reach[row] as usize,
         }
     }
 
@@ -761,5 +846,39 @@ mod tests {
         .unwrap();
         assert!(d < distance(&part, &other, &p).0, "the occluded scan is nearer its own place");
         assert!(!(6.0..=354.0).contains(&yaw), "no turn: yaw {yaw}");
+    }
+
+    #[test]
+    fn a_scan_cut_at_a_shorter_range_is_compared_where_both_reach() {
+        // Rings of 2 m: the scene reaches ring 16 (32 m); cut at 20 m, ring 10.
+        let p = PlusParams { max_radius: 40.0, ..PlusParams::default() };
+        let full = describe(&scene(), &p).unwrap();
+        let near: Vec<Point> = scene().into_iter().filter(|q| q[0].hypot(q[1]) <= 20.0).collect();
+        let cut = describe(&near, &p).unwrap();
+        let (r_full, r_cut) = (reach(&full, &p), reach(&cut, &p));
+        assert!(r_cut < r_full && r_cut <= 11, "reach {r_cut} of {r_full} rings");
+        // Within the rings both reach (the cut's last, half-empty ring left out), the cut scan
+        // is its own place: nearer it than the place turned and stretched, and than it was
+        // when the rings beyond the cut counted.
+        let other: Vec<Point> =
+            turned(&scene(), 1).into_iter().map(|q| [q[0] * 1.7, q[1] * 0.6, q[2]]).collect();
+        let other = describe(&other, &p).unwrap();
+        let (d, _) = distance(&cut, &full, &p);
+        assert!(d < distance(&cut, &other, &p).0, "{d}");
+        let ready = |x: &[f32]| Ready::new(x, &p);
+        let (q, c) = (ready(&cut), ready(&full));
+        let everywhere = (0..p.sectors)
+            .map(|s| {
+                column_distance(
+                    &q.columns[..p.sectors * 2 * p.rings],
+                    &q.filled[..p.sectors],
+                    &c.columns[..p.sectors * 2 * p.rings],
+                    &c.filled[..p.sectors],
+                    2 * p.rings,
+                    s,
+                )
+            })
+            .fold(f64::INFINITY, f64::min);
+        assert!(d < everywhere, "{d} within the reach, {everywhere} over every ring");
     }
 }
