@@ -160,6 +160,23 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
     for rel in crate::sinks::index::recovery::foreign(index) {
         v.notes.push(format!("{rel}: foreign (not toporec's; left alone)"));
     }
+    // Search caches: current, or stale (the next query rebuilds it).
+    let caches = index.join(crate::sinks::index::searchers::FOLDER);
+    for e in std::fs::read_dir(&caches).into_iter().flatten().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let rel = format!("{}/{name}", crate::sinks::index::searchers::FOLDER);
+        match crate::sinks::index::searchers::header(&e.path()) {
+            Ok(h) if h.generation == manifest.generation => {
+                v.notes.push(format!("{rel}: search cache of {} ({} rows), current", h.method, h.rows))
+            }
+            Ok(h) => v.notes.push(format!(
+                "{rel}: search cache of {} from generation {} (the index is at {}): stale, rebuilt by the next query",
+                h.method, h.generation, manifest.generation
+            )),
+            Err(_) if crate::fsutil::is_temp_name(&name) => {}
+            Err(e) => v.notes.push(format!("{rel}: not a search cache toporec reads ({e})")),
+        }
+    }
     // Each file: present, intact, readable as its table.
     let codebook = match manifest.codebook(index) {
         Ok(cb) => cb,

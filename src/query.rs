@@ -12,7 +12,7 @@ use crate::baselines::{Method, MethodKind, TOPOREC};
 use crate::describe::{DescribeError, Describer};
 use crate::error::{Error, Result, ResultExt};
 use crate::search::{Database, Hit};
-use crate::sinks::index::{IndexReader, IndexedScan};
+use crate::sinks::index::{IndexReader, IndexedScan, searchers};
 use crate::sources::{InputKind, Scan, ScanFailure, ScanStream, read_cloud_file};
 use crate::vectorize::codebook::Codebook;
 use rayon::prelude::*;
@@ -220,8 +220,83 @@ impl Engine {
     /// Opens `index` to search with `method` (only `sessions` as the database, when not
     /// empty).
     pub fn open(index: &Path, sessions: &[String], method: &str) -> Result<Self> {
+        if let Some(engine) =
+            Self::open_cached(index, method, &|s| sessions.is_empty() || sessions.contains(&s.session))?
+        {
+            return Ok(engine);
+        }
         let loaded = load_method(index, method, sessions)?;
         Self::from_loaded(index, loaded)
+    }
+
+    /// For a method whose search structure is cached in the index ([`searchers`]: toporec-plus),
+    /// an engine over its rows `chosen` keeps, mapped from the cache (built and written first,
+    /// when the cache is missing or stale); `None` for the other methods.
+    pub fn open_cached(
+        index: &Path,
+        method: &str,
+        chosen: &dyn Fn(&IndexedScan) -> bool,
+    ) -> Result<Option<Self>> {
+        let reader = IndexReader::open(index)?;
+        let Some(manifest) = reader.manifest() else { return Ok(None) };
+        let Some(entry) = manifest.methods.get(method) else { return Ok(None) };
+        let Some(m) = entry.method(method) else { return Ok(None) };
+        let MethodKind::ToporecPlus(params) = &m.kind else { return Ok(None) };
+        let path = searchers::path(index, method);
+        let (searcher, rows) = match searchers::open(&path, manifest.generation, &entry.id) {
+            Some(cached) => {
+                let (body, n) = (cached.header.body.0, cached.header.rows);
+                let searcher = crate::toporec_plus::Searcher::mapped(cached.map, body, n, params.clone())
+                    .map_err(|e| Error::index(&path, e))?;
+                (searcher, cached.rows)
+            }
+            None => {
+                let loaded = load_method(index, method, &[])?;
+                let vectors: Vec<f32> =
+                    loaded.scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
+                let searcher = crate::toporec_plus::Searcher::new(vectors, params.clone());
+                let rows: Vec<IndexedScan> =
+                    loaded.scans.into_iter().map(|s| IndexedScan { descriptor: Vec::new(), ..s }).collect();
+                let header = searchers::Header {
+                    format_version: 1,
+                    generation: manifest.generation,
+                    method: method.to_string(),
+                    id: entry.id.clone(),
+                    params: entry.params.clone(),
+                    rows: rows.len(),
+                    sessions: Vec::new(),
+                    body: (0, 0),
+                };
+                // An index that cannot be written (read-only, another user's) gets no cache.
+                if let Err(e) = searchers::write(&path, &header, &rows, searcher.bytes()) {
+                    tracing::info!("{}: not cached ({e})", path.display());
+                }
+                (searcher, rows)
+            }
+        };
+        let keep: Vec<usize> = (0..rows.len()).filter(|&i| chosen(&rows[i])).collect();
+        let (searcher, rows) = if keep.len() == rows.len() {
+            (searcher, rows)
+        } else {
+            let subset = searcher.subset(&keep);
+            let rows = keep.iter().map(|&i| rows[i].clone()).collect();
+            (subset, rows)
+        };
+        if rows.is_empty() {
+            return Err(Error::index(index, format!("no {method} descriptors among the scans chosen")));
+        }
+        let describer = Describer {
+            topological: false,
+            computed: vec![m.clone()],
+            ..Describer::toporec(Default::default(), true, None)
+        };
+        Ok(Some(Engine {
+            describer,
+            method: m,
+            id: entry.id.clone(),
+            scans: rows,
+            search: Search::Plus(searcher),
+        }))
     }
 
     /// An engine over descriptors already loaded from `index`.
@@ -252,13 +327,41 @@ impl Engine {
         Engine { describer, method, id, scans, search }
     }
 
+    /// The engine over the database rows `keep` keeps, in their order (a subset of a cached
+    /// structure is copied, not rebuilt).
+    pub fn retain(mut self, keep: &dyn Fn(&IndexedScan) -> bool) -> Result<Self> {
+        let rows: Vec<usize> = (0..self.scans.len()).filter(|&i| keep(&self.scans[i])).collect();
+        if rows.len() == self.scans.len() {
+            return Ok(self);
+        }
+        let scans: Vec<IndexedScan> = rows.iter().map(|&i| self.scans[i].clone()).collect();
+        self.search = match self.search {
+            Search::Plus(s) => Search::Plus(s.subset(&rows)),
+            _ => {
+                let length = scans.first().map_or(0, |s| s.descriptor.len());
+                Search::over(&self.method, &scans, length)
+            }
+        };
+        self.scans = scans;
+        Ok(self)
+    }
+
     /// The engine searching at `budget` instead of its method's own settings.
     pub fn with_budget(mut self, budget: SearchBudget) -> Self {
-        if budget != SearchBudget::Default {
-            let length = self.scans.first().map_or(0, |s| s.descriptor.len());
-            let searched = budget.apply(&self.method, self.scans.len());
-            self.search = Search::over(&searched, &self.scans, length);
+        if budget == SearchBudget::Default {
+            return self;
         }
+        let searched = budget.apply(&self.method, self.scans.len());
+        self.search = match (self.search, &searched.kind) {
+            // The same entries, other search settings: nothing rebuilt.
+            (Search::Plus(s), MethodKind::ToporecPlus(p)) => {
+                Search::Plus(s.with_search(p.candidates, p.search_ratio))
+            }
+            (search, _) => {
+                let length = self.scans.first().map_or(0, |s| s.descriptor.len());
+                if length == 0 { search } else { Search::over(&searched, &self.scans, length) }
+            }
+        };
         self
     }
 

@@ -258,11 +258,11 @@ fn shape_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
 fn profile_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
     let (height, sectors) = (CHANNELS * p.rings, p.sectors);
     let mut columns = vec![0f32; sectors * height];
-    let mut filled = vec![false; sectors];
+    let mut filled = vec![0u8; sectors];
     unit_columns(&descriptor[..p.grid_len()], height, sectors, &mut columns, &mut filled);
-    let n = filled.iter().filter(|&&f| f).count();
+    let n = filled.iter().filter(|&&f| f != 0).count();
     let (mut mean, mut square) = (vec![0f64; height], vec![0f64; height]);
-    for column in columns.chunks_exact(height).zip(&filled).filter(|(_, f)| **f).map(|(c, _)| c) {
+    for column in columns.chunks_exact(height).zip(&filled).filter(|(_, f)| **f != 0).map(|(c, _)| c) {
         for ((m, s), &v) in mean.iter_mut().zip(&mut square).zip(column) {
             *m += v as f64;
             *s += v as f64 * v as f64;
@@ -298,9 +298,9 @@ fn profile_len(p: &PlusParams) -> usize {
 /// columns (the `rings` H0 persistence sums of each sector) and which are filled.
 struct Ready {
     columns: Vec<f32>,
-    filled: Vec<bool>,
+    filled: Vec<u8>,
     h0: Vec<f32>,
-    h0_filled: Vec<bool>,
+    h0_filled: Vec<u8>,
     /// Per entry: the rings out to the outermost one holding a value (a scan cut at a shorter
     /// range reaches fewer).
     reach: Vec<u8>,
@@ -310,18 +310,18 @@ struct Ready {
 #[derive(Clone, Copy)]
 struct ReadyRef<'a> {
     columns: &'a [f32],
-    filled: &'a [bool],
+    filled: &'a [u8],
     h0: &'a [f32],
-    h0_filled: &'a [bool],
+    h0_filled: &'a [u8],
     reach: usize,
 }
 
 /// The unit columns of `rows` consecutive rows of a grid (column `s` = the rows' values in
 /// sector `s`) written to `columns`, and whether each column is filled, to `filled`.
-fn unit_columns(grid: &[f32], rows: usize, sectors: usize, columns: &mut [f32], filled: &mut [bool]) {
+fn unit_columns(grid: &[f32], rows: usize, sectors: usize, columns: &mut [f32], filled: &mut [u8]) {
     for (s, (column, filled)) in columns.chunks_exact_mut(rows).zip(filled).enumerate() {
         let norm = (0..rows).map(|h| (grid[h * sectors + s] as f64).powi(2)).sum::<f64>().sqrt();
-        *filled = norm > 0.0;
+        *filled = (norm > 0.0) as u8;
         for (h, c) in column.iter_mut().enumerate() {
             *c = if norm > 0.0 { (grid[h * sectors + s] as f64 / norm) as f32 } else { 0.0 };
         }
@@ -348,9 +348,9 @@ fn reach(descriptor: &[f32], p: &PlusParams) -> usize {
 #[expect(clippy::too_many_arguments, reason = "the columns, their shape and the cut")]
 fn column_distance_within(
     q: &[f32],
-    qf: &[bool],
+    qf: &[u8],
     c: &[f32],
-    cf: &[bool],
+    cf: &[u8],
     channels: usize,
     rings: usize,
     reach: usize,
@@ -361,7 +361,7 @@ fn column_distance_within(
     let (mut sum, mut count) = (0.0f64, 0usize);
     for b in 0..sectors {
         let a = (b + shift) % sectors;
-        if !(qf[a] && cf[b]) {
+        if qf[a] & cf[b] == 0 {
             continue;
         }
         let (qa, cb) = (&q[a * height..(a + 1) * height], &c[b * height..(b + 1) * height]);
@@ -385,9 +385,9 @@ fn column_distance_within(
 /// Mutable parts of one entry's [`Ready`] form.
 struct ReadyMut<'a> {
     columns: &'a mut [f32],
-    filled: &'a mut [bool],
+    filled: &'a mut [u8],
     h0: &'a mut [f32],
-    h0_filled: &'a mut [bool],
+    h0_filled: &'a mut [u8],
     reach: &'a mut u8,
 }
 
@@ -410,9 +410,9 @@ impl Ready {
     fn zeroed(n: usize, p: &PlusParams) -> Self {
         Ready {
             columns: vec![0.0; n * p.len()],
-            filled: vec![false; n * p.rotations * p.sectors],
+            filled: vec![0; n * p.rotations * p.sectors],
             h0: vec![0.0; n * p.rings * p.sectors],
-            h0_filled: vec![false; n * p.sectors],
+            h0_filled: vec![0; n * p.sectors],
             reach: vec![0; n],
         }
     }
@@ -453,7 +453,7 @@ pub fn distance(query: &[f32], candidate: &[f32], p: &PlusParams) -> (f64, f64) 
 /// `1 −` the mean cosine of the columns filled in both, candidate column `b` against query
 /// column `(b + shift) mod sectors` (1 when none is filled in both). With AVX2, the dot
 /// products run eight lanes wide, without fused multiply-adds: the same sums as without.
-fn column_distance(q: &[f32], qf: &[bool], c: &[f32], cf: &[bool], height: usize, shift: usize) -> f64 {
+fn column_distance(q: &[f32], qf: &[u8], c: &[f32], cf: &[u8], height: usize, shift: usize) -> f64 {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
@@ -464,24 +464,17 @@ fn column_distance(q: &[f32], qf: &[bool], c: &[f32], cf: &[bool], height: usize
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn column_distance_avx2(q: &[f32], qf: &[bool], c: &[f32], cf: &[bool], height: usize, shift: usize) -> f64 {
+fn column_distance_avx2(q: &[f32], qf: &[u8], c: &[f32], cf: &[u8], height: usize, shift: usize) -> f64 {
     column_distance_portable(q, qf, c, cf, height, shift)
 }
 
 #[inline(always)]
-fn column_distance_portable(
-    q: &[f32],
-    qf: &[bool],
-    c: &[f32],
-    cf: &[bool],
-    height: usize,
-    shift: usize,
-) -> f64 {
+fn column_distance_portable(q: &[f32], qf: &[u8], c: &[f32], cf: &[u8], height: usize, shift: usize) -> f64 {
     let sectors = qf.len();
     let (mut sum, mut count) = (0.0f64, 0usize);
     for b in 0..sectors {
         let a = (b + shift) % sectors;
-        if qf[a] && cf[b] {
+        if qf[a] & cf[b] != 0 {
             sum += dot(&q[a * height..(a + 1) * height], &c[b * height..(b + 1) * height]) as f64;
             count += 1;
         }
@@ -581,14 +574,88 @@ const COARSE_PER_CANDIDATE: usize = 10;
 /// ready for matching (unit columns), not as descriptors.
 pub struct Searcher {
     params: PlusParams,
-    ready: Ready,
-    /// Each entry's shape key, `n × shape_len`, row-major.
-    shapes: Vec<f32>,
-    /// Each entry's filled shares per ring (its shape key's first terms), `n × 2 · rings`,
-    /// [`quantized`].
-    shares: Vec<u8>,
-    /// Each entry's profile key, `n × profile_len`, [`quantized`].
-    profiles: Vec<u8>,
+    /// Entries.
+    n: usize,
+    /// Every entry's ready form and keys, in one buffer of sections ([`Section`]): owned, or
+    /// mapped from a cache file.
+    store: Store,
+    /// Byte offset of each section in `store`.
+    offsets: [usize; SECTIONS],
+}
+
+/// The sections of a searcher's buffer, per entry: the ready form's unit columns (f32), filled
+/// flags (u8), unit H0 columns (f32), their filled flags (u8), reach (u8); the shape key
+/// (f32), its filled shares per ring ([`quantized`]), the profile key ([`quantized`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Section {
+    Columns,
+    Filled,
+    H0,
+    H0Filled,
+    Reach,
+    Shapes,
+    Shares,
+    Profiles,
+}
+
+const SECTIONS: usize = 8;
+const ALL_SECTIONS: [Section; SECTIONS] = [
+    Section::Columns,
+    Section::Filled,
+    Section::H0,
+    Section::H0Filled,
+    Section::Reach,
+    Section::Shapes,
+    Section::Shares,
+    Section::Profiles,
+];
+
+impl Section {
+    /// Bytes per entry.
+    fn entry_bytes(self, p: &PlusParams) -> usize {
+        match self {
+            Section::Columns => 4 * p.len(),
+            Section::Filled => p.rotations * p.sectors,
+            Section::H0 => 4 * p.rings * p.sectors,
+            Section::H0Filled => p.sectors,
+            Section::Reach => 1,
+            Section::Shapes => 4 * shape_len(p),
+            Section::Shares => CHANNELS * p.rings,
+            Section::Profiles => profile_len(p),
+        }
+    }
+}
+
+/// Sections start on 64-byte boundaries.
+const SECTION_ALIGN: usize = 64;
+
+/// The byte offsets of the sections for `n` entries, and the buffer's length.
+fn layout(n: usize, p: &PlusParams) -> ([usize; SECTIONS], usize) {
+    let mut offsets = [0; SECTIONS];
+    let mut at = 0;
+    for (o, section) in offsets.iter_mut().zip(ALL_SECTIONS) {
+        *o = at;
+        at = (at + n * section.entry_bytes(p)).next_multiple_of(SECTION_ALIGN);
+    }
+    (offsets, at)
+}
+
+/// A searcher's bytes: built in memory, or mapped from a cache file (read only; the OS pages
+/// it in as searches touch it).
+enum Store {
+    /// 8-byte aligned.
+    Owned(Vec<u64>),
+    /// The file's bytes from `body` on (page aligned, so the sections are too).
+    Mapped { map: memmap2::Mmap, body: usize },
+}
+
+impl Store {
+    fn bytes(&self) -> &[u8] {
+        match self {
+            Store::Owned(v) => bytemuck::cast_slice(v),
+            Store::Mapped { map, body } => &map[*body..],
+        }
+    }
 }
 
 /// Key values in [0, 1] as bytes (`round(255 v)`): the first narrowing of a search reads a
@@ -653,31 +720,110 @@ impl Searcher {
         use rayon::prelude::*;
         let p = &params;
         let n = descriptors.len() / p.len();
-        let mut ready = Ready::zeroed(n, p);
-        let (mut shapes, mut profiles) = (vec![0f32; n * shape_len(p)], vec![0f32; n * profile_len(p)]);
-        descriptors
-            .par_chunks_exact(p.len())
-            .zip(ready.columns.par_chunks_exact_mut(p.len()))
-            .zip(ready.filled.par_chunks_exact_mut(p.rotations * p.sectors))
-            .zip(ready.h0.par_chunks_exact_mut(p.rings * p.sectors))
-            .zip(ready.h0_filled.par_chunks_exact_mut(p.sectors))
-            .zip(shapes.par_chunks_exact_mut(shape_len(p)))
-            .zip(profiles.par_chunks_exact_mut(profile_len(p)))
-            .zip(ready.reach.par_iter_mut())
-            .for_each(|(((((((d, columns), filled), h0), h0_filled), shape), profile), reach)| {
-                ReadyMut { columns, filled, h0, h0_filled, reach }.fill(d, p);
-                shape.copy_from_slice(&shape_key(d, p));
-                profile.copy_from_slice(&profile_key(d, p));
-            });
+        let (offsets, total) = layout(n, p);
+        let mut buffer = vec![0u64; total.div_ceil(8)];
+        {
+            // The sections, each borrowed mutably on its own.
+            let mut rest: &mut [u8] = bytemuck::cast_slice_mut(&mut buffer);
+            let mut parts: Vec<&mut [u8]> = Vec::with_capacity(SECTIONS);
+            let mut at = 0;
+            for (o, section) in offsets.iter().zip(ALL_SECTIONS) {
+                let (_, tail) = std::mem::take(&mut rest).split_at_mut(o - at);
+                let (part, tail) = tail.split_at_mut(n * section.entry_bytes(p));
+                parts.push(part);
+                rest = tail;
+                at = o + n * section.entry_bytes(p);
+            }
+            let [columns, filled, h0, h0_filled, reach, shapes, shares, profiles]: [&mut [u8]; SECTIONS] =
+                parts.try_into().unwrap_or_else(|_| unreachable!("{SECTIONS} sections"));
+            let columns: &mut [f32] = bytemuck::cast_slice_mut(columns);
+            let h0: &mut [f32] = bytemuck::cast_slice_mut(h0);
+            let shapes: &mut [f32] = bytemuck::cast_slice_mut(shapes);
+            descriptors
+                .par_chunks_exact(p.len())
+                .zip(columns.par_chunks_exact_mut(p.len()))
+                .zip(filled.par_chunks_exact_mut(p.rotations * p.sectors))
+                .zip(h0.par_chunks_exact_mut(p.rings * p.sectors))
+                .zip(h0_filled.par_chunks_exact_mut(p.sectors))
+                .zip(shapes.par_chunks_exact_mut(shape_len(p)))
+                .zip(shares.par_chunks_exact_mut(CHANNELS * p.rings))
+                .zip(profiles.par_chunks_exact_mut(profile_len(p)))
+                .zip(reach.par_iter_mut())
+                .for_each(
+                    |((((((((d, columns), filled), h0), h0_filled), shape), share), profile), reach)| {
+                        ReadyMut { columns, filled, h0, h0_filled, reach }.fill(d, p);
+                        let key = shape_key(d, p);
+                        share.copy_from_slice(&quantized(&shares_of(&key, p)));
+                        shape.copy_from_slice(&key);
+                        profile.copy_from_slice(&quantized(&profile_key(d, p)));
+                    },
+                );
+        }
         drop(descriptors);
-        let shares = shapes.chunks_exact(shape_len(p)).flat_map(|k| quantized(&shares_of(k, p))).collect();
-        let profiles = quantized(&profiles);
-        Searcher { params, ready, shapes, shares, profiles }
+        Searcher { params, n, store: Store::Owned(buffer), offsets }
+    }
+
+    /// The searcher's bytes (its sections, as a cache file's body holds them).
+    pub fn bytes(&self) -> &[u8] {
+        let (_, total) = layout(self.n, &self.params);
+        &self.store.bytes()[..total]
+    }
+
+    /// A searcher over the `n` entries laid out in `map` from byte `body` on (a cache file
+    /// written from [`Searcher::bytes`]).
+    pub fn mapped(map: memmap2::Mmap, body: usize, n: usize, params: PlusParams) -> Result<Self, String> {
+        let (offsets, total) = layout(n, &params);
+        if map.len() < body + total || !body.is_multiple_of(SECTION_ALIGN) {
+            return Err(format!(
+                "{} bytes for {n} entries, {total} expected",
+                map.len().saturating_sub(body)
+            ));
+        }
+        Ok(Searcher { params, n, store: Store::Mapped { map, body }, offsets })
+    }
+
+    /// The entries `rows` (in that order) in a searcher of their own, copied.
+    pub fn subset(&self, rows: &[usize]) -> Self {
+        let p = &self.params;
+        let (offsets, total) = layout(rows.len(), p);
+        let mut buffer = vec![0u64; total.div_ceil(8)];
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut buffer);
+        for (i, section) in ALL_SECTIONS.into_iter().enumerate() {
+            let per = section.entry_bytes(p);
+            let from = &self.store.bytes()[self.offsets[i]..];
+            for (k, &row) in rows.iter().enumerate() {
+                let to = offsets[i] + k * per;
+                bytes[to..to + per].copy_from_slice(&from[row * per..(row + 1) * per]);
+            }
+        }
+        Searcher { params: self.params.clone(), n: rows.len(), store: Store::Owned(buffer), offsets }
+    }
+
+    /// The same entries searched with other search settings (candidates, shift range); the
+    /// descriptor settings must be this searcher's.
+    pub fn with_search(mut self, candidates: usize, search_ratio: f64) -> Self {
+        self.params.candidates = candidates;
+        self.params.search_ratio = search_ratio;
+        self
+    }
+
+    /// One section of every entry.
+    fn section<T: bytemuck::Pod>(&self, section: Section) -> &[T] {
+        let i = section as usize;
+        let start = self.offsets[i];
+        bytemuck::cast_slice(&self.store.bytes()[start..start + self.n * section.entry_bytes(&self.params)])
+    }
+
+    /// One section of entry `row`.
+    fn entry_section<T: bytemuck::Pod>(&self, section: Section, row: usize) -> &[T] {
+        let all = self.section::<T>(section);
+        let per = all.len() / self.n.max(1);
+        &all[row * per..(row + 1) * per]
     }
 
     /// Rows.
     pub fn len(&self) -> usize {
-        self.shares.len() / (CHANNELS * self.params.rings)
+        self.n
     }
 
     /// Whether there are no rows.
@@ -692,15 +838,12 @@ impl Searcher {
 
     /// Entry `row`, ready for matching.
     fn entry(&self, row: usize) -> ReadyRef<'_> {
-        let p = &self.params;
-        let (height, sectors) = (CHANNELS * p.rings, p.sectors);
-        let (grids, cols) = (p.rotations * sectors, p.rotations * sectors * height);
         ReadyRef {
-            columns: &self.ready.columns[row * cols..(row + 1) * cols],
-            filled: &self.ready.filled[row * grids..(row + 1) * grids],
-            h0: &self.ready.h0[row * sectors * p.rings..(row + 1) * sectors * p.rings],
-            h0_filled: &self.ready.h0_filled[row * sectors..(row + 1) * sectors],
-            reach: self.ready.reach[row] as usize,
+            columns: self.entry_section(Section::Columns, row),
+            filled: self.entry_section(Section::Filled, row),
+            h0: self.entry_section(Section::H0, row),
+            h0_filled: self.entry_section(Section::H0Filled, row),
+            reach: self.entry_section::<u8>(Section::Reach, row)[0] as usize,
         }
     }
 
@@ -710,16 +853,20 @@ impl Searcher {
         let half = wanted.div_ceil(2);
         let shape = shape_key(query, p);
         let width = shape_len(p);
-        let mut by_shape: Vec<(f64, usize)> =
-            nearest_rows(&self.shares, &quantized(&shares_of(&shape, p)), COARSE_PER_CANDIDATE * half)
-                .into_iter()
-                .map(|row| {
-                    let e = &self.shapes[row * width..(row + 1) * width];
-                    (shape.iter().zip(e).map(|(a, b)| ((a - b) as f64).powi(2)).sum(), row)
-                })
-                .collect();
+        let mut by_shape: Vec<(f64, usize)> = nearest_rows(
+            self.section(Section::Shares),
+            &quantized(&shares_of(&shape, p)),
+            COARSE_PER_CANDIDATE * half,
+        )
+        .into_iter()
+        .map(|row| {
+            let e = &self.section::<f32>(Section::Shapes)[row * width..(row + 1) * width];
+            (shape.iter().zip(e).map(|(a, b)| ((a - b) as f64).powi(2)).sum(), row)
+        })
+        .collect();
         by_shape.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let by_profile = nearest_rows(&self.profiles, &quantized(&profile_key(query, p)), wanted);
+        let by_profile =
+            nearest_rows(self.section(Section::Profiles), &quantized(&profile_key(query, p)), wanted);
         let lists = [by_shape.into_iter().map(|(_, row)| row).collect::<Vec<_>>(), by_profile];
         // In turn, each row once: half from each list unless they share rows.
         let mut out = Vec::with_capacity(wanted);

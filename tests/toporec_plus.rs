@@ -203,3 +203,73 @@ fn query_answers_with_toporec_plus_and_its_yaw() {
     assert_eq!(row[4].parse::<f64>().unwrap(), 0.0, "itself at distance 0: {out}");
     assert_eq!(row[8], "0.0", "yaw 0: {out}");
 }
+
+#[test]
+fn the_search_structure_is_cached_in_the_index_and_rebuilt_after_a_commit() {
+    // toporec-plus alone on the sample drive: its first query builds the searcher and caches it
+    // in INDEX/searchers/; the next queries map it (and answer alike); a commit makes it stale.
+    let dir = scratch_dir("plus_search_cache");
+    let data = sample_copy(&dir, &["2026-01-01", "2026-01-02"]);
+    let body = format!(
+        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"toporec-plus\"]\n",
+        data.join("velodyne_data").display().to_string()
+    );
+    let pipeline = dir.join("plus.toml");
+    std::fs::write(&pipeline, body).unwrap();
+    let index = dir.join("idx");
+    assert!(run_pipeline(&pipeline, &index, 2).status.success());
+    let cache = index.join("searchers/toporec-plus.searcher");
+    let query = |extra: &[&str]| {
+        let day2 = data.join("velodyne_data/2026-01-02");
+        let mut args = vec!["query", "--index", index.to_str().unwrap(), "--method", "toporec-plus"];
+        args.extend([day2.to_str().unwrap(), "-k", "3"]);
+        args.extend(extra);
+        let o = toporec(&args);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout)
+    };
+    assert!(!cache.exists());
+    let built = query(&[]);
+    assert!(cache.is_file(), "the first query caches the searcher");
+    let generation = |i: &Path| read_json(&i.join("manifest.json"))["generation"].as_u64().unwrap();
+    let header = toporec::sinks::index::searchers::header(&cache).unwrap();
+    assert_eq!((header.rows, header.generation), (64, generation(&index)));
+    let stamp = std::fs::metadata(&cache).unwrap().modified().unwrap();
+    assert_eq!(query(&[]), built, "the mapped searcher answers as the built one");
+    assert_eq!(std::fs::metadata(&cache).unwrap().modified().unwrap(), stamp, "not rebuilt");
+    // One session only: a copy of its rows, the same answers as a searcher built on them.
+    let one = query(&["--session", "2026-01-01"]);
+    assert!(one.lines().skip(1).all(|l| l.contains(",2026-01-01,")), "{one}");
+    let o = toporec(&["verify", "--index", index.to_str().unwrap()]);
+    assert!(
+        text(&o.stdout).contains("search cache of toporec-plus (64 rows), current"),
+        "{}",
+        text(&o.stdout)
+    );
+    // A commit (a scan pruned) makes the cache stale: verify says so, the next query rebuilds.
+    let gone = std::fs::read_dir(data.join("velodyne_data/2026-01-01/velodyne_sync"))
+        .unwrap()
+        .flatten()
+        .next()
+        .unwrap();
+    std::fs::remove_file(gone.path()).unwrap();
+    let o = toporec(&[
+        "run",
+        pipeline.to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "--prune",
+        "--no-progress",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let o = toporec(&["verify", "--index", index.to_str().unwrap()]);
+    assert!(text(&o.stdout).contains("stale, rebuilt by the next query"), "{}", text(&o.stdout));
+    let after = query(&[]);
+    let header = toporec::sinks::index::searchers::header(&cache).unwrap();
+    assert_eq!((header.rows, header.generation), (63, generation(&index)));
+    assert_ne!(after, built);
+    // A cache that is not one is rebuilt, not trusted.
+    std::fs::write(&cache, b"garbage").unwrap();
+    assert_eq!(query(&[]), after);
+    assert_eq!(toporec::sinks::index::searchers::header(&cache).unwrap().rows, 63);
+}

@@ -26,7 +26,7 @@ use super::report::{
 use super::{Curve, chosen_methods, clamp_max_n, file_names, names, timing_of};
 use crate::baselines::TOPOREC;
 use crate::error::{Error, Result, ResultExt};
-use crate::query::{Engine, Found, StepTimes, load_method, step_summary};
+use crate::query::{Engine, Found, Loaded, StepTimes, load_method, step_summary};
 use crate::sinks::index::IndexedScan;
 use rayon::prelude::*;
 use std::collections::{HashMap, HashSet};
@@ -340,7 +340,20 @@ struct Evaluated {
 
 impl Prepared {
     fn new(a: &PlacesArgs, queries_index: &Path, method: &str) -> Result<Prepared> {
-        let db_loaded = load_method(&a.db, method, &a.db_sessions)?;
+        // A method with a cached search structure (toporec-plus) searches a copy of the chosen
+        // rows of it; the others build theirs from the descriptors.
+        let in_sessions = |s: &IndexedScan| a.db_sessions.is_empty() || a.db_sessions.contains(&s.session);
+        let cached = Engine::open_cached(&a.db, method, &in_sessions)?;
+        let db_loaded = match &cached {
+            Some(e) => Loaded {
+                method: e.method.clone(),
+                id: e.id.clone(),
+                length: e.method.len(),
+                codebook: None,
+                scans: e.scans.clone(),
+            },
+            None => load_method(&a.db, method, &a.db_sessions)?,
+        };
         let q_loaded = load_method(queries_index, method, &a.query_sessions)?;
         if q_loaded.id != db_loaded.id {
             let hint = if method == TOPOREC {
@@ -386,7 +399,14 @@ impl Prepared {
         let (id, length) = (db_loaded.id.clone(), db_loaded.length);
         db_loaded.scans = db_scans;
         let n_db = db_loaded.scans.len();
-        let engine = Engine::from_loaded(&a.db, db_loaded)?.with_budget(a.search);
+        let engine = match cached {
+            Some(e) => {
+                let keep: HashSet<&str> = db_loaded.scans.iter().map(|s| s.scan_id.as_str()).collect();
+                e.retain(&|s| keep.contains(s.scan_id.as_str()))?
+            }
+            None => Engine::from_loaded(&a.db, db_loaded)?,
+        }
+        .with_budget(a.search);
         let entry = PlacesMethod {
             method: method.to_string(),
             id,

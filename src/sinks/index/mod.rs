@@ -20,6 +20,7 @@
 pub mod manifest;
 pub mod reader;
 pub mod recovery;
+pub mod searchers;
 pub mod writer;
 
 pub use reader::{IndexReader, IndexedScan, ScanRecord};

@@ -123,7 +123,15 @@ pub fn orphans(root: &Path, manifest: &Manifest) -> Vec<String> {
 /// Everything in the index folder that is not toporec's (relative paths, folders with a
 /// trailing `/`): left alone by every writer, listed by `verify`.
 pub fn foreign(root: &Path) -> Vec<String> {
-    let own_top = [MANIFEST_FILE, CODEBOOK_FILE, PIPELINE_FILE, LOCK_FILE, STAGING_DIR, SHARDS_DIR];
+    let own_top = [
+        MANIFEST_FILE,
+        CODEBOOK_FILE,
+        PIPELINE_FILE,
+        LOCK_FILE,
+        STAGING_DIR,
+        SHARDS_DIR,
+        super::searchers::FOLDER,
+    ];
     let mut out = Vec::new();
     for e in std::fs::read_dir(root).into_iter().flatten().flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
