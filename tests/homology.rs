@@ -470,3 +470,45 @@ fn scaled_clouds_beyond_the_band_match_gudhi_exact_or_are_refused() {
     println!("{out}");
     assert!(o.status.success(), "{out}{}", text(&o.stderr));
 }
+
+/// Every bit of a located diagram: dimension, birth, death and where the class dies.
+fn located_bits(pts: &[Point]) -> Vec<(u8, u64, u64, Option<[u64; 3]>)> {
+    toporec::homology::alpha_persistence_located(pts)
+        .unwrap()
+        .iter()
+        .map(|l| {
+            (l.pair.dim, l.pair.birth.to_bits(), l.pair.death.to_bits(), l.at.map(|p| p.map(f64::to_bits)))
+        })
+        .collect()
+}
+
+#[test]
+fn diagrams_and_located_pairs_are_bit_identical_for_any_thread_count() {
+    // Large enough that the filtration and persistence split across threads (tens of
+    // thousands of simplices), general position and degenerate: a 2 cm-quantized LiDAR-like
+    // cloud has many co-spherical and tied simplices.
+    let lidar = read_cloud(&root().join("tests/fixtures/clouds/lidar_like_4096.csv"));
+    let quantized: Vec<Point> = lidar.iter().map(|p| p.map(|c| (c * 50.0).round() / 50.0)).collect();
+    let mut lattice = Vec::new();
+    for i in 0..1000 {
+        lattice.push([(i % 10) as f64, (i / 10 % 10) as f64, (i / 100) as f64]);
+    }
+    for (name, pts) in [
+        ("lidar_like_4096", lidar),
+        ("quantized", quantized),
+        ("lattice", lattice),
+        ("random", random_cloud(12_000, 5)),
+    ] {
+        let pool = |n: usize| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        let one = pool(1).install(|| (alpha_persistence(&pts).unwrap(), located_bits(&pts)));
+        assert!(one.0.counts()[1] > 0, "{name}: a diagram with loops");
+        for threads in [2, 3, 4] {
+            let many = pool(threads).install(|| (alpha_persistence(&pts).unwrap(), located_bits(&pts)));
+            let bits = |d: &toporec::homology::Diagram| {
+                d.pairs().iter().map(|p| (p.dim, p.birth.to_bits(), p.death.to_bits())).collect::<Vec<_>>()
+            };
+            assert_eq!(bits(&one.0), bits(&many.0), "{name}: diagram on {threads} threads");
+            assert_eq!(one.1, many.1, "{name}: located pairs on {threads} threads");
+        }
+    }
+}

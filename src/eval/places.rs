@@ -472,7 +472,8 @@ impl Prepared {
     ) -> Computed {
         let db = &self.engine.scans;
         let n_db = db.len();
-        let max_n = clamp_max_n(a.max_n, n_db);
+        // Clamped (and warned about) once, when the method was prepared.
+        let max_n = self.entry.max_n;
         let k1 = one_percent_k(n_db);
         let want = max_n.max(k1).min(n_db);
         // The queries' descriptors under this condition (`None`: not described).

@@ -8,11 +8,12 @@
 //! can be compared exactly ([`Filtration::cmp`]); the simplex orders used for persistence are
 //! total: (value, index).
 
-use super::complex::DelaunayComplex;
+use super::complex::{DelaunayComplex, OUTSIDE};
 use super::exact::{
     Point, Radius2, compare_radius2_exact, edge_obtuse, radius2, radius2_correctly_rounded, tet_circumsphere,
     triangle_gabriel,
 };
+use rayon::prelude::*;
 use std::cmp::Ordering;
 
 /// One filtration value: an `f64` with an error bound and the simplex it comes from.
@@ -30,6 +31,8 @@ const DIM_SHIFT: u32 = 30;
 /// Error bounds wider than this are tightened by exact evaluation (see [`tighten`]).
 const TIGHT_REL_ERR: f64 = 1e-9;
 const INDEX_MASK: u32 = (1 << DIM_SHIFT) - 1;
+/// Simplices per rayon task: small clouds stay on one thread, large ones split evenly.
+const PAR_CHUNK: usize = 4096;
 
 impl Value {
     fn unset() -> Self {
@@ -67,151 +70,112 @@ pub struct Filtration<'a> {
 }
 
 impl<'a> Filtration<'a> {
-    /// Computes the alpha filtration of `complex`.
+    /// Computes the alpha filtration of `complex`, on the threads of the current rayon pool
+    /// (the values and orders do not depend on how many).
     pub fn new(complex: &'a DelaunayComplex) -> Self {
         let pts = &complex.points;
-        let mut f = Filtration {
-            complex,
-            edges: vec![Value::unset(); complex.edges.len()],
-            triangles: vec![Value::unset(); complex.triangles.len()],
-            tets: Vec::with_capacity(complex.tets.len()),
-            edge_order: Vec::new(),
-            triangle_order: Vec::new(),
-            tet_order: Vec::new(),
-        };
-        // Tetrahedra: own circumradius. Triangles: attached to a tetrahedron whose opposite
-        // vertex is strictly inside their smallest circumsphere (decided from the
-        // tetrahedron's circumcentre, exactly when that is too close to call).
-        for (ti, t) in complex.tets.iter().enumerate() {
-            let v = t.map(|x| pts[x as usize]);
-            let (r, gabriel) = tet_circumsphere(&v);
-            let cand = own(tighten(r, &v), 3, ti);
-            f.tets.push(cand);
-            for i in 0..4 {
-                let tri = complex.tet_tris[ti][i] as usize;
-                let is_gabriel = gabriel[i].unwrap_or_else(|| {
-                    let w = complex.triangles[tri];
-                    triangle_gabriel(&pts[w[0] as usize], &pts[w[1] as usize], &pts[w[2] as usize], &v[i])
-                });
-                if !is_gabriel {
-                    let cur = f.triangles[tri];
-                    if f.cmp(cand, cur) == Ordering::Less {
-                        f.triangles[tri] = cand;
+        // Tetrahedra: own circumradius, and which of their facets they attach: a facet is
+        // attached when the opposite vertex is strictly inside its smallest circumsphere
+        // (decided from the tetrahedron's circumcentre, exactly when that is too close to
+        // call). Independent per tetrahedron.
+        let per_tet: Vec<(Value, u8)> = complex
+            .tets
+            .par_iter()
+            .with_min_len(PAR_CHUNK)
+            .enumerate()
+            .map(|(ti, t)| {
+                let v = t.map(|x| pts[x as usize]);
+                let (r, gabriel) = tet_circumsphere(&v);
+                let mut attaches = 0u8;
+                for i in 0..4 {
+                    let is_gabriel = gabriel[i].unwrap_or_else(|| {
+                        let w = complex.triangles[complex.tet_tris[ti][i] as usize];
+                        triangle_gabriel(&pts[w[0] as usize], &pts[w[1] as usize], &pts[w[2] as usize], &v[i])
+                    });
+                    attaches |= u8::from(!is_gabriel) << i;
+                }
+                (own(tighten(r, &v), 3, ti), attaches)
+            })
+            .collect();
+        let tets: Vec<Value> = per_tet.iter().map(|p| p.0).collect();
+        let cmp = |a: Value, b: Value| compare(complex, a, b);
+        // Triangles: the least value of the tetrahedra that attach them (the lower-numbered
+        // one on a tie), else their own smallest-circumsphere radius².
+        let triangles: Vec<Value> = complex
+            .triangles
+            .par_iter()
+            .with_min_len(PAR_CHUNK)
+            .enumerate()
+            .map(|(i, t)| {
+                let mut best = Value::unset();
+                if let Some(cofaces) = complex.tri_cofaces.get(i) {
+                    // Cofaces come in increasing order (the outside last).
+                    for &c in cofaces.iter().filter(|&&c| c != OUTSIDE) {
+                        let slot = complex.tet_tris[c as usize].iter().position(|&x| x as usize == i);
+                        let attached = slot.is_some_and(|s| per_tet[c as usize].1 >> s & 1 == 1);
+                        if attached && cmp(tets[c as usize], best) == Ordering::Less {
+                            best = tets[c as usize];
+                        }
                     }
                 }
-            }
-        }
-        for (i, t) in complex.triangles.iter().enumerate() {
-            if !f.triangles[i].is_set() {
-                let v = t.map(|x| pts[x as usize]);
-                f.triangles[i] = own(tighten(radius2(&v), &v), 2, i);
-            }
-        }
+                if best.is_set() {
+                    best
+                } else {
+                    let v = t.map(|x| pts[x as usize]);
+                    own(tighten(radius2(&v), &v), 2, i)
+                }
+            })
+            .collect();
+        drop(per_tet);
         // Edges: attached iff some triangle coface is not Gabriel (the opposite angle is
         // obtuse); then the minimum over all triangle cofaces (that minimum is reached at a
         // non-Gabriel coface, so this equals GUDHI's top-down propagation whatever its
-        // visiting order).
-        // (Both tests are branch-free unless their filters cannot decide: the outcomes are
-        // unpredictable, and this loop runs three times per triangle.)
-        let mut attached = vec![false; complex.edges.len()];
-        for (ti, t) in complex.triangles.iter().enumerate() {
-            let v = t.map(|x| pts[x as usize]);
-            let cand = f.triangles[ti];
-            for i in 0..3 {
-                let e = complex.tri_edges[ti][i] as usize;
-                let (p, q) = ((i + 1) % 3, (i + 2) % 3);
-                attached[e] |= edge_obtuse(&v[p], &v[q], &v[i]);
-                let cur = f.edges[e];
-                let lower = f.cmp(cand, cur) == Ordering::Less;
-                f.edges[e] = if lower { cand } else { cur };
-            }
-        }
-        for (i, e) in complex.edges.iter().enumerate() {
-            if !attached[i] {
-                f.edges[i] = own(radius2(&[pts[e[0] as usize], pts[e[1] as usize]]), 1, i);
-            }
-        }
-        f.edge_order = f.order(&f.edges);
-        f.triangle_order = f.order(&f.triangles);
-        f.tet_order = f.order(&f.tets);
-        f
-    }
-
-    /// Simplex ids sorted by (exact value, id): a radix sort on the high 32 bits of the
-    /// `f64` (values are non-negative, so the bits order like the values), runs of equal
-    /// high bits sorted by the full value, then an exact re-sort inside each cluster whose
-    /// error intervals overlap (rare outside ties).
-    fn order(&self, values: &[Value]) -> Vec<u32> {
-        let keyed: Vec<u64> =
-            values.iter().enumerate().map(|(i, v)| (v.value.to_bits() >> 32) << 32 | i as u64).collect();
-        let mut o: Vec<u32> = radix_sort_high32(keyed).into_iter().map(|k| k as u32).collect();
-        let bits = |i: u32| values[i as usize].value.to_bits();
-        let n = o.len();
-        let mut start = 0;
-        while start < n {
-            let high = bits(o[start]) >> 32;
-            let mut end = start + 1;
-            while end < n && bits(o[end]) >> 32 == high {
-                end += 1;
-            }
-            if end - start > 1 {
-                o[start..end].sort_unstable_by_key(|&i| (bits(i), i));
-            }
-            start = end;
-        }
-        let sorted: Vec<(f64, f64)> = o
-            .iter()
-            .map(|&i| {
-                let v = values[i as usize];
-                (v.value, v.abs_err())
+        // visiting order). The obtuse tests run per triangle on the pool; the minimum is taken
+        // in triangle order, the lower-numbered triangle kept on a tie.
+        // (The tests are branch-free unless their filters cannot decide: the outcomes are
+        // unpredictable, and they run three times per triangle.)
+        let obtuse: Vec<u8> = complex
+            .triangles
+            .par_iter()
+            .with_min_len(PAR_CHUNK)
+            .map(|t| {
+                let v = t.map(|x| pts[x as usize]);
+                let mut mask = 0u8;
+                for i in 0..3 {
+                    let (p, q) = ((i + 1) % 3, (i + 2) % 3);
+                    mask |= u8::from(edge_obtuse(&v[p], &v[q], &v[i])) << i;
+                }
+                mask
             })
             .collect();
-        let mut suffix_min_lower = vec![f64::INFINITY; n + 1];
-        for k in (0..n).rev() {
-            suffix_min_lower[k] = suffix_min_lower[k + 1].min(sorted[k].0 - sorted[k].1);
-        }
-        let mut start = 0;
-        let mut max_upper = f64::NEG_INFINITY;
-        for k in 0..n {
-            max_upper = max_upper.max(sorted[k].0 + sorted[k].1);
-            // Split after k when nothing before can exceed anything after.
-            if max_upper < suffix_min_lower[k + 1] {
-                if k > start {
-                    o[start..=k].sort_unstable_by(|&i, &j| {
-                        self.cmp(values[i as usize], values[j as usize]).then(i.cmp(&j))
-                    });
-                }
-                start = k + 1;
-                max_upper = f64::NEG_INFINITY;
+        let mut edges = vec![Value::unset(); complex.edges.len()];
+        let mut attached = vec![false; complex.edges.len()];
+        for (ti, &cand) in triangles.iter().enumerate() {
+            for i in 0..3 {
+                let e = complex.tri_edges[ti][i] as usize;
+                attached[e] |= obtuse[ti] >> i & 1 == 1;
+                let cur = edges[e];
+                edges[e] = if cmp(cand, cur) == Ordering::Less { cand } else { cur };
             }
         }
-        o
+        drop(obtuse);
+        for (i, e) in complex.edges.iter().enumerate() {
+            if !attached[i] {
+                edges[i] = own(radius2(&[pts[e[0] as usize], pts[e[1] as usize]]), 1, i);
+            }
+        }
+        let ((edge_order, triangle_order), tet_order) = rayon::join(
+            || rayon::join(|| order(complex, &edges), || order(complex, &triangles)),
+            || order(complex, &tets),
+        );
+        Filtration { complex, edges, triangles, tets, edge_order, triangle_order, tet_order }
     }
 
     /// Exact comparison of two filtration values; an unset value is above every set one.
     #[inline]
     pub fn cmp(&self, a: Value, b: Value) -> Ordering {
-        if a.source == b.source {
-            return Ordering::Equal;
-        }
-        let margin = a.abs_err() + b.abs_err();
-        if b.value - a.value > margin {
-            return Ordering::Less;
-        }
-        if a.value - b.value > margin {
-            return Ordering::Greater;
-        }
-        if !(a.is_set() && b.is_set()) {
-            // Both unset would have equal sources.
-            return if a.is_set() { Ordering::Less } else { Ordering::Greater };
-        }
-        let mut pa = [[0.0; 3]; 4];
-        let mut pb = [[0.0; 3]; 4];
-        let na = self.source_points(a.source, &mut pa);
-        let nb = self.source_points(b.source, &mut pb);
-        compare_radius2_exact(&pa[..na], &pb[..nb])
+        compare(self.complex, a, b)
     }
-
     /// The (birth, death) values of a finite pair, or `None` if it has zero length as GUDHI's
     /// `exact` mode sees it: birth and death, each computed exactly and rounded to a double,
     /// coincide. The `f64` values decide when they differ by more than their certified error;
@@ -231,23 +195,99 @@ impl<'a> Filtration<'a> {
     /// The exact value of `v` rounded to the nearest double.
     pub fn correctly_rounded(&self, v: Value) -> f64 {
         let mut p = [[0.0; 3]; 4];
-        let n = self.source_points(v.source, &mut p);
+        let n = source_points(self.complex, v.source, &mut p);
         radius2_correctly_rounded(&p[..n])
     }
+}
 
-    fn source_points(&self, source: u32, out: &mut [Point; 4]) -> usize {
-        let c = self.complex;
-        let i = (source & INDEX_MASK) as usize;
-        let verts: &[u32] = match source >> DIM_SHIFT {
-            1 => &c.edges[i],
-            2 => &c.triangles[i],
-            _ => &c.tets[i],
-        };
-        for (k, &v) in verts.iter().enumerate() {
-            out[k] = c.points[v as usize];
+/// Simplex ids sorted by (exact value, id): a radix sort on the high 32 bits of the
+/// `f64` (values are non-negative, so the bits order like the values), runs of equal
+/// high bits sorted by the full value, then an exact re-sort inside each cluster whose
+/// error intervals overlap (rare outside ties).
+fn order(complex: &DelaunayComplex, values: &[Value]) -> Vec<u32> {
+    let keyed: Vec<u64> =
+        values.iter().enumerate().map(|(i, v)| (v.value.to_bits() >> 32) << 32 | i as u64).collect();
+    let mut o: Vec<u32> = radix_sort_high32(keyed).into_iter().map(|k| k as u32).collect();
+    let bits = |i: u32| values[i as usize].value.to_bits();
+    let n = o.len();
+    let mut start = 0;
+    while start < n {
+        let high = bits(o[start]) >> 32;
+        let mut end = start + 1;
+        while end < n && bits(o[end]) >> 32 == high {
+            end += 1;
         }
-        verts.len()
+        if end - start > 1 {
+            o[start..end].sort_unstable_by_key(|&i| (bits(i), i));
+        }
+        start = end;
     }
+    let sorted: Vec<(f64, f64)> = o
+        .iter()
+        .map(|&i| {
+            let v = values[i as usize];
+            (v.value, v.abs_err())
+        })
+        .collect();
+    let mut suffix_min_lower = vec![f64::INFINITY; n + 1];
+    for k in (0..n).rev() {
+        suffix_min_lower[k] = suffix_min_lower[k + 1].min(sorted[k].0 - sorted[k].1);
+    }
+    let mut start = 0;
+    let mut max_upper = f64::NEG_INFINITY;
+    for k in 0..n {
+        max_upper = max_upper.max(sorted[k].0 + sorted[k].1);
+        // Split after k when nothing before can exceed anything after.
+        if max_upper < suffix_min_lower[k + 1] {
+            if k > start {
+                o[start..=k].sort_unstable_by(|&i, &j| {
+                    compare(complex, values[i as usize], values[j as usize]).then(i.cmp(&j))
+                });
+            }
+            start = k + 1;
+            max_upper = f64::NEG_INFINITY;
+        }
+    }
+    o
+}
+
+/// Exact comparison of two filtration values of `complex`; an unset value is above every set
+/// one.
+#[inline]
+fn compare(complex: &DelaunayComplex, a: Value, b: Value) -> Ordering {
+    if a.source == b.source {
+        return Ordering::Equal;
+    }
+    let margin = a.abs_err() + b.abs_err();
+    if b.value - a.value > margin {
+        return Ordering::Less;
+    }
+    if a.value - b.value > margin {
+        return Ordering::Greater;
+    }
+    if !(a.is_set() && b.is_set()) {
+        // Both unset would have equal sources.
+        return if a.is_set() { Ordering::Less } else { Ordering::Greater };
+    }
+    let mut pa = [[0.0; 3]; 4];
+    let mut pb = [[0.0; 3]; 4];
+    let na = source_points(complex, a.source, &mut pa);
+    let nb = source_points(complex, b.source, &mut pb);
+    compare_radius2_exact(&pa[..na], &pb[..nb])
+}
+
+/// The vertices of the simplex a value comes from.
+fn source_points(c: &DelaunayComplex, source: u32, out: &mut [Point; 4]) -> usize {
+    let i = (source & INDEX_MASK) as usize;
+    let verts: &[u32] = match source >> DIM_SHIFT {
+        1 => &c.edges[i],
+        2 => &c.triangles[i],
+        _ => &c.tets[i],
+    };
+    for (k, &v) in verts.iter().enumerate() {
+        out[k] = c.points[v as usize];
+    }
+    verts.len()
 }
 
 /// A value whose error bound is wide (a near-flat simplex: a huge circumradius computed by

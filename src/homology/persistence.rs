@@ -44,78 +44,96 @@ pub fn located_pairs(f: &Filtration) -> Vec<(Pair, Killer)> {
     out
 }
 
-/// Runs the passes, handing each pair and its killer to `emit`.
+/// Runs the passes, handing each pair and its killer to `emit`. In 3D the H0 pass and the
+/// dual (H2) pass are independent and run side by side on the current rayon pool; their
+/// pairs are handed on in the same order whatever the number of threads.
 fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
     let c = f.complex;
     if c.dim == 0 {
         return;
     }
-    let nv = c.points.len();
-    let ne = c.edges.len();
+    if c.dim == 3 {
+        let ((h0, edge_positive), (h2, negative)) = rayon::join(|| h0_pass(f), || dual_pass_3d(f));
+        for (pair, killer) in h0.into_iter().chain(h2) {
+            emit(pair, killer);
+        }
+        reduce_h1(f, &edge_positive, &negative, &mut emit);
+        return;
+    }
+    let (h0, edge_positive) = h0_pass(f);
+    for (pair, killer) in h0 {
+        emit(pair, killer);
+    }
+    if c.dim == 2 {
+        // H1 by duality: triangles + outside, edges in reverse order.
+        let mut rank = vec![0u32; c.triangles.len()];
+        for (r, &t) in f.triangle_order.iter().enumerate() {
+            rank[t as usize] = r as u32;
+        }
+        let mut dual = ElderUnionFind::new(&rank);
+        for &e in f.edge_order.iter().rev() {
+            let [a, b] = c.edge_cofaces[e as usize];
+            if let Some(t) = dual.union(a, b) {
+                debug_assert!(edge_positive[e as usize], "duality: dual merges are positive edges");
+                push_finite(
+                    f,
+                    &mut emit,
+                    1,
+                    f.edges[e as usize],
+                    f.triangles[t as usize],
+                    Killer::Triangle(t),
+                );
+            }
+        }
+    }
+}
 
-    // H0 — vertices are all born at 0.
-    let mut uf = UnionFind::new(nv);
-    let mut edge_positive = vec![false; ne];
+/// H0 (vertices are all born at 0): union-find over the edges in filtration order. Returns
+/// its pairs, the essential class last, and which edges are positive (close a loop).
+fn h0_pass(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<bool>) {
+    let c = f.complex;
+    let mut uf = UnionFind::new(c.points.len());
+    let mut edge_positive = vec![false; c.edges.len()];
+    let mut pairs = Vec::with_capacity(c.points.len());
     for &e in &f.edge_order {
         let [u, v] = c.edges[e as usize];
         if uf.union(u, v) {
-            emit(Pair { dim: 0, birth: 0.0, death: f.edges[e as usize].value }, Killer::Edge(e));
+            pairs.push((Pair { dim: 0, birth: 0.0, death: f.edges[e as usize].value }, Killer::Edge(e)));
         } else {
             edge_positive[e as usize] = true;
         }
     }
-    emit(Pair { dim: 0, birth: 0.0, death: f64::INFINITY }, Killer::Never);
+    pairs.push((Pair { dim: 0, birth: 0.0, death: f64::INFINITY }, Killer::Never));
+    (pairs, edge_positive)
+}
 
-    match c.dim {
-        2 => {
-            // H1 by duality: triangles + outside, edges in reverse order.
-            let mut rank = vec![0u32; c.triangles.len()];
-            for (r, &t) in f.triangle_order.iter().enumerate() {
-                rank[t as usize] = r as u32;
-            }
-            let mut dual = ElderUnionFind::new(&rank);
-            for &e in f.edge_order.iter().rev() {
-                let [a, b] = c.edge_cofaces[e as usize];
-                if let Some(t) = dual.union(a, b) {
-                    debug_assert!(edge_positive[e as usize], "duality: dual merges are positive edges");
-                    push_finite(
-                        f,
-                        &mut emit,
-                        1,
-                        f.edges[e as usize],
-                        f.triangles[t as usize],
-                        Killer::Triangle(t),
-                    );
-                }
-            }
-        }
-        3 => {
-            let mut rank = vec![0u32; c.tets.len()];
-            for (r, &t) in f.tet_order.iter().enumerate() {
-                rank[t as usize] = r as u32;
-            }
-            let mut dual = ElderUnionFind::new(&rank);
-            // Negative triangles, in reverse filtration order.
-            let mut negative = Vec::with_capacity(c.triangles.len() - c.tets.len() + 1);
-            for &t in f.triangle_order.iter().rev() {
-                let [a, b] = c.tri_cofaces[t as usize];
-                match dual.union(a, b) {
-                    Some(tet) => push_finite(
-                        f,
-                        &mut emit,
-                        2,
-                        f.triangles[t as usize],
-                        f.tets[tet as usize],
-                        Killer::Tet(tet),
-                    ),
-                    None => negative.push(t),
-                }
-            }
-            negative.reverse();
-            reduce_h1(f, &edge_positive, &negative, &mut emit);
-        }
-        _ => {}
+/// H2 in 3D by duality: tetrahedra + outside, triangles in reverse order. Returns its pairs
+/// and the negative triangles (those that kill a loop), in filtration order.
+fn dual_pass_3d(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<u32>) {
+    let c = f.complex;
+    let mut rank = vec![0u32; c.tets.len()];
+    for (r, &t) in f.tet_order.iter().enumerate() {
+        rank[t as usize] = r as u32;
     }
+    let mut dual = ElderUnionFind::new(&rank);
+    let mut pairs = Vec::new();
+    let mut negative = Vec::with_capacity(c.triangles.len() - c.tets.len() + 1);
+    for &t in f.triangle_order.iter().rev() {
+        let [a, b] = c.tri_cofaces[t as usize];
+        match dual.union(a, b) {
+            Some(tet) => push_finite(
+                f,
+                &mut |pair, killer| pairs.push((pair, killer)),
+                2,
+                f.triangles[t as usize],
+                f.tets[tet as usize],
+                Killer::Tet(tet),
+            ),
+            None => negative.push(t),
+        }
+    }
+    negative.reverse();
+    (pairs, negative)
 }
 
 /// Records a finite pair unless it has zero length (see [`Filtration::pair_values`]).
