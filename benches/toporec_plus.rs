@@ -1,4 +1,5 @@
-//! toporec-plus benchmark: its cost per raw scan beside the TopoRec paper's descriptor with
+//! toporec-plus benchmark: its cost per raw scan beside ScanContext's (with its voxel grid) and
+//! the TopoRec paper's descriptor with
 //! the paper's settings (4,096 points scaled into [-1, 1], alpha persistence, ATOL with b = 10)
 //! — design goal: at most 4× — and a search over 100,000 entries (design goal: under 5 ms per
 //! query: key candidates, then the re-rank), one thread.
@@ -55,7 +56,8 @@ fn main() {
         let atol = Atol { centers, inertias: vec![0.001; 10], contrast: Contrast::Laplacian, weighting: Weighting::Cloud };
         println!("scans: {name}, {} of them; medians over 5 runs per scan, one thread", clouds.len());
         let mean_points = clouds.iter().map(|c| c.len()).sum::<usize>() / clouds.len();
-        let (mut base, mut plus, mut voxels) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut base, mut plus, mut voxels, mut sc) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let scp = toporec::baselines::scancontext::ScanContextParams::default();
         for (i, c) in clouds.iter().enumerate() {
             base.push(median_ms(5, || {
                 let pts = preprocess(c.clone(), i as u64, &paper).expect("points");
@@ -65,6 +67,10 @@ fn main() {
             }));
             plus.push(median_ms(5, || {
                 std::hint::black_box(toporec_plus::describe(c, &p).unwrap());
+            }));
+            sc.push(median_ms(5, || {
+                let grid = toporec::preprocess::voxel_grid(c, scp.voxel);
+                std::hint::black_box(toporec::baselines::scancontext::describe(&grid, &scp));
             }));
             voxels.push(toporec_plus::preprocess(c, &p).len());
         }
@@ -82,7 +88,16 @@ fn main() {
             mean(&plus),
             max(&plus)
         );
-        println!("ratio: {:.2}× on average, {:.2}× at most (per scan)", mean(&ratios), max(&ratios));
+        println!("| ScanContext with its 0.5 m voxel grid | {:.1} | {:.1} |", mean(&sc), max(&sc));
+        println!("toporec-plus / the paper's: {:.2}× on average, {:.2}× at most (per scan)", mean(&ratios), max(&ratios));
+        let to_sc: Vec<f64> = plus.iter().zip(&sc).map(|(a, b)| a / b).collect();
+        println!(
+            "toporec-plus / ScanContext (design goal: at most 3×): {:.2}× on average, {:.2}× at most (per scan); slowest scans {:.1} against {:.1} ms",
+            mean(&to_sc),
+            max(&to_sc),
+            max(&plus),
+            max(&sc)
+        );
 
         // Search over 100,000 entries.
         let n: usize = std::env::var("TOPOREC_BENCH_ENTRIES").ok().and_then(|v| v.parse().ok()).unwrap_or(100_000);

@@ -139,10 +139,11 @@ def turned(pts, deg):
     return np.stack([c * pts[:, 0] - s * pts[:, 1], s * pts[:, 0] + c * pts[:, 1], pts[:, 2]], axis=1)
 
 
-for path in sys.argv[1:]:
-    pts = load(path)
-    sc = scancontext(pts)
-    print(path + ",scancontext," + ",".join(repr(float(x)) for x in sc.ravel()))
-    print(path + ",m2dp," + ",".join(repr(float(x)) for x in m2dp(pts)))
-    d, s = sc_distance(scancontext(turned(pts, 42.0)), sc)
-    print(f"{path},scdist,{float(d)!r},{int(s)}")
+if __name__ == "__main__":
+    for path in sys.argv[1:]:
+        pts = load(path)
+        sc = scancontext(pts)
+        print(path + ",scancontext," + ",".join(repr(float(x)) for x in sc.ravel()))
+        print(path + ",m2dp," + ",".join(repr(float(x)) for x in m2dp(pts)))
+        d, s = sc_distance(scancontext(turned(pts, 42.0)), sc)
+        print(f"{path},scdist,{float(d)!r},{int(s)}")

@@ -12,7 +12,7 @@
 //! other row; anything else is an error naming the file and the row, and nothing is written.
 //! Importing a method again replaces its descriptors in one commit.
 
-use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, SCANCONTEXT, TOPOREC, TOPOREC_PLUS};
+use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, SCANCONTEXT, SOLID, TOPOREC, TOPOREC_PLUS};
 use crate::error::{Error, Result, ResultExt};
 use crate::sinks::index::IndexWriter;
 use crate::sinks::parquet::{DescriptorRow, Status};
@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 pub struct ImportArgs {
     /// The index.
     pub index: PathBuf,
-    /// The method's name (letters, digits, `_`, `-`; not toporec, scancontext or m2dp).
+    /// The method's name (letters, digits, `_`, `-`; not one of toporec's own methods).
     pub method: String,
     /// The vectors: `.parquet`, `.npy` (with `--ids`) or `.csv`.
     pub file: PathBuf,
@@ -128,7 +128,7 @@ pub fn import(args: &ImportArgs) -> Result<Imported> {
 
 /// A method name: letters, digits, `_` and `-` (it names a folder), not a computed method's.
 fn check_name(name: &str) -> Result<()> {
-    if [TOPOREC, SCANCONTEXT, M2DP, TOPOREC_PLUS].contains(&name) {
+    if [TOPOREC, SCANCONTEXT, M2DP, SOLID, TOPOREC_PLUS].contains(&name) {
         return Err(Error::invalid(format!(
             "--method {name}: the name of a computed method; choose another"
         )));

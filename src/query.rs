@@ -58,6 +58,7 @@ pub struct Loaded {
 enum Search {
     Vectors(Database),
     ScanContext(Searcher),
+    Solid(crate::baselines::solid::Searcher),
     Plus(crate::toporec_plus::Searcher),
 }
 
@@ -67,6 +68,7 @@ impl Search {
         let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
         match &method.kind {
             MethodKind::ScanContext(p) => Search::ScanContext(Searcher::new(vectors, p.clone())),
+            MethodKind::Solid(p) => Search::Solid(crate::baselines::solid::Searcher::new(vectors, p.clone())),
             MethodKind::ToporecPlus(p) => {
                 Search::Plus(crate::toporec_plus::Searcher::new(vectors, p.clone()))
             }
@@ -198,7 +200,9 @@ impl StepTimes {
             MethodKind::ScanContext(_) | MethodKind::ToporecPlus(_) => {
                 vec![("describe", self.describe), ("candidates", self.search), ("rerank", self.rerank)]
             }
-            MethodKind::M2dp(_) => vec![("describe", self.describe), ("search", self.search)],
+            MethodKind::M2dp(_) | MethodKind::Solid(_) => {
+                vec![("describe", self.describe), ("search", self.search)]
+            }
             MethodKind::Imported { .. } => vec![("search", self.search)],
         }
     }
@@ -463,6 +467,20 @@ impl Engine {
                         found.collect(),
                         StepTimes { search: t.candidates, rerank: t.rerank, ..Default::default() },
                     )
+                })
+                .collect(),
+            Search::Solid(solid) => queries
+                .par_chunks(solid.params().len())
+                .map(|q| {
+                    let t = Instant::now();
+                    let hits = solid.search(q, k);
+                    let search = t.elapsed().as_secs_f64();
+                    let found = hits.into_iter().map(|(row, distance, shift)| Found {
+                        row,
+                        distance,
+                        yaw_degrees: Some(crate::baselines::solid::yaw_degrees(shift, solid.params())),
+                    });
+                    (found.collect(), StepTimes { search, ..Default::default() })
                 })
                 .collect(),
             Search::Plus(plus) => queries

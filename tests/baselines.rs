@@ -5,6 +5,7 @@
 use crate::util::{self, eval_days, python_with, read_json, root, shared_data};
 use toporec::baselines::m2dp;
 use toporec::baselines::scancontext::{self, ScanContextParams};
+use toporec::baselines::solid::{self, SolidParams};
 use toporec::homology::Point;
 
 fn turned(points: &[Point], degrees: f64) -> Vec<Point> {
@@ -172,6 +173,121 @@ fn baselines_match_the_reference_transcription_on_real_scans() {
     assert_eq!(checked, 3 * scans.len());
 }
 
+/// SOLiD by hand, default settings (HDL-64E: 40 range bins of 2 m, 60 azimuth bins of 6°, 32
+/// elevation bins of 26.8° / 32 = 0.8375° from −24.8°).
+#[test]
+fn solid_by_hand() {
+    let p = SolidParams::default();
+    let at = |d: f64, deg: f64, z: f64| -> Point {
+        let (s, c) = deg.to_radians().sin_cos();
+        [d * c, d * s, z]
+    };
+    // A: range 10 m (bin 5), 3° (azimuth bin 0), level (elevation 24.8 / 0.8375 = 29.6: bin 29).
+    // B: 21 m (bin 10), 93° (bin 15), z = −2: atan(2 / 21) = 5.44°, (24.8 − 5.44) / 0.8375 = 23.1:
+    //    bin 23. C: 31 m (bin 15), 183° (bin 30), z = −2.5: 4.61°, 24.1: bin 24.
+    // D: 21 m (bin 10), 213° (bin 35), z = −2: bin 23.
+    let (a, b, c, d) =
+        (at(10.0, 3.0, 0.0), at(21.0, 93.0, -2.0), at(31.0, 183.0, -2.5), at(21.0, 213.0, -2.0));
+    // Elevation counts: bin 29: 1, bin 23: 2, bin 24: 1, the other 29 bins 0; min-max
+    // normalised: 0.5, 1, 0.5. r: range bin 5: 0.5 (A), 10: 1 + 1 (B, D), 15: 0.5 (C).
+    // a: azimuth bin 0: 0.5, 15: 1, 30: 0.5, 35: 1.
+    let full = solid::describe(&[a, b, c, d], &p);
+    let mut r = vec![0.0f32; 40];
+    (r[5], r[10], r[15]) = (0.5, 2.0, 0.5);
+    let mut az = vec![0.0f32; 60];
+    (az[0], az[15], az[30], az[35]) = (0.5, 1.0, 0.5, 1.0);
+    assert_eq!(full, [r, az].concat());
+    // Without B and D the weights are 1 (bins 29 and 24) and r = (1 at bin 5, 1 at bin 15): the
+    // cosine with (0.5, 2, 0.5) is (0.5 + 0.5) / (√4.5 · √2) = 1 / 3.
+    let two = solid::describe(&[a, c], &p);
+    assert!((solid::distance(&two, &full, &p) - 2.0 / 3.0).abs() < 1e-12);
+    // Turned by 90° (15 azimuth bins): the same r, distance 0, and the shift of 15 bins, 90°.
+    let turned_full = solid::describe(&turned(&[a, b, c, d], 90.0), &p);
+    assert!(solid::distance(&turned_full, &full, &p).abs() < 1e-12);
+    let shift = solid::yaw_shift(&turned_full, &full, &p);
+    assert_eq!((shift, solid::yaw_degrees(shift, &p)), (15, 90.0));
+    // The preprocessing drops what is within 3 m or beyond 80 m (3D distance).
+    let kept = solid::preprocess(
+        &[a, [2.0, 1.0, 0.5], [79.0, 0.0, 13.0], b],
+        &SolidParams { voxel: 0.0, ..p.clone() },
+    );
+    assert_eq!(kept, [a, b]);
+    // An empty scan: all zero, at distance 1 from any scan.
+    let empty = solid::describe(&[], &p);
+    assert!(empty.iter().all(|&v| v == 0.0));
+    assert_eq!(solid::distance(&empty, &full, &p), 1.0);
+}
+
+/// SOLiD equals the numpy transcription of the reference code (`scripts/solid_reference.py`)
+/// on real KITTI and NCLT scans, within 1e-6 relative (values) and 1e-9 (distances), and both
+/// find a turn by 42° at the same shift.
+#[test]
+fn solid_matches_the_reference_transcription_on_real_scans() {
+    let test = "solid_matches_the_reference_transcription_on_real_scans";
+    let Some(data) = shared_data(test) else { return };
+    if !python_with(test, &["numpy"]) {
+        return;
+    }
+    let scans = [
+        data.join("kitti/sequences/00/velodyne/000000.bin"),
+        data.join("kitti/sequences/08/velodyne/000006.bin"),
+        data.join("kitti/sequences/05/velodyne/000003.bin"),
+        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
+    ];
+    let dir = util::scratch_dir("solid_reference");
+    let mut csvs = Vec::new();
+    let mut clouds = Vec::new();
+    for (i, scan) in scans.iter().enumerate() {
+        let cloud = util::read_cloud(scan);
+        let path = dir.join(format!("cloud{i}.csv"));
+        let mut text = String::from("x,y,z\n");
+        for p in &cloud {
+            text.push_str(&format!("{:?},{:?},{:?}\n", p[0], p[1], p[2]));
+        }
+        std::fs::write(&path, text).unwrap();
+        csvs.push(path);
+        clouds.push(cloud);
+    }
+    let out = std::process::Command::new("python3")
+        .arg(root().join("scripts/solid_reference.py"))
+        .args(&csvs)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // No voxel grid: the reference's (PCL, Open3D) and toporec's place their cells differently.
+    let p = SolidParams { voxel: 0.0, ..SolidParams::default() };
+    let ours = |cloud: &[Point]| solid::describe(&solid::preprocess(cloud, &p), &p);
+    let mut checked = 0;
+    for line in String::from_utf8(out.stdout).unwrap().lines() {
+        let fields: Vec<&str> = line.split(',').collect();
+        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
+        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
+        let name = scans[i].display();
+        match fields[1] {
+            "solid" => {
+                let d: Vec<f64> = ours(&clouds[i]).iter().map(|&v| v as f64).collect();
+                assert_eq!(d.len(), values.len(), "{name}");
+                assert!(d.iter().any(|&v| v > 0.0), "{name}: an empty descriptor");
+                let worst =
+                    d.iter().zip(&values).map(|(a, b)| (a - b).abs() / b.abs().max(1.0)).fold(0.0, f64::max);
+                assert!(worst <= 1e-6, "{name}: max relative difference {worst:e}");
+                println!("{name} solid: {} values, max relative difference {worst:e}", d.len());
+            }
+            "soliddist" => {
+                let (q, c) = (ours(&turned(&clouds[i], 42.0)), ours(&clouds[i]));
+                let (dist, shift) = (solid::distance(&q, &c, &p), solid::yaw_shift(&q, &c, &p));
+                assert!((dist - values[0]).abs() <= 1e-9, "{name}: distance {dist} against {}", values[0]);
+                assert_eq!(shift as f64, values[1], "{name}: shift");
+                assert_eq!(shift, 7, "{name}: a 42° turn is 7 azimuth bins");
+                println!("{name} soliddist: {dist:e}, shift {shift}");
+            }
+            other => panic!("unknown line kind {other}"),
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, 2 * scans.len());
+}
+
 /// The committed sample indexed with every method (pipelines/compare.toml asks for TopoRec,
 /// toporec-plus, ScanContext and M2DP): the index layout, `verify`, `query --method` (with ScanContext's yaw),
 /// `eval places` side by side, and a methods change refused.
@@ -183,13 +299,14 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let o = run_pipeline(&root().join("pipelines/compare.toml"), &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let said = text(&o.stdout) + &text(&o.stderr);
-    assert!(said.contains("scancontext (length 1200), m2dp (length 192)"), "{said}");
+    assert!(said.contains("scancontext (length 1200), m2dp (length 192), solid (length 100)"), "{said}");
     let manifest: serde_json::Value = read_json(&index.join("manifest.json"));
     let methods = manifest["methods"].as_object().unwrap();
-    assert_eq!(methods.keys().collect::<Vec<_>>(), ["m2dp", "scancontext", "toporec-plus"]);
+    assert_eq!(methods.keys().collect::<Vec<_>>(), ["m2dp", "scancontext", "solid", "toporec-plus"]);
     assert_eq!(methods["scancontext"]["length"], 1200);
     assert_eq!(methods["m2dp"]["length"], 192);
-    for m in ["toporec", "toporec-plus", "scancontext", "m2dp"] {
+    assert_eq!(methods["solid"]["params"]["fov_up"], 10.67);
+    for m in ["toporec", "toporec-plus", "scancontext", "m2dp", "solid"] {
         for s in ["2026-01-01", "2026-01-02"] {
             assert!(index.join(format!("descriptors/method={m}/session={s}")).is_dir(), "{m} {s}");
         }
@@ -230,6 +347,12 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(lines[0], toporec::query::CSV_HEADER);
     let row: Vec<&str> = lines[1].split(',').collect();
     assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
+    // SOLiD's range part ignores the turn; its azimuth part gives the yaw.
+    let o = q("solid", &csv);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
     // M2DP of the file itself: the very scan, at distance 0 (one scan, one descriptor).
     let o = q("m2dp", scan);
     let out = text(&o.stdout);
@@ -239,7 +362,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(o.status.code(), Some(2));
     assert!(
         text(&o.stderr)
-            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext, toporec-plus)"),
+            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext, solid, toporec-plus)"),
         "{}",
         text(&o.stderr)
     );
@@ -259,13 +382,14 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     };
     let names: Vec<&str> =
         report["methods"].as_array().unwrap().iter().map(|m| m["method"].as_str().unwrap()).collect();
-    assert_eq!(names, ["toporec", "m2dp", "scancontext", "toporec-plus"]);
+    assert_eq!(names, ["toporec", "m2dp", "scancontext", "solid", "toporec-plus"]);
     // Regression values (toporec's own output on the committed sample): R@1 at 5, 10, 20,
     // 50 m, in 32nds of the queries.
     assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
     assert_eq!(r1(1), [24.0, 24.0, 26.0, 29.0], "M2DP");
     assert_eq!(r1(2), [32.0, 32.0, 32.0, 32.0], "ScanContext");
-    assert_eq!(r1(3), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
+    assert_eq!(r1(3), [11.0, 13.0, 15.0, 32.0], "SOLiD");
+    assert_eq!(r1(4), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
     for f in
         ["recall_at_n.png", "trajectory_toporec.png", "trajectory_m2dp.png", "trajectory_scancontext.png"]
     {
@@ -285,7 +409,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let base = root().join("pipelines").display().to_string();
     let edited = text_of
         .replace(
-            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"m2dp\"]",
+            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"m2dp\", \"solid\"]",
             "methods = [\"toporec\", \"m2dp\"]",
         )
         .replace("\"../", &format!("\"{base}/../"));

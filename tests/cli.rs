@@ -263,6 +263,7 @@ fn info_says_what_an_index_holds() {
         "scancontext: length 1200, id ",
         "toporec-plus: length 7200, id ",
         "m2dp: length 192, id ",
+        "solid: length 100, id ",
         "[descriptors]",
     ] {
         assert!(out.contains(needle), "`{needle}` missing from:\n{out}");
@@ -273,7 +274,7 @@ fn info_says_what_an_index_holds() {
     assert_eq!(info["sessions"]["2026-01-02"]["ok"], 32);
     assert_eq!(info["methods"]["scancontext"]["settings"]["rings"], 20);
     assert_eq!(info["methods"]["toporec"]["settings"]["b"], 50);
-    for m in ["toporec", "toporec-plus", "scancontext", "m2dp"] {
+    for m in ["toporec", "toporec-plus", "scancontext", "m2dp", "solid"] {
         assert_eq!(info["methods"][m]["rows"], 64, "{m}");
     }
     let manifest = read_json(&index.join("manifest.json"));

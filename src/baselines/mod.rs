@@ -1,5 +1,6 @@
 //! The descriptors place recognition is usually compared against, beside the TopoRec one:
-//! [`scancontext`] (Kim & Kim 2018) and [`m2dp`] (He et al. 2016), each computed from the raw
+//! [`scancontext`] (Kim & Kim 2018), [`m2dp`] (He et al. 2016) and [`solid`] (Kim, Choi, Kim
+//! 2024), each computed from the raw
 //! scan in the sensor frame with its own preprocessing; and descriptors made elsewhere
 //! (PointNetVLAD, PCAN, MinkLoc3D, …), imported into an index with `toporec import`.
 //!
@@ -9,11 +10,13 @@
 
 pub mod m2dp;
 pub mod scancontext;
+pub mod solid;
 
 use crate::preprocess::voxel_grid;
 use crate::toporec_plus::PlusParams;
 use crate::types::Point;
 use scancontext::ScanContextParams;
+use solid::SolidParams;
 
 /// The name of the TopoRec paper's descriptor (alpha persistence + ATOL).
 pub const TOPOREC: &str = "toporec";
@@ -21,6 +24,8 @@ pub const TOPOREC: &str = "toporec";
 pub const SCANCONTEXT: &str = "scancontext";
 /// The name of M2DP.
 pub const M2DP: &str = "m2dp";
+/// The name of SOLiD.
+pub const SOLID: &str = "solid";
 /// The name of the topological scan context ([`crate::toporec_plus`]).
 pub const TOPOREC_PLUS: &str = crate::toporec_plus::NAME;
 
@@ -58,6 +63,8 @@ pub enum MethodKind {
     ScanContext(ScanContextParams),
     /// M2DP.
     M2dp(M2dpParams),
+    /// SOLiD.
+    Solid(SolidParams),
     /// toporec-plus, the topological scan context.
     ToporecPlus(PlusParams),
     /// Vectors made elsewhere, imported (`toporec import`): stored, never computed.
@@ -92,17 +99,23 @@ impl Method {
         Method { name: M2DP.into(), kind: MethodKind::M2dp(p) }
     }
 
+    /// SOLiD with these parameters.
+    pub fn solid(p: SolidParams) -> Self {
+        Method { name: SOLID.into(), kind: MethodKind::Solid(p) }
+    }
+
     /// toporec-plus with these parameters.
     pub fn toporec_plus(p: PlusParams) -> Self {
         Method { name: TOPOREC_PLUS.into(), kind: MethodKind::ToporecPlus(p) }
     }
 
-    /// The kind's name (`scancontext`, `m2dp`, `imported`, `toporec`).
+    /// The kind's name (`scancontext`, `m2dp`, `solid`, `toporec-plus`, `imported`, `toporec`).
     pub fn kind_name(&self) -> &'static str {
         match self.kind {
             MethodKind::Toporec => TOPOREC,
             MethodKind::ScanContext(_) => SCANCONTEXT,
             MethodKind::M2dp(_) => M2DP,
+            MethodKind::Solid(_) => SOLID,
             MethodKind::ToporecPlus(_) => TOPOREC_PLUS,
             MethodKind::Imported { .. } => IMPORTED,
         }
@@ -114,6 +127,7 @@ impl Method {
             MethodKind::Toporec => serde_json::json!({}),
             MethodKind::ScanContext(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::M2dp(p) => serde_json::to_value(p).expect("plain data"),
+            MethodKind::Solid(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::ToporecPlus(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::Imported { source, .. } => serde_json::json!({ "source": source }),
         }
@@ -125,6 +139,7 @@ impl Method {
             MethodKind::Toporec => 0,
             MethodKind::ScanContext(p) => p.len(),
             MethodKind::M2dp(_) => m2dp::LEN,
+            MethodKind::Solid(p) => p.len(),
             MethodKind::ToporecPlus(p) => p.len(),
             MethodKind::Imported { length, .. } => *length,
         }
@@ -142,13 +157,19 @@ impl Method {
         crate::fingerprint::hex(crate::fingerprint::of_bytes(text.as_bytes()))
     }
 
-    /// Whether the method is computed from raw scans (ScanContext, M2DP, toporec-plus).
+    /// Whether the method is computed from raw scans (ScanContext, M2DP, SOLiD, toporec-plus).
     pub fn is_computed(&self) -> bool {
-        matches!(self.kind, MethodKind::ScanContext(_) | MethodKind::M2dp(_) | MethodKind::ToporecPlus(_))
+        matches!(
+            self.kind,
+            MethodKind::ScanContext(_)
+                | MethodKind::M2dp(_)
+                | MethodKind::Solid(_)
+                | MethodKind::ToporecPlus(_)
+        )
     }
 
     /// The descriptor of a raw scan (sensor frame, metres) for the methods computed from it
-    /// (ScanContext, M2DP, toporec-plus), after the method's own preprocessing (its voxel
+    /// (ScanContext, M2DP, SOLiD, toporec-plus), after the method's own preprocessing (its voxel
     /// grid); `None` for the others. An error when the method could not describe the scan
     /// (toporec-plus: the scan's alpha complex could not be built).
     pub fn describe_raw(&self, points: &[Point]) -> Option<Result<Vec<f32>, crate::homology::ComplexError>> {
@@ -156,6 +177,7 @@ impl Method {
         match &self.kind {
             MethodKind::ScanContext(p) => Some(Ok(scancontext::describe(&grid(p.voxel), p))),
             MethodKind::M2dp(p) => Some(Ok(m2dp::describe(&grid(p.voxel)))),
+            MethodKind::Solid(p) => Some(Ok(solid::describe(&solid::preprocess(points, p), p))),
             MethodKind::ToporecPlus(p) => Some(crate::toporec_plus::describe(points, p)),
             _ => None,
         }

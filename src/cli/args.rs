@@ -222,7 +222,7 @@ pub struct ImportArgs {
     /// The index.
     #[arg(long)]
     pub index: PathBuf,
-    /// The method's name (letters, digits, `_`, `-`; not toporec, scancontext or m2dp).
+    /// The method's name (letters, digits, `_`, `-`; not one of toporec's own methods).
     #[arg(long)]
     pub method: String,
     /// The vectors: `.parquet`, `.npy` (with `--ids`) or `.csv`.

@@ -36,6 +36,9 @@ pub enum Condition {
     Offset(f64),
     /// Returns beyond this horizontal range removed.
     MaxRange(f64),
+    /// Driving the other way this many metres over: the sensor moved this far to the left,
+    /// then turned by 180° (a revisit in the opposite lane).
+    Reverse(f64),
     /// One of the paper's perturbations, on the raw scan.
     Paper(Perturbation),
 }
@@ -80,13 +83,14 @@ impl Condition {
             }
             "offset" => Condition::Offset(number(3.0, -100.0, 100.0, " m")?),
             "max-range" => Condition::MaxRange(number(40.0, 0.1, 10_000.0, " m")?),
+            "reverse" => Condition::Reverse(number(3.5, -100.0, 100.0, " m")?),
             "paper" if value.is_none() => {
                 let all = Perturbation::paper().into_iter().filter(|p| *p != Perturbation::Original);
                 return Ok(all.map(Condition::Paper).collect());
             }
             _ => {
                 return Err(format!(
-                    "unknown condition `{text}` (as-recorded, yaw[=DEG], occlusion[=DEG], drop[=F], beams[=N], offset[=M], max-range[=M], paper)"
+                    "unknown condition `{text}` (as-recorded, yaw[=DEG], occlusion[=DEG], drop[=F], beams[=N], offset[=M], max-range[=M], reverse[=M], paper)"
                 ));
             }
         };
@@ -104,6 +108,7 @@ impl Condition {
             Condition::Beams(n) => format!("{n} beams"),
             Condition::Offset(m) => format!("offset {m} m"),
             Condition::MaxRange(m) => format!("max range {m} m"),
+            Condition::Reverse(m) => format!("reverse, {m} m over"),
             Condition::Paper(p) => format!("paper: {}", p.name()),
         }
     }
@@ -180,6 +185,8 @@ impl Condition {
             }
             Condition::Offset(m) => points.iter().map(|p| [p[0], p[1] - m, p[2]]).collect(),
             Condition::MaxRange(m) => keep(&|_, p| p[0].hypot(p[1]) <= m),
+            // A half turn is exact: (x, y) -> (-x, -y).
+            Condition::Reverse(m) => points.iter().map(|p| [-p[0], m - p[1], p[2]]).collect(),
             Condition::Paper(p) => p.apply_in(points, seed, unit),
         })
     }
@@ -230,6 +237,20 @@ mod tests {
         for (a, b) in pts.iter().zip(&out) {
             assert_eq!([a[0], a[1] - 3.0, a[2]], *b);
         }
+    }
+
+    #[test]
+    fn reverse_moves_the_sensor_a_lane_over_and_turns_it_round() {
+        let (pts, _) = cloud();
+        assert_eq!(Condition::parse("reverse"), Ok(vec![Condition::Reverse(3.5)]));
+        let out = Condition::Reverse(3.5).apply(&pts, None, 0, 1.0).unwrap();
+        // A point ahead (+x) is now behind; the ring, centred on the old sensor, is centred
+        // 3.5 m to the new sensor's left (its +y): the lane it came along.
+        for (a, b) in pts.iter().zip(&out) {
+            assert_eq!([-a[0], 3.5 - a[1], a[2]], *b);
+        }
+        let centre = out.iter().fold([0.0, 0.0], |c, p| [c[0] + p[0] / 360.0, c[1] + p[1] / 360.0]);
+        assert!(centre[0].abs() < 1e-9 && (centre[1] - 3.5).abs() < 1e-9, "{centre:?}");
     }
 
     #[test]

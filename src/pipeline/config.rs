@@ -23,13 +23,15 @@
 //! dims = "paper"                     # or [0, 1, 2]
 //! # codebook = "codebook.json"       # … or load a saved one
 //! [descriptors]
-//! methods = ["toporec", "scancontext", "m2dp"]   # default ["toporec"]
+//! methods = ["toporec", "scancontext", "m2dp", "solid"]   # default ["toporec"]
 //! [scancontext]                      # optional: its parameters (see baselines::scancontext)
 //! [m2dp]                             # optional: its parameters
+//! [solid]                            # optional: its parameters (see baselines::solid)
 //! ```
 
 use crate::baselines::{
-    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, TOPOREC, TOPOREC_PLUS, scancontext::ScanContextParams,
+    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, SOLID, TOPOREC, TOPOREC_PLUS,
+    scancontext::ScanContextParams, solid::SolidParams,
 };
 pub use crate::error::ConfigErrors;
 use crate::preprocess::Preprocess;
@@ -265,6 +267,7 @@ impl Pipeline {
             let params = match &m.kind {
                 crate::baselines::MethodKind::ScanContext(p) => Value::try_from(p),
                 crate::baselines::MethodKind::M2dp(p) => Value::try_from(p),
+                crate::baselines::MethodKind::Solid(p) => Value::try_from(p),
                 crate::baselines::MethodKind::ToporecPlus(p) => Value::try_from(p),
                 _ => continue,
             };
@@ -417,9 +420,11 @@ impl Parser {
         let sc: ScanContextParams = self.method_section(root, SCANCONTEXT);
         let m2dp: M2dpParams = self.method_section(root, M2DP);
         let plus: PlusParams = self.method_section(root, TOPOREC_PLUS);
+        let solid: SolidParams = self.method_section(root, SOLID);
         let mut methods = Methods { toporec: false, computed: Vec::new() };
         if names.is_empty() {
-            self.errors.push("descriptors.methods: empty (toporec, toporec-plus, scancontext, m2dp)".into());
+            self.errors
+                .push("descriptors.methods: empty (toporec, toporec-plus, scancontext, m2dp, solid)".into());
         }
         for (i, name) in names.iter().enumerate() {
             if names[..i].contains(name) {
@@ -436,12 +441,16 @@ impl Parser {
                     self.errors.extend(m2dp.problems());
                     methods.computed.push(Method::m2dp(m2dp.clone()));
                 }
+                SOLID => {
+                    self.errors.extend(solid.problems());
+                    methods.computed.push(Method::solid(solid.clone()));
+                }
                 TOPOREC_PLUS => {
                     self.errors.extend(plus.problems());
                     methods.computed.push(Method::toporec_plus(plus.clone()));
                 }
                 other => self.errors.push(format!(
-                    "descriptors.methods: unknown method `{other}` (toporec, toporec-plus, scancontext, m2dp; \
+                    "descriptors.methods: unknown method `{other}` (toporec, toporec-plus, scancontext, m2dp, solid; \
                      vectors made elsewhere come in with `toporec import`)"
                 )),
             }
@@ -449,7 +458,7 @@ impl Parser {
         methods
     }
 
-    /// A method's section (`[scancontext]`, `[m2dp]`), defaults filled in.
+    /// A method's section (`[scancontext]`, `[m2dp]`, `[solid]`, `[toporec-plus]`), defaults filled in.
     fn method_section<T: DeserializeOwned + Default>(&mut self, root: &mut Section, key: &'static str) -> T {
         root.seen.push(key);
         match root.table.get(key) {

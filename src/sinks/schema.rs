@@ -180,7 +180,7 @@ pub fn descriptors(b: usize) -> Table {
     let item = Arc::new(Field::new("item", Float32, false));
     Table {
         name: tables::DESCRIPTORS,
-        doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, ScanContext, M2DP or an imported one.",
+        doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, ScanContext, M2DP, SOLiD, toporec-plus or an imported one.",
         columns: vec![
             col(C::SCAN_ID, Utf8, false, "the scan"),
             col(C::UTIME, Int64, true, "timestamp (µs)"),

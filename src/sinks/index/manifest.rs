@@ -5,7 +5,7 @@
 //! leaves such files behind, and the next writer deletes them. The format is documented as a
 //! JSON Schema in `schemas/manifest.json`.
 
-use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT, TOPOREC_PLUS};
+use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT, SOLID, TOPOREC_PLUS};
 use crate::error::{Error, Result, ResultExt};
 use crate::vectorize::codebook::Codebook;
 use serde::{Deserialize, Serialize};
@@ -55,6 +55,7 @@ impl MethodEntry {
         let kind = match self.kind.as_str() {
             SCANCONTEXT => MethodKind::ScanContext(serde_json::from_value(self.params.clone()).ok()?),
             M2DP => MethodKind::M2dp(serde_json::from_value(self.params.clone()).ok()?),
+            SOLID => MethodKind::Solid(serde_json::from_value(self.params.clone()).ok()?),
             TOPOREC_PLUS => MethodKind::ToporecPlus(serde_json::from_value(self.params.clone()).ok()?),
             IMPORTED => MethodKind::Imported {
                 length: self.length,
@@ -112,7 +113,7 @@ pub struct Manifest {
     /// The codebook itself (its `codebook.json` form), once there is one.
     pub codebook: Option<serde_json::Value>,
     /// The descriptor methods besides the TopoRec one: name → what made the descriptors
-    /// (parameters, length). Computed ones (ScanContext, M2DP) and imported ones.
+    /// (parameters, length). Computed ones (ScanContext, M2DP, SOLiD, toporec-plus) and imported ones.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub methods: BTreeMap<String, MethodEntry>,
     /// The effective pipeline the index was made with (TOML: absolute paths, every default
@@ -126,7 +127,7 @@ pub struct Manifest {
 /// A descriptor method of an index, besides the TopoRec one.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MethodEntry {
-    /// `scancontext`, `m2dp` or `imported`.
+    /// `scancontext`, `m2dp`, `solid`, `toporec-plus` or `imported`.
     pub kind: String,
     /// Its parameters (computed methods) or where the vectors came from (imported ones).
     pub params: serde_json::Value,
