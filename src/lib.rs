@@ -49,6 +49,7 @@ pub mod homology;
 pub mod import;
 pub mod info;
 pub mod inspect;
+pub mod loops;
 pub mod maintenance;
 pub mod offline;
 pub mod pipeline;

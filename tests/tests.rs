@@ -11,6 +11,7 @@ mod homology;
 mod incremental;
 mod index;
 mod integrity;
+mod loops;
 mod pipeline;
 mod pointnetvlad;
 mod shard;

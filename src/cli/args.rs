@@ -232,6 +232,46 @@ pub struct ImportArgs {
     pub ids: Option<PathBuf>,
 }
 
+/// Arguments of `toporec loops`.
+#[derive(clap::Args, Debug)]
+pub struct LoopsArgs {
+    /// The index.
+    #[arg(long)]
+    pub index: PathBuf,
+    /// The descriptor methods (repeatable; default: every method of the index).
+    #[arg(long = "method")]
+    pub methods: Vec<String>,
+    /// Same-session scans closer in time than this are not loops (seconds, ≥ 0).
+    #[arg(long, default_value_t = 30.0, value_parser = toporec::ranges::non_negative)]
+    pub exclude_seconds: f64,
+    /// Same-session scans this many positions apart or fewer are not loops (instead of
+    /// --exclude-seconds).
+    #[arg(long, conflicts_with = "exclude_seconds")]
+    pub exclude_scans: Option<usize>,
+    /// Matches with a descriptor distance below this are loops.
+    #[arg(long, value_parser = toporec::ranges::finite)]
+    pub threshold: Option<f64>,
+    /// The thresholds of a calibration file (`--calibrate` writes it).
+    #[arg(long, conflicts_with = "threshold")]
+    pub threshold_from: Option<PathBuf>,
+    /// Pick each method's threshold on the index's poses: the largest reaching
+    /// --target-precision; written to `<output stem>.calibration.json`.
+    #[arg(long, conflicts_with_all = ["threshold", "threshold_from"])]
+    pub calibrate: bool,
+    /// The precision a calibrated threshold reaches, (0, 1].
+    #[arg(long, default_value_t = 0.99, value_parser = toporec::ranges::fraction)]
+    pub target_precision: f64,
+    /// A match is true when its scans' poses are this close (m, > 0).
+    #[arg(long, default_value_t = 5.0, value_parser = toporec::ranges::positive)]
+    pub revisit_radius: f64,
+    /// Write every scan's best match, accepted or not (an `accepted` column says which).
+    #[arg(long)]
+    pub all: bool,
+    /// Output: `.parquet` (zstd) or `.csv`.
+    #[arg(long, short, default_value = "loops.parquet")]
+    pub out: PathBuf,
+}
+
 /// Arguments of `toporec simulate`.
 #[derive(clap::Args, Debug)]
 pub struct SimulateArgs {
@@ -465,6 +505,24 @@ impl From<VectorizeArgs> for toporec::offline::VectorizeArgs {
 impl From<ImportArgs> for toporec::import::ImportArgs {
     fn from(a: ImportArgs) -> Self {
         toporec::import::ImportArgs { index: a.index, method: a.method, file: a.file, ids: a.ids }
+    }
+}
+
+impl From<LoopsArgs> for toporec::loops::LoopsArgs {
+    fn from(a: LoopsArgs) -> Self {
+        toporec::loops::LoopsArgs {
+            index: a.index,
+            methods: a.methods,
+            exclude_seconds: a.exclude_seconds,
+            exclude_scans: a.exclude_scans,
+            threshold: a.threshold,
+            threshold_from: a.threshold_from,
+            calibrate: a.calibrate,
+            target_precision: a.target_precision,
+            revisit_radius: a.revisit_radius,
+            all: a.all,
+            out: a.out,
+        }
     }
 }
 

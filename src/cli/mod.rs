@@ -42,6 +42,9 @@ enum Command {
     Run(RunArgs),
     /// Find the k nearest indexed scans of new scans (files, MCAPs, sessions, sequences).
     Query(args::QueryArgs),
+    /// Loop closures of an index: each scan's best match among the earlier scans (its own
+    /// session's recent ones left out), accepted below a threshold; Parquet or CSV.
+    Loops(args::LoopsArgs),
     /// Evaluate place recognition on indexes (Recall@N, Recall@1%), with a JSON report and plots.
     #[command(subcommand)]
     Eval(EvalCommand),
@@ -270,6 +273,7 @@ pub fn main() -> ExitCode {
         Command::Verify(args) => verify(args),
         Command::Info(args) => info(args).map(|()| Done::All),
         Command::Import(args) => import(args.into()).map(|()| Done::All),
+        Command::Loops(args) => loops(args.into()).map(|()| Done::All),
     };
     match result {
         Ok(Done::All) => ExitCode::SUCCESS,
@@ -375,6 +379,12 @@ fn validate(args: ValidateArgs) -> Result<()> {
         p.sources.len(),
         p.index.display()
     ))
+}
+
+fn loops(a: toporec::loops::LoopsArgs) -> Result<()> {
+    let summary = toporec::loops::run(&a)?;
+    eprint!("{summary}");
+    print(&format!("written: {}\n", a.out.display()))
 }
 
 fn import(a: toporec::import::ImportArgs) -> Result<()> {

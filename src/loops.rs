@@ -1,0 +1,501 @@
+//! Loop closures from an index: `toporec loops`.
+//!
+//! The index's scans are walked in time order (by timestamp, then session and scan id; scans
+//! without a timestamp last). Each scan is searched against the scans before it, leaving out
+//! those of its own session within `exclude_seconds` (or `exclude_scans` positions) of it: the
+//! method's own search over the whole index, its hits filtered to the allowed scans, with more
+//! neighbours asked for until two allowed ones are found. The best allowed match is a loop when
+//! its descriptor distance is below the threshold. Each row keeps the runner-up's distance (a
+//! margin for the user's own checks) and, where both scans have poses, their true distance.
+//!
+//! Thresholds: given, read from a calibration file, or calibrated on the index's own poses
+//! ([`calibrate`]: the largest threshold whose accepted matches reach a target precision).
+
+use crate::error::{Error, Result, ResultExt};
+use crate::query::Engine;
+use crate::sinks::index::reader::IndexedScan;
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// What `toporec loops` is asked.
+#[derive(Clone, Debug)]
+pub struct LoopsArgs {
+    /// The index.
+    pub index: PathBuf,
+    /// The methods (default: every method of the index).
+    pub methods: Vec<String>,
+    /// Same-session scans closer in time than this are not loops (seconds).
+    pub exclude_seconds: f64,
+    /// Same-session scans this many positions apart or fewer are not loops (instead of seconds).
+    pub exclude_scans: Option<usize>,
+    /// The distance below which a match is a loop.
+    pub threshold: Option<f64>,
+    /// A calibration file (written by `--calibrate`) giving the threshold.
+    pub threshold_from: Option<PathBuf>,
+    /// Calibrate the threshold on the index's poses and write it.
+    pub calibrate: bool,
+    /// The precision the calibrated threshold reaches.
+    pub target_precision: f64,
+    /// A match is true when its scans' poses are this close (m).
+    pub revisit_radius: f64,
+    /// Write every scan's best match, accepted or not (default: the loops only).
+    pub all: bool,
+    /// Output: `.parquet` or `.csv`.
+    pub out: PathBuf,
+}
+
+/// One scan's best allowed match.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoopRow {
+    /// The method.
+    pub method: String,
+    /// The scan.
+    pub query_scan: String,
+    /// Its session.
+    pub query_session: String,
+    /// The earlier scan it matches.
+    pub matched_scan: String,
+    /// Its session.
+    pub matched_session: String,
+    /// Descriptor distance.
+    pub distance: f64,
+    /// The yaw of the query relative to the match (degrees), for methods that give one.
+    pub yaw_degrees: Option<f64>,
+    /// The second-best allowed match's distance.
+    pub rank2_distance: Option<f64>,
+    /// The distance between the two scans' poses (m), when both have one.
+    pub true_distance_m: Option<f64>,
+    /// Whether the distance is below the threshold.
+    pub accepted: bool,
+}
+
+/// Which earlier scans a scan may be matched with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Exclusion {
+    /// Same-session scans closer in time than this (seconds) are left out.
+    Seconds(f64),
+    /// Same-session scans this many positions apart or fewer are left out.
+    Scans(usize),
+}
+
+/// The scans' walking order: by timestamp (none last), then session and scan id.
+pub fn time_order(scans: &[IndexedScan]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..scans.len()).collect();
+    order.sort_by(|&a, &b| {
+        let (x, y) = (&scans[a], &scans[b]);
+        (x.utime.is_none(), x.utime, &x.session, &x.scan_id).cmp(&(
+            y.utime.is_none(),
+            y.utime,
+            &y.session,
+            &y.scan_id,
+        ))
+    });
+    order
+}
+
+/// The best two allowed matches of every scan with an earlier allowed scan, in time order:
+/// `(query row, [(row, distance, yaw)], …)`.
+type Matches = Vec<(usize, Vec<(usize, f64, Option<f64>)>)>;
+
+/// Every scan's best allowed earlier matches (up to two), in time order; `queries[i]` is the
+/// descriptor of `engine.scans[i]`.
+pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], exclusion: Exclusion) -> Matches {
+    use rayon::prelude::*;
+    let scans = &engine.scans;
+    let order = time_order(scans);
+    let mut position = vec![0usize; scans.len()];
+    for (p, &row) in order.iter().enumerate() {
+        position[row] = p;
+    }
+    // Position within the session's own time order, for `Exclusion::Scans`.
+    let mut in_session = vec![0usize; scans.len()];
+    let mut seen: HashMap<&str, usize> = HashMap::new();
+    for &row in &order {
+        let n = seen.entry(scans[row].session.as_str()).or_insert(0);
+        in_session[row] = *n;
+        *n += 1;
+    }
+    let allowed = |query: usize, row: usize| -> bool {
+        if position[row] >= position[query] {
+            return false;
+        }
+        if scans[row].session != scans[query].session {
+            return true;
+        }
+        match exclusion {
+            Exclusion::Scans(n) => in_session[query] - in_session[row] > n,
+            Exclusion::Seconds(s) => match (scans[query].utime, scans[row].utime) {
+                (Some(a), Some(b)) => (a - b).unsigned_abs() as f64 >= s * 1e6,
+                _ => true,
+            },
+        }
+    };
+    order
+        .par_iter()
+        .filter_map(|&query| {
+            let earlier = (0..scans.len()).filter(|&r| allowed(query, r)).take(2).count();
+            if earlier == 0 {
+                return None;
+            }
+            let mut k = 8.min(scans.len());
+            loop {
+                let (found, _) = engine.find(&queries[query], k);
+                let best: Vec<(usize, f64, Option<f64>)> = found
+                    .iter()
+                    .filter(|f| allowed(query, f.row))
+                    .take(2)
+                    .map(|f| (f.row, f.distance, f.yaw_degrees))
+                    .collect();
+                if best.len() >= earlier || k >= scans.len() {
+                    return Some((query, best));
+                }
+                k = (k * 4).min(scans.len());
+            }
+        })
+        .collect()
+}
+
+/// The rows of one method: each scan's best allowed match, accepted below `threshold`.
+pub fn rows(engine: &Engine, matches: &Matches, threshold: f64) -> Vec<LoopRow> {
+    let scans = &engine.scans;
+    matches
+        .iter()
+        .filter_map(|(query, best)| {
+            let (row, distance, yaw) = *best.first()?;
+            let (q, m) = (&scans[*query], &scans[row]);
+            Some(LoopRow {
+                method: engine.method.name.clone(),
+                query_scan: q.scan_id.clone(),
+                query_session: q.session.clone(),
+                matched_scan: m.scan_id.clone(),
+                matched_session: m.session.clone(),
+                distance,
+                yaw_degrees: yaw,
+                rank2_distance: best.get(1).map(|b| b.1),
+                true_distance_m: match (q.pose, m.pose) {
+                    (Some(a), Some(b)) => Some(distance3(a, b)),
+                    _ => None,
+                },
+                accepted: distance < threshold,
+            })
+        })
+        .collect()
+}
+
+fn distance3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// A calibrated threshold.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Calibration {
+    /// The method.
+    pub method: String,
+    /// What made its descriptors (codebook or method id): a threshold holds for those only.
+    pub id: String,
+    /// Matches below it are loops.
+    pub threshold: f64,
+    /// The precision asked for.
+    pub target_precision: f64,
+    /// The precision reached on the calibration drive.
+    pub precision: f64,
+    /// Accepted matches on the calibration drive.
+    pub accepted: usize,
+    /// Matches with poses on the calibration drive.
+    pub matches: usize,
+    /// A match was true within this distance (m).
+    pub revisit_radius_m: f64,
+}
+
+/// The largest threshold whose accepted matches reach `target` precision, from `(distance,
+/// true)` pairs: the matches sorted by distance, the longest prefix with that precision, and
+/// the threshold halfway between its last distance and the next one (just above it when it is
+/// the last); `None` when no prefix reaches it.
+pub fn calibrate(matches: &[(f64, bool)], target: f64) -> Option<f64> {
+    let mut sorted: Vec<(f64, bool)> = matches.to_vec();
+    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut best = None;
+    let mut true_so_far = 0usize;
+    for (i, &(d, t)) in sorted.iter().enumerate() {
+        true_so_far += usize::from(t);
+        // A prefix must end between distinct distances: a threshold cannot split a tie.
+        let next = sorted.get(i + 1).map(|n| n.0);
+        if next == Some(d) {
+            continue;
+        }
+        if true_so_far as f64 >= target * (i + 1) as f64 {
+            best = Some(match next {
+                Some(n) => d + (n - d) / 2.0,
+                None => d + d.abs().max(f64::MIN_POSITIVE) * 1e-9,
+            });
+        }
+    }
+    best
+}
+
+/// What a run found, per method.
+#[derive(Clone, Debug, Default)]
+pub struct Summary {
+    /// Per method: (name, threshold, scans with an earlier match, accepted, true among the
+    /// accepted with poses, accepted with poses).
+    pub methods: Vec<(String, f64, usize, usize, usize, usize)>,
+    /// The calibration files written.
+    pub calibrations: Vec<PathBuf>,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (m, threshold, matched, accepted, true_pos, with_pose) in &self.methods {
+            write!(
+                f,
+                "loops ({m}): {matched} scans matched an earlier one, {accepted} below {threshold:.6}"
+            )?;
+            if *with_pose > 0 {
+                let precision = 100.0 * *true_pos as f64 / *with_pose as f64;
+                write!(f, " ({true_pos} of {with_pose} with poses true: precision {precision:.1} %)")?;
+            }
+            writeln!(f)?;
+        }
+        for c in &self.calibrations {
+            writeln!(f, "calibration written: {}", c.display())?;
+        }
+        Ok(())
+    }
+}
+
+/// The threshold of one method: given, from a calibration file (which must be the method's and
+/// of its descriptors), or calibrated (`None` until then).
+fn given_threshold(a: &LoopsArgs, method: &str, id: &str) -> Result<Option<f64>> {
+    if let Some(t) = a.threshold {
+        return Ok(Some(t));
+    }
+    let Some(path) = &a.threshold_from else { return Ok(None) };
+    let text = std::fs::read_to_string(path).at(path)?;
+    let all: Vec<Calibration> = serde_json::from_str(&text)
+        .map_err(|e| Error::invalid(format!("{}: not a toporec loops calibration: {e}", path.display())))?;
+    let Some(c) = all.iter().find(|c| c.method == method) else {
+        return Err(Error::invalid(format!("{}: no threshold for method `{method}`", path.display())));
+    };
+    if c.id != id {
+        return Err(Error::invalid(format!(
+            "{}: the threshold of `{method}` was calibrated on descriptors {}, the index holds {id}",
+            path.display(),
+            c.id
+        )));
+    }
+    Ok(Some(c.threshold))
+}
+
+/// Runs `toporec loops`: the rows of every method, written to `a.out`; with `calibrate`, the
+/// thresholds written beside it (`<out stem>.calibration.json`).
+pub fn run(a: &LoopsArgs) -> Result<Summary> {
+    if !(a.target_precision > 0.0 && a.target_precision <= 1.0) {
+        return Err(Error::invalid(format!("--target-precision {}: must be in (0, 1]", a.target_precision)));
+    }
+    if a.threshold.is_some() as u8 + a.threshold_from.is_some() as u8 + a.calibrate as u8 > 1 {
+        return Err(Error::invalid("--threshold, --threshold-from and --calibrate: give one".to_string()));
+    }
+    if !a.calibrate && a.threshold.is_none() && a.threshold_from.is_none() {
+        return Err(Error::invalid(
+            "a threshold is needed: --threshold D, --threshold-from FILE, or --calibrate on a drive with poses"
+                .to_string(),
+        ));
+    }
+    let methods = if a.methods.is_empty() {
+        crate::query::index_methods(&a.index)?.into_iter().map(|m| m.name).collect()
+    } else {
+        a.methods.clone()
+    };
+    let exclusion = match a.exclude_scans {
+        Some(n) => Exclusion::Scans(n),
+        None => Exclusion::Seconds(a.exclude_seconds),
+    };
+    let mut summary = Summary::default();
+    let mut all_rows = Vec::new();
+    let mut calibrations = Vec::new();
+    for method in &methods {
+        let engine = Engine::open(&a.index, &[], method)?;
+        let queries = query_descriptors(&a.index, &engine)?;
+        let matches = best_matches(&engine, &queries, exclusion);
+        let threshold = match given_threshold(a, method, &engine.id)? {
+            Some(t) => t,
+            None => {
+                let judged: Vec<(f64, bool)> = rows(&engine, &matches, f64::INFINITY)
+                    .iter()
+                    .filter_map(|r| r.true_distance_m.map(|t| (r.distance, t <= a.revisit_radius)))
+                    .collect();
+                // No threshold reaching the precision: 0, which accepts nothing.
+                let t = calibrate(&judged, a.target_precision).unwrap_or_else(|| {
+                    tracing::warn!(
+                        "--calibrate: no threshold of `{method}` reaches precision {} on this index ({} matches \
+                         with poses); its threshold is 0: no loop accepted",
+                        a.target_precision,
+                        judged.len()
+                    );
+                    0.0
+                });
+                let accepted: Vec<&(f64, bool)> = judged.iter().filter(|j| j.0 < t).collect();
+                // (Vacuously 1 when nothing is accepted.)
+                let precision = accepted.iter().filter(|j| j.1).count() as f64 / accepted.len().max(1) as f64
+                    + f64::from(u8::from(accepted.is_empty()));
+                calibrations.push(Calibration {
+                    method: method.clone(),
+                    id: engine.id.clone(),
+                    threshold: t,
+                    target_precision: a.target_precision,
+                    precision,
+                    accepted: accepted.len(),
+                    matches: judged.len(),
+                    revisit_radius_m: a.revisit_radius,
+                });
+                t
+            }
+        };
+        let rows = rows(&engine, &matches, threshold);
+        let accepted: Vec<&LoopRow> = rows.iter().filter(|r| r.accepted).collect();
+        let with_pose: Vec<&&LoopRow> = accepted.iter().filter(|r| r.true_distance_m.is_some()).collect();
+        let true_pos =
+            with_pose.iter().filter(|r| r.true_distance_m.is_some_and(|d| d <= a.revisit_radius)).count();
+        summary.methods.push((
+            method.clone(),
+            threshold,
+            rows.len(),
+            accepted.len(),
+            true_pos,
+            with_pose.len(),
+        ));
+        all_rows.extend(rows.into_iter().filter(|r| a.all || r.accepted));
+    }
+    write_rows(&a.out, &all_rows)?;
+    if a.calibrate {
+        let path = calibration_path(&a.out);
+        let text = serde_json::to_string_pretty(&calibrations).expect("plain data") + "\n";
+        crate::fsutil::write_atomic(&path, text.as_bytes())?;
+        summary.calibrations.push(path);
+    }
+    Ok(summary)
+}
+
+/// The descriptor of each of `engine`'s scans: its own, or read from the index when the
+/// engine searches a cached structure that keeps none (toporec-plus).
+fn query_descriptors(index: &Path, engine: &Engine) -> Result<Vec<Vec<f32>>> {
+    if engine.scans.iter().all(|s| !s.descriptor.is_empty()) {
+        return Ok(engine.scans.iter().map(|s| s.descriptor.clone()).collect());
+    }
+    let loaded = crate::query::load_method(index, &engine.method.name, &[])?;
+    let mut by_id: HashMap<String, Vec<f32>> =
+        loaded.scans.into_iter().map(|s| (s.scan_id, s.descriptor)).collect();
+    engine
+        .scans
+        .iter()
+        .map(|s| {
+            by_id.remove(&s.scan_id).ok_or_else(|| {
+                Error::index(index, format!("scan {} has no {} descriptor", s.scan_id, engine.method.name))
+            })
+        })
+        .collect()
+}
+
+/// Where `--calibrate` writes its thresholds: beside the output, `<stem>.calibration.json`.
+pub fn calibration_path(out: &Path) -> PathBuf {
+    let stem = out.file_stem().map_or_else(|| "loops".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.calibration.json"))
+}
+
+/// The CSV header of the rows (the Parquet file's columns, in order).
+pub const CSV_HEADER: &str = "method,query_scan,query_session,matched_scan,matched_session,distance,yaw_degrees,rank2_distance,true_distance_m,accepted";
+
+/// Writes the rows to `path`: CSV when it ends in `.csv`, else Parquet (zstd), atomically.
+pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
+        let mut file = crate::fsutil::AtomicFile::create(path)?;
+        let opt = |v: Option<f64>| v.map_or_else(String::new, |v| format!("{v:?}"));
+        let mut text = String::from(CSV_HEADER);
+        text.push('\n');
+        for r in rows {
+            text.push_str(&format!(
+                "{},{},{},{},{},{:?},{},{},{},{}\n",
+                crate::query::csv_field(&r.method),
+                crate::query::csv_field(&r.query_scan),
+                crate::query::csv_field(&r.query_session),
+                crate::query::csv_field(&r.matched_scan),
+                crate::query::csv_field(&r.matched_session),
+                r.distance,
+                opt(r.yaw_degrees),
+                opt(r.rank2_distance),
+                opt(r.true_distance_m),
+                r.accepted
+            ));
+        }
+        file.write_all(text.as_bytes()).at(path)?;
+        file.commit()?;
+        return Ok(());
+    }
+    use arrow::array::{ArrayRef, BooleanArray, Float64Array, StringArray};
+    let schema = loops_schema();
+    let strings = |f: &dyn Fn(&LoopRow) -> &str| -> ArrayRef {
+        Arc::new(StringArray::from(rows.iter().map(f).collect::<Vec<_>>()))
+    };
+    let floats = |f: &dyn Fn(&LoopRow) -> Option<f64>| -> ArrayRef {
+        Arc::new(Float64Array::from(rows.iter().map(f).collect::<Vec<_>>()))
+    };
+    let columns: Vec<ArrayRef> = vec![
+        strings(&|r| &r.method),
+        strings(&|r| &r.query_scan),
+        strings(&|r| &r.query_session),
+        strings(&|r| &r.matched_scan),
+        strings(&|r| &r.matched_session),
+        floats(&|r| Some(r.distance)),
+        floats(&|r| r.yaw_degrees),
+        floats(&|r| r.rank2_distance),
+        floats(&|r| r.true_distance_m),
+        Arc::new(BooleanArray::from(rows.iter().map(|r| r.accepted).collect::<Vec<_>>())),
+    ];
+    let batch = arrow::record_batch::RecordBatch::try_new(schema.clone(), columns).at(path)?;
+    let mut file = crate::sinks::parquet::TableFile::with_schema(path, schema)?;
+    file.write_batch(&batch)?;
+    let (staged, _) = file.finish()?;
+    staged.publish()?;
+    Ok(())
+}
+
+/// The columns of `loops.parquet` (their order is [`CSV_HEADER`]'s).
+pub fn loops_schema() -> Arc<arrow::datatypes::Schema> {
+    use arrow::datatypes::{DataType, Field, Schema};
+    let f = |name: &str, t: DataType, nullable: bool| Field::new(name, t, nullable);
+    Arc::new(Schema::new(vec![
+        f("method", DataType::Utf8, false),
+        f("query_scan", DataType::Utf8, false),
+        f("query_session", DataType::Utf8, false),
+        f("matched_scan", DataType::Utf8, false),
+        f("matched_session", DataType::Utf8, false),
+        f("distance", DataType::Float64, false),
+        f("yaw_degrees", DataType::Float64, true),
+        f("rank2_distance", DataType::Float64, true),
+        f("true_distance_m", DataType::Float64, true),
+        f("accepted", DataType::Boolean, false),
+    ]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn calibration_by_hand() {
+        // Sorted: 0.1 T, 0.2 T, 0.3 F, 0.4 T, 0.5 F. Prefix precisions: 1, 1, 2/3, 3/4, 3/5.
+        let m = [(0.4, true), (0.1, true), (0.5, false), (0.3, false), (0.2, true)];
+        // 0.75: the longest prefix is the first four; halfway between 0.4 and 0.5.
+        assert_eq!(calibrate(&m, 0.75), Some(0.45));
+        // 0.99: the first two; halfway between 0.2 and 0.3.
+        assert_eq!(calibrate(&m, 0.99), Some(0.25));
+        // 0.6: every match; just above the last.
+        assert!(calibrate(&m, 0.6).is_some_and(|t| t > 0.5 && t < 0.5 + 1e-6));
+        // None reach it when the nearest match is false.
+        assert_eq!(calibrate(&[(0.1, false), (0.2, true)], 0.9), None);
+        // A tie is not split: 0.1 T and 0.1 F together have precision 1/2.
+        assert_eq!(calibrate(&[(0.1, true), (0.1, false), (0.3, true)], 0.9), None);
+    }
+}

@@ -1,0 +1,162 @@
+//! `toporec loops`: the exclusion window, the time order, the calibration and its file.
+
+use crate::util::{run_pipeline, sample_copy, scratch_dir, text, toporec};
+use std::path::Path;
+
+/// The sample drive (two sessions of 32 scans 0.5 s apart, with poses) indexed with
+/// ScanContext and toporec-plus.
+fn sample_index(dir: &Path) -> std::path::PathBuf {
+    let data = sample_copy(dir, &["2026-01-01", "2026-01-02"]);
+    let body = format!(
+        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\"]\n",
+        data.join("velodyne_data").display().to_string()
+    );
+    let pipeline = dir.join("loops.toml");
+    std::fs::write(&pipeline, body).unwrap();
+    let index = dir.join("idx");
+    let o = run_pipeline(&pipeline, &index, 2);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    index
+}
+
+/// The rows of a loops CSV: (method, query, query session, match, match session, distance,
+/// accepted).
+fn rows(path: &Path) -> Vec<(String, String, String, String, String, f64, bool)> {
+    let body = std::fs::read_to_string(path).unwrap();
+    let mut lines = body.lines();
+    assert_eq!(lines.next(), Some(toporec::loops::CSV_HEADER));
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            assert_eq!(f.len(), 10, "{l}");
+            let s = |i: usize| f[i].to_string();
+            (s(0), s(1), s(2), s(3), s(4), f[5].parse().unwrap(), f[9] == "true")
+        })
+        .collect()
+}
+
+/// The utime (µs) of a sample scan id `<session>/<utime>`.
+fn utime(id: &str) -> i64 {
+    id.rsplit('/').next().unwrap().parse().unwrap()
+}
+
+#[test]
+fn loops_match_earlier_scans_outside_the_exclusion_window() {
+    let dir = scratch_dir("loops_window");
+    let index = sample_index(&dir);
+    let idx = index.to_str().unwrap();
+    let loops = |extra: &[&str], out: &Path| {
+        let mut args =
+            vec!["loops", "--index", idx, "--method", "scancontext", "--all", "-o", out.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let o = toporec(&args);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        rows(out)
+    };
+    // Within 5 s of its own session: out. A day-1 scan has earlier allowed scans from 5 s on
+    // (its 11th scan onwards: 22 of 32); every day-2 scan has day 1.
+    let window = loops(&["--exclude-seconds", "5", "--threshold", "1"], &dir.join("window.csv"));
+    assert_eq!(window.len(), 22 + 32);
+    for (_, q, qs, m, ms, d, accepted) in &window {
+        assert!(utime(m) < utime(q), "{m} is not earlier than {q}");
+        if qs == ms {
+            assert!(utime(q) - utime(m) >= 5_000_000, "{q} matched {m}, within 5 s");
+        }
+        assert_eq!(*accepted, *d < 1.0);
+    }
+    assert!(window.iter().any(|r| r.2 == r.4), "some loops within a session");
+    // 31 scans or fewer apart in a session of 32: only the other session is left.
+    let scans = loops(&["--exclude-scans", "31", "--threshold", "1"], &dir.join("scans.csv"));
+    assert_eq!(scans.len(), 32);
+    assert!(scans.iter().all(|r| r.2 == "2026-01-02" && r.4 == "2026-01-01"));
+    // Without --all, the loops only.
+    let o = toporec(&[
+        "loops",
+        "--index",
+        idx,
+        "--method",
+        "scancontext",
+        "--threshold",
+        "0.2",
+        "-o",
+        dir.join("some.csv").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let some = rows(&dir.join("some.csv"));
+    assert!(some.iter().all(|r| r.6 && r.5 < 0.2));
+    assert_eq!(some.len(), window.iter().filter(|r| r.5 < 0.2).count(), "the same matches, the loops kept");
+}
+
+#[test]
+fn calibration_is_written_and_read_back() {
+    let dir = scratch_dir("loops_calibration");
+    let index = sample_index(&dir);
+    let idx = index.to_str().unwrap();
+    let out = dir.join("cal.parquet");
+    let o = toporec(&[
+        "loops",
+        "--index",
+        idx,
+        "--calibrate",
+        "--target-precision",
+        "0.9",
+        "--all",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("loops (toporec-plus):"), "{}", text(&o.stderr));
+    // Parquet: one row per matched scan and method, the columns of the CSV header.
+    let file = std::fs::File::open(&out).unwrap();
+    let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).unwrap();
+    let names: Vec<String> = reader.schema().fields().iter().map(|f| f.name().clone()).collect();
+    assert_eq!(names.join(","), toporec::loops::CSV_HEADER);
+    let n: usize = reader.build().unwrap().map(|b| b.unwrap().num_rows()).sum();
+    // 30 s by default: a 16 s session matches nothing of its own, so day 2's scans only.
+    assert_eq!(n, 2 * 32);
+    let calibration = dir.join("cal.calibration.json");
+    let cal: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&calibration).unwrap()).unwrap();
+    let sc = cal.as_array().unwrap().iter().find(|c| c["method"] == "scancontext").unwrap();
+    let threshold = sc["threshold"].as_f64().unwrap();
+    assert!(sc["precision"].as_f64().unwrap() >= 0.9);
+    // The file's threshold, and the same number given: the same loops.
+    let run = |extra: &[&str], name: &str| {
+        let path = dir.join(name);
+        let mut args = vec!["loops", "--index", idx, "--method", "scancontext", "-o", path.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let o = toporec(&args);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        rows(&path)
+    };
+    let from_file = run(&["--threshold-from", calibration.to_str().unwrap()], "from.csv");
+    let given = run(&["--threshold", &format!("{threshold:?}")], "given.csv");
+    assert_eq!(from_file, given);
+    assert_eq!(from_file.len(), sc["accepted"].as_u64().unwrap() as usize);
+    // A calibration of other descriptors is refused, naming both.
+    let edited = std::fs::read_to_string(&calibration)
+        .unwrap()
+        .replace(sc["id"].as_str().unwrap(), "0000000000000000");
+    std::fs::write(&calibration, edited).unwrap();
+    let o = toporec(&[
+        "loops",
+        "--index",
+        idx,
+        "--method",
+        "scancontext",
+        "--threshold-from",
+        calibration.to_str().unwrap(),
+        "-o",
+        dir.join("x.csv").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o.stderr).contains("calibrated on descriptors 0000000000000000"), "{}", text(&o.stderr));
+    // No threshold: refused, saying how to give one.
+    let o = toporec(&["loops", "--index", idx, "-o", dir.join("y.csv").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        text(&o.stderr).contains("--threshold D, --threshold-from FILE, or --calibrate"),
+        "{}",
+        text(&o.stderr)
+    );
+}
