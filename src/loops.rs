@@ -99,43 +99,94 @@ pub fn time_order(scans: &[IndexedScan]) -> Vec<usize> {
 /// `(query row, [(row, distance, yaw)], …)`.
 type Matches = Vec<(usize, Vec<(usize, f64, Option<f64>)>)>;
 
-/// Every scan's best allowed earlier matches (up to two), in time order; `queries[i]` is the
-/// descriptor of `engine.scans[i]`.
-pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], exclusion: Exclusion) -> Matches {
-    use rayon::prelude::*;
-    let scans = &engine.scans;
-    let order = time_order(scans);
-    let mut position = vec![0usize; scans.len()];
-    for (p, &row) in order.iter().enumerate() {
-        position[row] = p;
+/// Which scans each scan may be matched with: earlier in [`time_order`], and outside its own
+/// session's exclusion window.
+pub struct Allowed<'a> {
+    scans: &'a [IndexedScan],
+    exclusion: Exclusion,
+    /// The scans in time order.
+    pub order: Vec<usize>,
+    position: Vec<usize>,
+    in_session: Vec<usize>,
+}
+
+impl<'a> Allowed<'a> {
+    /// The rule over `scans`.
+    pub fn new(scans: &'a [IndexedScan], exclusion: Exclusion) -> Self {
+        let order = time_order(scans);
+        let mut position = vec![0usize; scans.len()];
+        for (p, &row) in order.iter().enumerate() {
+            position[row] = p;
+        }
+        // Position within the session's own time order, for `Exclusion::Scans`.
+        let mut in_session = vec![0usize; scans.len()];
+        let mut seen: HashMap<&str, usize> = HashMap::new();
+        for &row in &order {
+            let n = seen.entry(scans[row].session.as_str()).or_insert(0);
+            in_session[row] = *n;
+            *n += 1;
+        }
+        Allowed { scans, exclusion, order, position, in_session }
     }
-    // Position within the session's own time order, for `Exclusion::Scans`.
-    let mut in_session = vec![0usize; scans.len()];
-    let mut seen: HashMap<&str, usize> = HashMap::new();
-    for &row in &order {
-        let n = seen.entry(scans[row].session.as_str()).or_insert(0);
-        in_session[row] = *n;
-        *n += 1;
-    }
-    let allowed = |query: usize, row: usize| -> bool {
-        if position[row] >= position[query] {
+
+    /// Whether `row` may be matched with `query`.
+    pub fn allows(&self, query: usize, row: usize) -> bool {
+        let scans = self.scans;
+        if self.position[row] >= self.position[query] {
             return false;
         }
         if scans[row].session != scans[query].session {
             return true;
         }
-        match exclusion {
-            Exclusion::Scans(n) => in_session[query] - in_session[row] > n,
+        match self.exclusion {
+            Exclusion::Scans(n) => self.in_session[query] - self.in_session[row] > n,
             Exclusion::Seconds(s) => match (scans[query].utime, scans[row].utime) {
                 (Some(a), Some(b)) => (a - b).unsigned_abs() as f64 >= s * 1e6,
                 _ => true,
             },
         }
-    };
+    }
+
+    /// Which scans have an allowed scan within `radius` metres (both with poses): the scans a
+    /// true loop could be found for.
+    pub fn with_revisit(&self, radius: f64) -> Vec<bool> {
+        let cell = |p: [f64; 3]| p.map(|c| (c / radius).floor() as i64);
+        let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+        for (row, s) in self.scans.iter().enumerate() {
+            if let Some(p) = s.pose {
+                grid.entry(cell(p)).or_default().push(row);
+            }
+        }
+        let near = |query: usize, q: [f64; 3], c: [i64; 3]| {
+            grid.get(&c).is_some_and(|rows| {
+                rows.iter().any(|&r| {
+                    self.allows(query, r) && self.scans[r].pose.is_some_and(|p| distance3(p, q) <= radius)
+                })
+            })
+        };
+        (0..self.scans.len())
+            .map(|query| {
+                let Some(q) = self.scans[query].pose else { return false };
+                let c = cell(q);
+                (0..27).any(|k| near(query, q, [c[0] + k % 3 - 1, c[1] + k / 3 % 3 - 1, c[2] + k / 9 - 1]))
+            })
+            .collect()
+    }
+}
+
+/// Every scan's best allowed earlier matches (up to two), in time order; `queries[i]` is the
+/// descriptor of `engine.scans[i]`.
+pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], exclusion: Exclusion) -> Matches {
+    use rayon::prelude::*;
+    let scans = &engine.scans;
+    let rule = Allowed::new(scans, exclusion);
+    let allowed = |query: usize, row: usize| rule.allows(query, row);
+    let order = &rule.order;
     order
         .par_iter()
         .filter_map(|&query| {
-            let earlier = (0..scans.len()).filter(|&r| allowed(query, r)).take(2).count();
+            let earlier =
+                order.iter().take_while(|&&r| r != query).filter(|&&r| allowed(query, r)).take(2).count();
             if earlier == 0 {
                 return None;
             }
@@ -235,26 +286,55 @@ pub fn calibrate(matches: &[(f64, bool)], target: f64) -> Option<f64> {
     best
 }
 
+/// What a run found for one method.
+#[derive(Clone, Debug, Default)]
+pub struct MethodSummary {
+    /// The method.
+    pub method: String,
+    /// Its threshold.
+    pub threshold: f64,
+    /// Scans with an allowed earlier scan (a best match).
+    pub matched: usize,
+    /// Matches below the threshold.
+    pub accepted: usize,
+    /// Accepted matches whose scans both have poses.
+    pub accepted_with_poses: usize,
+    /// Those within the revisit radius.
+    pub true_positives: usize,
+    /// Scans with an allowed earlier scan within the revisit radius.
+    pub revisits: usize,
+    /// Those whose accepted match is within the radius.
+    pub revisits_found: usize,
+}
+
 /// What a run found, per method.
 #[derive(Clone, Debug, Default)]
 pub struct Summary {
-    /// Per method: (name, threshold, scans with an earlier match, accepted, true among the
-    /// accepted with poses, accepted with poses).
-    pub methods: Vec<(String, f64, usize, usize, usize, usize)>,
+    /// Per method.
+    pub methods: Vec<MethodSummary>,
     /// The calibration files written.
     pub calibrations: Vec<PathBuf>,
 }
 
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        for (m, threshold, matched, accepted, true_pos, with_pose) in &self.methods {
+        for m in &self.methods {
             write!(
                 f,
-                "loops ({m}): {matched} scans matched an earlier one, {accepted} below {threshold:.6}"
+                "loops ({}): {} scans matched an earlier one, {} below {:.6}",
+                m.method, m.matched, m.accepted, m.threshold
             )?;
-            if *with_pose > 0 {
-                let precision = 100.0 * *true_pos as f64 / *with_pose as f64;
-                write!(f, " ({true_pos} of {with_pose} with poses true: precision {precision:.1} %)")?;
+            if m.accepted_with_poses > 0 {
+                let precision = 100.0 * m.true_positives as f64 / m.accepted_with_poses as f64;
+                write!(
+                    f,
+                    "; {} of {} with poses true: precision {precision:.1} %",
+                    m.true_positives, m.accepted_with_poses
+                )?;
+            }
+            if m.revisits > 0 {
+                let recall = 100.0 * m.revisits_found as f64 / m.revisits as f64;
+                write!(f, "; {} of {} revisits found: recall {recall:.1} %", m.revisits_found, m.revisits)?;
             }
             writeln!(f)?;
         }
@@ -354,18 +434,22 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             }
         };
         let rows = rows(&engine, &matches, threshold);
-        let accepted: Vec<&LoopRow> = rows.iter().filter(|r| r.accepted).collect();
-        let with_pose: Vec<&&LoopRow> = accepted.iter().filter(|r| r.true_distance_m.is_some()).collect();
-        let true_pos =
-            with_pose.iter().filter(|r| r.true_distance_m.is_some_and(|d| d <= a.revisit_radius)).count();
-        summary.methods.push((
-            method.clone(),
+        let is_true = |r: &LoopRow| r.true_distance_m.is_some_and(|d| d <= a.revisit_radius);
+        let with_revisit = Allowed::new(&engine.scans, exclusion).with_revisit(a.revisit_radius);
+        let found: std::collections::HashSet<&str> =
+            rows.iter().filter(|r| r.accepted && is_true(r)).map(|r| r.query_scan.as_str()).collect();
+        summary.methods.push(MethodSummary {
+            method: method.clone(),
             threshold,
-            rows.len(),
-            accepted.len(),
-            true_pos,
-            with_pose.len(),
-        ));
+            matched: rows.len(),
+            accepted: rows.iter().filter(|r| r.accepted).count(),
+            accepted_with_poses: rows.iter().filter(|r| r.accepted && r.true_distance_m.is_some()).count(),
+            true_positives: rows.iter().filter(|r| r.accepted && is_true(r)).count(),
+            revisits: with_revisit.iter().filter(|&&w| w).count(),
+            revisits_found: (0..engine.scans.len())
+                .filter(|&i| with_revisit[i] && found.contains(engine.scans[i].scan_id.as_str()))
+                .count(),
+        });
         all_rows.extend(rows.into_iter().filter(|r| a.all || r.accepted));
     }
     write_rows(&a.out, &all_rows)?;

@@ -105,7 +105,9 @@ fn calibration_is_written_and_read_back() {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
+    // Day 2 retraces day 1: its 32 scans each have a revisit in day 1, within 5 m.
     assert!(text(&o.stderr).contains("loops (toporec-plus):"), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains(" of 32 revisits found: recall "), "{}", text(&o.stderr));
     // Parquet: one row per matched scan and method, the columns of the CSV header.
     let file = std::fs::File::open(&out).unwrap();
     let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).unwrap();
