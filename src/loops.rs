@@ -175,11 +175,10 @@ impl<'a> Allowed<'a> {
 }
 
 /// Every scan's best allowed earlier matches (up to two), in time order; `queries[i]` is the
-/// descriptor of `engine.scans[i]`.
-pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], exclusion: Exclusion) -> Matches {
+/// descriptor of `engine.scans[i]`, and `rule` is over `engine.scans`.
+pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], rule: &Allowed) -> Matches {
     use rayon::prelude::*;
     let scans = &engine.scans;
-    let rule = Allowed::new(scans, exclusion);
     let allowed = |query: usize, row: usize| rule.allows(query, row);
     let order = &rule.order;
     order
@@ -208,8 +207,9 @@ pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], exclusion: Exclusion)
         .collect()
 }
 
-/// The rows of one method: each scan's best allowed match, accepted below `threshold`.
-pub fn rows(engine: &Engine, matches: &Matches, threshold: f64) -> Vec<LoopRow> {
+/// The rows of one method: each scan's best allowed match, not yet accepted (the threshold
+/// decides that).
+pub fn rows(engine: &Engine, matches: &Matches) -> Vec<LoopRow> {
     let scans = &engine.scans;
     matches
         .iter()
@@ -229,7 +229,7 @@ pub fn rows(engine: &Engine, matches: &Matches, threshold: f64) -> Vec<LoopRow> 
                     (Some(a), Some(b)) => Some(distance3(a, b)),
                     _ => None,
                 },
-                accepted: distance < threshold,
+                accepted: false,
             })
         })
         .collect()
@@ -398,11 +398,13 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
     for method in &methods {
         let engine = Engine::open(&a.index, &[], method)?;
         let queries = query_descriptors(&a.index, &engine)?;
-        let matches = best_matches(&engine, &queries, exclusion);
+        let rule = Allowed::new(&engine.scans, exclusion);
+        let matches = best_matches(&engine, &queries, &rule);
+        let mut rows = rows(&engine, &matches);
         let threshold = match given_threshold(a, method, &engine.id)? {
             Some(t) => t,
             None => {
-                let judged: Vec<(f64, bool)> = rows(&engine, &matches, f64::INFINITY)
+                let judged: Vec<(f64, bool)> = rows
                     .iter()
                     .filter_map(|r| r.true_distance_m.map(|t| (r.distance, t <= a.revisit_radius)))
                     .collect();
@@ -433,9 +435,11 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
                 t
             }
         };
-        let rows = rows(&engine, &matches, threshold);
+        for r in &mut rows {
+            r.accepted = r.distance < threshold;
+        }
         let is_true = |r: &LoopRow| r.true_distance_m.is_some_and(|d| d <= a.revisit_radius);
-        let with_revisit = Allowed::new(&engine.scans, exclusion).with_revisit(a.revisit_radius);
+        let with_revisit = rule.with_revisit(a.revisit_radius);
         let found: std::collections::HashSet<&str> =
             rows.iter().filter(|r| r.accepted && is_true(r)).map(|r| r.query_scan.as_str()).collect();
         summary.methods.push(MethodSummary {

@@ -113,20 +113,14 @@ fn m2dp_is_invariant_to_rotations_the_sign_convention_keeps() {
     assert!(max_abs_diff(&m2dp::describe(&other), &d0) > 1e-2);
 }
 
-/// ScanContext and M2DP equal the numpy transcription of the reference code within 1e-6 on
-/// real KITTI and NCLT scans (the clouds as toporec reads them, handed over as exact CSV).
-#[test]
-fn baselines_match_the_reference_transcription_on_real_scans() {
-    let Some(data) = shared_data("baselines_match_the_reference_transcription_on_real_scans") else { return };
-    if !python_with("baselines_match_the_reference_transcription_on_real_scans", &["numpy"]) {
-        return;
-    }
-    let scans = [
-        data.join("kitti/sequences/00/velodyne/000000.bin"),
-        data.join("kitti/sequences/08/velodyne/000006.bin"),
-        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
-    ];
-    let dir = util::scratch_dir("baselines_reference");
+/// The clouds of `scans` as toporec reads them, handed to `scripts/SCRIPT` as exact CSV in
+/// a scratch folder `name`: the CSV paths, the clouds, and what the script printed.
+fn reference_output(
+    name: &str,
+    script: &str,
+    scans: &[std::path::PathBuf],
+) -> (Vec<std::path::PathBuf>, Vec<Vec<Point>>, String) {
+    let dir = util::scratch_dir(name);
     let mut csvs = Vec::new();
     let mut clouds = Vec::new();
     for (i, scan) in scans.iter().enumerate() {
@@ -141,12 +135,28 @@ fn baselines_match_the_reference_transcription_on_real_scans() {
         clouds.push(cloud);
     }
     let out = std::process::Command::new("python3")
-        .arg(root().join("scripts/baselines_reference.py"))
+        .arg(root().join("scripts").join(script))
         .args(&csvs)
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let text = String::from_utf8(out.stdout).unwrap();
+    (csvs, clouds, String::from_utf8(out.stdout).unwrap())
+}
+
+/// ScanContext and M2DP equal the numpy transcription of the reference code within 1e-6 on
+/// real KITTI and NCLT scans (the clouds as toporec reads them, handed over as exact CSV).
+#[test]
+fn baselines_match_the_reference_transcription_on_real_scans() {
+    let Some(data) = shared_data("baselines_match_the_reference_transcription_on_real_scans") else { return };
+    if !python_with("baselines_match_the_reference_transcription_on_real_scans", &["numpy"]) {
+        return;
+    }
+    let scans = [
+        data.join("kitti/sequences/00/velodyne/000000.bin"),
+        data.join("kitti/sequences/08/velodyne/000006.bin"),
+        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
+    ];
+    let (csvs, clouds, text) = reference_output("baselines_reference", "baselines_reference.py", &scans);
     let p = ScanContextParams::default();
     let mut checked = 0;
     for line in text.lines() {
@@ -234,31 +244,12 @@ fn solid_matches_the_reference_transcription_on_real_scans() {
         data.join("kitti/sequences/05/velodyne/000003.bin"),
         data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
     ];
-    let dir = util::scratch_dir("solid_reference");
-    let mut csvs = Vec::new();
-    let mut clouds = Vec::new();
-    for (i, scan) in scans.iter().enumerate() {
-        let cloud = util::read_cloud(scan);
-        let path = dir.join(format!("cloud{i}.csv"));
-        let mut text = String::from("x,y,z\n");
-        for p in &cloud {
-            text.push_str(&format!("{:?},{:?},{:?}\n", p[0], p[1], p[2]));
-        }
-        std::fs::write(&path, text).unwrap();
-        csvs.push(path);
-        clouds.push(cloud);
-    }
-    let out = std::process::Command::new("python3")
-        .arg(root().join("scripts/solid_reference.py"))
-        .args(&csvs)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (csvs, clouds, text) = reference_output("solid_reference", "solid_reference.py", &scans);
     // No voxel grid: the reference's (PCL, Open3D) and toporec's place their cells differently.
     let p = SolidParams { voxel: 0.0, ..SolidParams::default() };
     let ours = |cloud: &[Point]| solid::describe(&solid::preprocess(cloud, &p), &p);
     let mut checked = 0;
-    for line in String::from_utf8(out.stdout).unwrap().lines() {
+    for line in text.lines() {
         let fields: Vec<&str> = line.split(',').collect();
         let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
         let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();

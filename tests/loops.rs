@@ -35,6 +35,19 @@ fn rows(path: &Path) -> Vec<(String, String, String, String, String, f64, bool)>
         .collect()
 }
 
+/// `toporec loops --index INDEX ARGS -o OUT`, which must succeed, and the CSV's rows.
+fn loops_rows(
+    index: &str,
+    args: &[&str],
+    out: &Path,
+) -> Vec<(String, String, String, String, String, f64, bool)> {
+    let mut all = vec!["loops", "--index", index, "-o", out.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let o = toporec(&all);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    rows(out)
+}
+
 /// The utime (µs) of a sample scan id `<session>/<utime>`.
 fn utime(id: &str) -> i64 {
     id.rsplit('/').next().unwrap().parse().unwrap()
@@ -46,12 +59,7 @@ fn loops_match_earlier_scans_outside_the_exclusion_window() {
     let index = sample_index(&dir);
     let idx = index.to_str().unwrap();
     let loops = |extra: &[&str], out: &Path| {
-        let mut args =
-            vec!["loops", "--index", idx, "--method", "scancontext", "--all", "-o", out.to_str().unwrap()];
-        args.extend_from_slice(extra);
-        let o = toporec(&args);
-        assert!(o.status.success(), "{}", text(&o.stderr));
-        rows(out)
+        loops_rows(idx, &[&["--method", "scancontext", "--all"], extra].concat(), out)
     };
     // Within 5 s of its own session: out. A day-1 scan has earlier allowed scans from 5 s on
     // (its 11th scan onwards: 22 of 32); every day-2 scan has day 1.
@@ -70,19 +78,7 @@ fn loops_match_earlier_scans_outside_the_exclusion_window() {
     assert_eq!(scans.len(), 32);
     assert!(scans.iter().all(|r| r.2 == "2026-01-02" && r.4 == "2026-01-01"));
     // Without --all, the loops only.
-    let o = toporec(&[
-        "loops",
-        "--index",
-        idx,
-        "--method",
-        "scancontext",
-        "--threshold",
-        "0.2",
-        "-o",
-        dir.join("some.csv").to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let some = rows(&dir.join("some.csv"));
+    let some = loops_rows(idx, &["--method", "scancontext", "--threshold", "0.2"], &dir.join("some.csv"));
     assert!(some.iter().all(|r| r.6 && r.5 < 0.2));
     assert_eq!(some.len(), window.iter().filter(|r| r.5 < 0.2).count(), "the same matches, the loops kept");
 }
@@ -124,12 +120,7 @@ fn calibration_is_written_and_read_back() {
     assert!(sc["precision"].as_f64().unwrap() >= 0.9);
     // The file's threshold, and the same number given: the same loops.
     let run = |extra: &[&str], name: &str| {
-        let path = dir.join(name);
-        let mut args = vec!["loops", "--index", idx, "--method", "scancontext", "-o", path.to_str().unwrap()];
-        args.extend_from_slice(extra);
-        let o = toporec(&args);
-        assert!(o.status.success(), "{}", text(&o.stderr));
-        rows(&path)
+        loops_rows(idx, &[&["--method", "scancontext"], extra].concat(), &dir.join(name))
     };
     let from_file = run(&["--threshold-from", calibration.to_str().unwrap()], "from.csv");
     let given = run(&["--threshold", &format!("{threshold:?}")], "given.csv");

@@ -95,8 +95,9 @@ impl ScanContextParams {
 /// The bin value of an empty bin while filling (the C++ `NO_POINT`).
 const NO_POINT: f64 = -1000.0;
 
-/// The azimuth of (x, y) in degrees, [0, 360), as the C++ `xy2theta` (quadrant-wise atan).
-fn azimuth_degrees(x: f64, y: f64) -> f64 {
+/// The azimuth of (x, y) in degrees, [0, 360), as the C++ `xy2theta` (quadrant-wise atan;
+/// SOLiD's references use the same function).
+pub(crate) fn azimuth_degrees(x: f64, y: f64) -> f64 {
     let deg = |r: f64| r.to_degrees();
     if x >= 0.0 && y >= 0.0 {
         deg((y / x).atan())

@@ -126,20 +126,6 @@ pub fn preprocess(points: &[Point], p: &SolidParams) -> Vec<Point> {
     if p.voxel > 0.0 { crate::preprocess::voxel_grid(&kept, p.voxel) } else { kept }
 }
 
-/// The azimuth of (x, y) in degrees, [0, 360), as the references' `xy2theta`.
-fn azimuth_degrees(x: f64, y: f64) -> f64 {
-    let deg = |r: f64| r.to_degrees();
-    if x >= 0.0 && y >= 0.0 {
-        deg((y / x).atan())
-    } else if x < 0.0 && y >= 0.0 {
-        180.0 - deg((y / -x).atan())
-    } else if x < 0.0 && y < 0.0 {
-        180.0 + deg((y / x).atan())
-    } else {
-        360.0 - deg((-y / x).atan())
-    }
-}
-
 /// A bin index: ⌊v / gap⌋ clamped into `0..n`.
 fn bin(v: f64, gap: f64, n: usize) -> usize {
     let i = (v / gap).floor();
@@ -162,7 +148,8 @@ pub fn describe(points: &[Point], p: &SolidParams) -> Vec<f32> {
         let elevation = q[2].atan2(d).to_degrees();
         let (r, s, e) = (
             bin(d, gap_range, nr),
-            bin(azimuth_degrees(x, y), gap_azimuth, ns),
+            // SOLiD's `xy2theta` is ScanContext's.
+            bin(super::scancontext::azimuth_degrees(x, y), gap_azimuth, ns),
             bin(elevation - p.fov_down, gap_elevation, ne),
         );
         range_counts[r * ne + e] += 1.0;
