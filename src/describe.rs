@@ -52,6 +52,14 @@ pub enum DescribeError {
         /// The engine's error.
         source: ComplexError,
     },
+    /// A method computed from the raw scan could not describe it.
+    #[error("{label}: {reason}")]
+    Method {
+        /// `<file>: scan <id> (<method>)`.
+        label: String,
+        /// Why.
+        reason: String,
+    },
     /// The descriptor holds a NaN or infinite value (never stored).
     #[error("{label}: the descriptor has non-finite values")]
     NonFinite {
@@ -139,11 +147,8 @@ impl Describer {
             for m in &self.computed {
                 let d = match m.describe_raw(points) {
                     Some(Ok(d)) => d,
-                    Some(Err(source)) => {
-                        return Err(DescribeError::Complex {
-                            label: format!("{label} ({})", m.name),
-                            source,
-                        });
+                    Some(Err(reason)) => {
+                        return Err(DescribeError::Method { label: format!("{label} ({})", m.name), reason });
                     }
                     None => Vec::new(),
                 };

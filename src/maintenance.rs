@@ -166,9 +166,13 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
         let name = e.file_name().to_string_lossy().into_owned();
         let rel = format!("{}/{name}", crate::sinks::index::searchers::FOLDER);
         match crate::sinks::index::searchers::header(&e.path()) {
-            Ok(h) if h.generation == manifest.generation => {
+            Ok(h) if h.generation == manifest.generation && h.layout == crate::toporec_plus::SEARCHER_LAYOUT => {
                 v.notes.push(format!("{rel}: search cache of {} ({} rows), current", h.method, h.rows))
             }
+            Ok(h) if h.generation == manifest.generation => v.notes.push(format!(
+                "{rel}: search cache of {} made by another version of toporec: stale, rebuilt by the next query",
+                h.method
+            )),
             Ok(h) => v.notes.push(format!(
                 "{rel}: search cache of {} from generation {} (the index is at {}): stale, rebuilt by the next query",
                 h.method, h.generation, manifest.generation

@@ -247,7 +247,12 @@ impl Engine {
         let Some(m) = entry.method(method) else { return Ok(None) };
         let MethodKind::ToporecPlus(params) = &m.kind else { return Ok(None) };
         let path = searchers::path(index, method);
-        let (searcher, rows) = match searchers::open(&path, manifest.generation, &entry.id) {
+        let (searcher, rows) = match searchers::open(
+            &path,
+            manifest.generation,
+            &entry.id,
+            crate::toporec_plus::SEARCHER_LAYOUT,
+        ) {
             Some(cached) => {
                 let (body, n) = (cached.header.body.0, cached.header.rows);
                 let searcher = crate::toporec_plus::Searcher::mapped(cached.map, body, n, params.clone())
@@ -262,11 +267,12 @@ impl Engine {
                 let rows: Vec<IndexedScan> =
                     loaded.scans.into_iter().map(|s| IndexedScan { descriptor: Vec::new(), ..s }).collect();
                 let header = searchers::Header {
-                    format_version: 1,
+                    format_version: searchers::FORMAT_VERSION,
                     generation: manifest.generation,
                     method: method.to_string(),
                     id: entry.id.clone(),
                     params: entry.params.clone(),
+                    layout: crate::toporec_plus::SEARCHER_LAYOUT.to_string(),
                     rows: rows.len(),
                     sessions: Vec::new(),
                     body: (0, 0),

@@ -1,84 +1,107 @@
-//! `toporec-plus`: a topological scan context — where a scan's persistent homology dies, laid
-//! out around the sensor, matched by circular shift.
+//! `toporec-plus`: the persistence of a scan's height field, laid out around the sensor and
+//! matched by circular shift.
 //!
 //! The paper's descriptor summarizes a whole diagram, so it finds the drive but not the spot,
-//! and a quarter of the view hidden changes all of it. Here the diagram keeps its geometry:
+//! and a quarter of the view hidden changes all of it. Here the topology keeps its place:
 //!
-//! 1. the raw scan (sensor frame, metres) within `max_radius` of the sensor, on a voxel grid
-//!    centred on the sensor (`voxel`, one centroid a cell: the density no longer depends on
-//!    the sensor or on dropped points);
-//! 2. the persistent homology of its alpha complex, each pair located where its class dies —
-//!    the midpoint of the edge that merges two components (H0), the centroid of the triangle
-//!    that fills a loop (H1) ([`crate::homology::alpha_persistence_located`]);
-//! 3. each H0 and H1 pair's persistence (radii, metres) added to a polar grid (`rings` ×
-//!    `sectors` out to `max_radius`), shared linearly between the two nearest rings and the
-//!    two nearest sectors: per dimension, the total persistence in a cell — a `2 × rings ×
-//!    sectors` image of where the scan's components merge and its loops close;
-//! 4. the grid made again with the locations turned by `1/rotations`, `2/rotations`, … of a
-//!    sector, so that a turn between two visits that is not a whole number of sectors still
-//!    lines the cells up.
+//! 1. **The height field.** The raw scan (sensor frame, metres, z up) within `max_radius` of
+//!    the sensor, on a bird's-eye grid of `cell`-metre squares centred on the sensor: each
+//!    square holds the highest return above it.
+//! 2. **Its persistence.** The superlevel-set filtration of the field (squares enter from the
+//!    highest down, each joined to its eight neighbours): every peak is born as an H0 class,
+//!    which dies where it meets the component of a higher peak (the elder rule) — persistence
+//!    is a structure's prominence. Each square belongs to the class it joined when it
+//!    entered, and its **relief** is its height above the level where that class dies: a
+//!    peak's relief is its pair's persistence, and the squares below it carry what is left of
+//!    it at their height. The classes that never die (one per connected part of the field)
+//!    die at the field's lowest square. Union-find over the squares in height order computes
+//!    it exactly.
+//! 3. **The polar grid.** `rings` × `sectors` out to `max_radius`, two channels: the total
+//!    relief in a cell, each square's shared linearly between the two nearest rings and the
+//!    two nearest sectors (a structure seen a little nearer or turned a little moves smoothly
+//!    across cells), and the height of the highest square in the cell plus `lidar_height`
+//!    (the filtration's own values: ScanContext's bin, whose squares the relief ranks).
+//! 4. **Codes.** Each channel is stored as the square root of its share of the scan's
+//!    largest value, in 256 levels (`0..=255` as float32): the square root keeps the small
+//!    near cells apart from each other, the codes are what the searcher multiplies, in exact
+//!    integer arithmetic, and the Parquet dictionary stores a code in about a byte.
 //!
-//! The stored descriptor is the `rotations` grids, one after the other (`[rotation][dim][ring]
-//! [sector]`). Two scans compare as ScanContext's do, by columns: for each shift of the
-//! sectors and each rotation of the candidate, `1 −` the mean cosine of the columns (the
-//! `2 · rings` values of one sector) filled in both — a sector hidden in one scan is left out,
-//! not counted as a difference, and a scan cut at a shorter range is compared on the rings
-//! both reach, its outermost ring (half filled, shared with the ring beyond) left out — and the
-//! smallest wins; the shift and rotation give the yaw.
-//! A [`Searcher`] takes candidates from two keys that do not depend on the yaw, in turn, and
-//! re-ranks them by that distance.
+//! Two scans compare by columns (the `rings` codes of one channel in one sector): per
+//! channel, `1 −` the mean cosine of the columns filled in both — a sector hidden in one scan
+//! is left out, not counted as a difference, and a scan cut at a shorter range is compared on
+//! the rings both reach, its outermost ring (half filled) left out — the two channels
+//! averaged. The query is turned by the sector shifts (around the best alignment of the
+//! relief columns, see [`PlusParams::search_ratio`]) and by `1/turns`, `2/turns`, … of a
+//! sector between them (its columns interpolated), and the smallest distance wins; the shift
+//! and the turn give the yaw. A [`Searcher`] takes candidates from two keys that do not depend
+//! on the yaw, in turn, and re-ranks them by that distance.
 //!
-//! Why these choices (measured on simulated two-session drives; the tables are in
-//! `docs/evaluation.md`): the H0 totals carry most of the place and the H1 totals add a little;
-//! the H2 totals changed no result, and the largest persistence per cell, or each dimension
-//! weighed equally, made every condition worse; three turned grids found the nearest scan far
-//! more often than one; the candidates, not the distance, limited the recall, until the two
-//! keys took turns.
+//! Nothing is trained or fitted: no codebook. A turn by a multiple of 90° maps the square
+//! grid and the polar grid onto themselves (with `sectors` a multiple of 4; angles are taken
+//! within a quadrant, so a quarter turn gives the same numbers), so the distance of a scan to
+//! itself turned so is exactly 0, up to ties in height (two squares at exactly the same height
+//! enter in the order of their position, which a turn changes).
 //!
-//! Nothing is trained or fitted: no codebook. A turn by a multiple of 90° maps the voxel grid
-//! and the polar grid onto themselves (with `sectors` a multiple of 4), so the distance of a
-//! scan to itself turned so is 0 up to rounding.
+//! Why these choices (measured on a simulated drive no reported table uses; the tables are in
+//! `docs/evaluation.md`): the relief alone finds the place within 2 m under every condition
+//! and the nearest scan more often than ScanContext; the height channel beside it adds the
+//! nearest scan under occlusion and a shorter range; finer squares help (0.5 m against 1 m),
+//! and so do the query's sub-sector turns (one grid matched at whole sectors loses the nearest
+//! scan on reversed revisits).
 
-use crate::homology::alpha_persistence_located;
 use crate::types::Point;
 
 /// The name of the method.
 pub const NAME: &str = "toporec-plus";
 
-/// Grid channels: the total persistence of the H0 and of the H1 pairs in a cell.
+/// Grid channels: the total relief in a cell, the height of its highest square.
 const CHANNELS: usize = 2;
+
+/// The relief channel.
+const RELIEF: usize = 0;
+
+/// Largest code.
+const LEVELS: f64 = 255.0;
+
+/// The height (m, above the ground by `lidar_height`) of the largest height code: taller is
+/// stored as this tall.
+const HEIGHT_SCALE: f64 = 64.0;
 
 /// Settings (`[toporec-plus]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlusParams {
-    /// Voxel-grid cell (m).
-    pub voxel: f64,
+    /// Side of the height field's squares (m).
+    pub cell: f64,
     /// Farthest return kept, and the outer edge of the grid (m, horizontal).
     pub max_radius: f64,
     /// Rings of the polar grid.
     pub rings: usize,
     /// Sectors of the polar grid.
     pub sectors: usize,
-    /// Grids per scan, turned by fractions of a sector.
-    pub rotations: usize,
+    /// Added to every height of the height channel (m): the sensor's height above the ground,
+    /// as ScanContext's `lidar_height`.
+    pub lidar_height: f64,
+    /// Turns of the query tried between two sector shifts: by `0, 1/turns, …` of a sector.
+    pub turns: usize,
     /// Candidates a search re-ranks (at least the k asked for).
     pub candidates: usize,
-    /// Shifts tried on all channels around the best alignment of the H0 columns, as a share
-    /// of the sectors (ScanContext's `SEARCH_RATIO`): ±`round(0.5 · ratio · sectors)`; 1
-    /// tries every shift.
+    /// Shifts tried around the best alignment of the relief columns, as a share of the
+    /// sectors (ScanContext's `SEARCH_RATIO`): ±`round(0.5 · ratio · sectors)`; 1 tries every
+    /// shift.
     pub search_ratio: f64,
 }
 
 impl Default for PlusParams {
     fn default() -> Self {
         PlusParams {
-            voxel: 0.6,
+            cell: 0.5,
             max_radius: 80.0,
             rings: 20,
             sectors: 60,
-            rotations: 3,
-            candidates: 100,
+            lidar_height: 2.0,
+            turns: 3,
+            candidates: 50,
             search_ratio: 0.1,
         }
     }
@@ -88,11 +111,16 @@ impl PlusParams {
     /// The settings' problems, each with its key.
     pub fn problems(&self) -> Vec<String> {
         let mut out = Vec::new();
-        if !(self.voxel.is_finite() && self.voxel > 0.0) {
-            out.push(format!("{NAME}.voxel: must be in (0, inf) m; found {}", self.voxel));
+        if !(self.cell.is_finite() && self.cell >= 0.05) {
+            out.push(format!("{NAME}.cell: must be in [0.05, inf) m; found {}", self.cell));
         }
         if !(self.max_radius.is_finite() && self.max_radius > 0.0) {
             out.push(format!("{NAME}.max_radius: must be in (0, inf) m; found {}", self.max_radius));
+        } else if self.cell.is_finite() && self.cell > 0.0 && self.max_radius / self.cell > 4096.0 {
+            out.push(format!(
+                "{NAME}: max_radius / cell must be at most 4096 (the height field's side); found {}",
+                self.max_radius / self.cell
+            ));
         }
         if !(1..=200).contains(&self.rings) || !(4..=720).contains(&self.sectors) {
             out.push(format!(
@@ -100,8 +128,11 @@ impl PlusParams {
                 self.rings, self.sectors
             ));
         }
-        if !(1..=16).contains(&self.rotations) {
-            out.push(format!("{NAME}.rotations: must be in [1, 16]; found {}", self.rotations));
+        if !self.lidar_height.is_finite() {
+            out.push(format!("{NAME}.lidar_height: must be finite; found {}", self.lidar_height));
+        }
+        if !(1..=16).contains(&self.turns) {
+            out.push(format!("{NAME}.turns: must be in [1, 16]; found {}", self.turns));
         }
         if self.candidates == 0 {
             out.push(format!("{NAME}.candidates: must be in [1, inf)"));
@@ -112,14 +143,9 @@ impl PlusParams {
         out
     }
 
-    /// Values of one grid: 2 channels × rings × sectors.
-    pub fn grid_len(&self) -> usize {
-        CHANNELS * self.rings * self.sectors
-    }
-
-    /// Descriptor length: `rotations` grids.
+    /// Descriptor length: 2 channels × rings × sectors.
     pub fn len(&self) -> usize {
-        self.rotations * self.grid_len()
+        CHANNELS * self.rings * self.sectors
     }
 
     /// Whether the descriptor is empty (never, for valid settings).
@@ -132,76 +158,381 @@ impl PlusParams {
         360.0 / self.sectors as f64
     }
 
-    /// The turn of grid `r`, degrees.
-    fn rotation_degrees(&self, r: usize) -> f64 {
-        self.sector_degrees() * r as f64 / self.rotations as f64
+    /// Codes of one column (one channel of one sector).
+    fn height(&self) -> usize {
+        CHANNELS * self.rings
     }
 }
 
-/// The points of a raw scan the method describes: finite, within `max_radius` of the sensor
-/// (horizontally), on the voxel grid centred on the sensor
-/// ([`crate::preprocess::voxel_grid_centred`]: a quarter turn of the scan turns the cells).
-pub fn preprocess(points: &[Point], p: &PlusParams) -> Vec<Point> {
-    let kept = points.iter().filter(|q| q.iter().all(|c| c.is_finite()) && q[0].hypot(q[1]) <= p.max_radius);
-    crate::preprocess::voxel_grid_centred(kept, p.voxel)
+/// The squares on a side of the height field: an even number, so that the sensor sits on a
+/// corner and a quarter turn maps the squares onto themselves.
+fn side(p: &PlusParams) -> usize {
+    2 * (p.max_radius / p.cell).ceil() as usize
 }
 
-/// The descriptor of a raw scan (sensor frame, metres, z up); an error when its alpha complex
-/// cannot be built (points closer than the engine resolves, a cloud past the engine's limits).
-/// A scan with few points left, or all on a plane, has the descriptor of the pairs it has.
-pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, crate::homology::ComplexError> {
-    let cloud = preprocess(points, p);
-    let mut out = vec![0f32; p.len()];
-    // A scan whose complex cannot be built has no descriptor (an error row), never a zero
-    // vector that would match every other such scan.
-    let located = alpha_persistence_located(&cloud)?;
-    // (dim, persistence in metres, x, y) of every finite pair.
-    let pairs: Vec<(usize, f64, f64, f64)> = located
-        .iter()
-        .filter_map(|l| {
-            let at = l.at?;
-            let persistence = l.pair.death.sqrt() - l.pair.birth.sqrt();
-            (persistence > 0.0 && (l.pair.dim as usize) < CHANNELS).then_some((
-                l.pair.dim as usize,
-                persistence,
-                at[0],
-                at[1],
-            ))
-        })
-        .collect();
-    let (rings, sectors) = (p.rings, p.sectors);
-    // Accumulated in f64, in the pairs' order: the same on every machine and thread count.
-    let mut grid = vec![0f64; p.grid_len()];
-    for (r, block) in out.chunks_exact_mut(p.grid_len()).enumerate() {
-        grid.iter_mut().for_each(|v| *v = 0.0);
-        let (s, c) = p.rotation_degrees(r).to_radians().sin_cos();
-        for &(dim, persistence, x, y) in &pairs {
-            let (x, y) = if r == 0 { (x, y) } else { (c * x - s * y, s * x + c * y) };
-            let range = x.hypot(y);
-            if range > p.max_radius {
-                continue;
+/// Range and azimuth (degrees, [0, 360), counter-clockwise from x) of (x, y). The angle is
+/// taken within the quadrant, after turning (x, y) into the first one exactly, so that a point
+/// turned by a quarter turn gets the same numbers plus 90°.
+fn polar(x: f64, y: f64) -> (f64, f64) {
+    let (quadrant, u, v) = if x > 0.0 && y >= 0.0 {
+        (0.0, x, y)
+    } else if x <= 0.0 && y > 0.0 {
+        (90.0, y, -x)
+    } else if x < 0.0 && y <= 0.0 {
+        (180.0, -x, -y)
+    } else {
+        (270.0, -y, x)
+    };
+    (u.hypot(v), quadrant + v.atan2(u).to_degrees())
+}
+
+/// The height field of a raw scan: per square (row-major, `side` × `side`), the highest z
+/// above it (NaN when none), and the filled squares.
+struct HeightField {
+    side: usize,
+    height: Vec<f32>,
+    filled: Vec<u32>,
+}
+
+fn height_field(points: &[Point], p: &PlusParams) -> HeightField {
+    let side = side(p);
+    let half = (side / 2) as f64;
+    let mut height = vec![f32::NAN; side * side];
+    let mut filled = Vec::new();
+    for q in points {
+        if !q.iter().all(|c| c.is_finite()) || q[0].hypot(q[1]) > p.max_radius {
+            continue;
+        }
+        let (i, j) = ((q[0] / p.cell + half).floor(), (q[1] / p.cell + half).floor());
+        if !(0.0..side as f64).contains(&i) || !(0.0..side as f64).contains(&j) {
+            continue;
+        }
+        let k = i as usize * side + j as usize;
+        let z = q[2] as f32;
+        let h = &mut height[k];
+        if h.is_nan() {
+            filled.push(k as u32);
+            *h = z;
+        } else if z > *h {
+            *h = z;
+        }
+    }
+    HeightField { side, height, filled }
+}
+
+impl HeightField {
+    /// The centre (x, y) of square `k`.
+    fn centre(&self, k: usize, cell: f64) -> (f64, f64) {
+        let half = (self.side / 2) as f64;
+        let (i, j) = ((k / self.side) as f64, (k % self.side) as f64);
+        ((i - half + 0.5) * cell, (j - half + 0.5) * cell)
+    }
+
+    /// Each filled square's relief (in the order of `filled` sorted by height, highest first,
+    /// ties by position), with the squares in that order: the superlevel-set H0 persistence,
+    /// by union-find.
+    fn relief(&self) -> (Vec<u32>, Vec<f32>) {
+        let side = self.side;
+        // Highest first; equal heights by position. The key orders f32 totally.
+        let key = |k: u32| {
+            let bits = self.height[k as usize].to_bits();
+            let ordered = if bits >> 31 == 1 { !bits } else { bits | 0x8000_0000 };
+            ((!ordered as u64) << 32) | k as u64
+        };
+        let mut keys: Vec<u64> = self.filled.iter().map(|&k| key(k)).collect();
+        keys.sort_unstable();
+        let order: Vec<u32> = keys.iter().map(|k| *k as u32).collect();
+        let n = order.len();
+        // The entry rank of each square (u32::MAX: empty).
+        let mut rank = vec![u32::MAX; side * side];
+        for (r, &k) in order.iter().enumerate() {
+            rank[k as usize] = r as u32;
+        }
+        // Union-find over ranks. A component's root is its highest square (its lowest rank),
+        // which is the peak of the class it stands for: the elder of two is the lower root.
+        let mut parent: Vec<u32> = (0..n as u32).collect();
+        let find = |parent: &mut Vec<u32>, mut a: u32| {
+            while parent[a as usize] != a {
+                let up = parent[parent[a as usize] as usize];
+                parent[a as usize] = up;
+                a = up;
             }
-            // Shared between the two nearest ring centres, linearly: a scan seen a little
-            // nearer or farther moves its topology smoothly across rings.
-            let u = (range / p.max_radius * rings as f64 - 0.5).clamp(0.0, (rings - 1) as f64);
-            let inner = (u as usize).min(rings - 1);
-            let outer = (inner + 1).min(rings - 1);
-            let w = u - inner as f64;
-            // Likewise between the two nearest sector centres: a turn by part of a sector
-            // moves the topology smoothly from one column to the next.
-            let v = y.atan2(x).to_degrees().rem_euclid(360.0) / p.sector_degrees() - 0.5;
-            let (first, ws) = (v.floor(), v - v.floor());
-            let before = (first as i64).rem_euclid(sectors as i64) as usize;
-            let after = (before + 1) % sectors;
-            for (ring, weight) in [(inner, 1.0 - w), (outer, w)] {
-                let row = &mut grid[(dim * rings + ring) * sectors..(dim * rings + ring + 1) * sectors];
-                row[before] += weight * (1.0 - ws) * persistence;
-                row[after] += weight * ws * persistence;
+            a
+        };
+        let mut class = vec![0u32; n];
+        let mut death = vec![f32::NAN; n];
+        let mut roots: Vec<u32> = Vec::with_capacity(8);
+        for r in 0..n {
+            let k = order[r] as usize;
+            let (i, j) = (k / side, k % side);
+            roots.clear();
+            for di in [-1i64, 0, 1] {
+                for dj in [-1i64, 0, 1] {
+                    let (a, b) = (i as i64 + di, j as i64 + dj);
+                    if (di == 0 && dj == 0) || a < 0 || b < 0 || a >= side as i64 || b >= side as i64 {
+                        continue;
+                    }
+                    let m = rank[a as usize * side + b as usize];
+                    if m < r as u32 {
+                        let root = find(&mut parent, m);
+                        if !roots.contains(&root) {
+                            roots.push(root);
+                        }
+                    }
+                }
+            }
+            let Some(&elder) = roots.iter().min() else {
+                class[r] = r as u32;
+                continue;
+            };
+            class[r] = elder;
+            parent[r] = elder;
+            for &younger in roots.iter().filter(|&&root| root != elder) {
+                death[younger as usize] = self.height[k];
+                parent[younger as usize] = elder;
             }
         }
-        block.iter_mut().zip(&grid).for_each(|(o, &v)| *o = v as f32);
+        let lowest = order.last().map_or(0.0, |&k| self.height[k as usize]);
+        let relief = (0..n)
+            .map(|r| {
+                let d = death[class[r] as usize];
+                self.height[order[r] as usize] - if d.is_nan() { lowest } else { d }
+            })
+            .collect();
+        (order, relief)
+    }
+}
+
+/// The descriptor of a raw scan (sensor frame, metres, z up): `2 × rings × sectors` codes in
+/// `0..=255` (`[channel][ring][sector]`, channel 0 the relief, 1 the height). An error for a
+/// scan with no return within `max_radius`: it has no descriptor (an error row), never a zero
+/// vector.
+pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, String> {
+    let field = height_field(points, p);
+    if field.filled.is_empty() {
+        return Err(format!("no return within {} m of the sensor", p.max_radius));
+    }
+    let (order, relief) = field.relief();
+    let (rings, sectors) = (p.rings, p.sectors);
+    let mut grid = vec![0f64; p.len()];
+    let sector = p.sector_degrees();
+    for (&k, &r) in order.iter().zip(&relief) {
+        let (x, y) = field.centre(k as usize, p.cell);
+        let (range, azimuth) = polar(x, y);
+        if range > p.max_radius {
+            continue;
+        }
+        // Relief: shared between the two nearest ring centres and the two nearest sector
+        // centres, linearly.
+        let u = (range / p.max_radius * rings as f64 - 0.5).clamp(0.0, (rings - 1) as f64);
+        let inner = (u as usize).min(rings - 1);
+        let outer = (inner + 1).min(rings - 1);
+        let w = u - inner as f64;
+        let v = azimuth / sector - 0.5;
+        let (first, ws) = (v.floor(), v - v.floor());
+        let before = (first as i64).rem_euclid(sectors as i64) as usize;
+        let after = (before + 1) % sectors;
+        let value = r as f64;
+        for (ring, weight) in [(inner, 1.0 - w), (outer, w)] {
+            let row = &mut grid[(RELIEF * rings + ring) * sectors..(RELIEF * rings + ring + 1) * sectors];
+            row[before] += weight * (1.0 - ws) * value;
+            row[after] += weight * ws * value;
+        }
+        // Height: the highest square of the cell it falls in.
+        let ring = ((range / p.max_radius * rings as f64) as usize).min(rings - 1);
+        let s = ((azimuth / sector) as usize).min(sectors - 1);
+        let h = (field.height[k as usize] as f64 + p.lidar_height).max(0.0);
+        let cell = &mut grid[((1 - RELIEF) * rings + ring) * sectors + s];
+        *cell = cell.max(h);
+    }
+    let mut out = vec![0f32; p.len()];
+    for (ch, (codes, values)) in
+        out.chunks_exact_mut(rings * sectors).zip(grid.chunks_exact(rings * sectors)).enumerate()
+    {
+        // The relief relative to the scan's largest, the heights on a fixed scale (metres).
+        let largest = if ch == RELIEF { values.iter().copied().fold(0.0, f64::max) } else { HEIGHT_SCALE };
+        if largest > 0.0 {
+            for (c, &v) in codes.iter_mut().zip(values) {
+                *c = ((v / largest).min(1.0).sqrt() * LEVELS).round() as f32;
+            }
+        }
     }
     Ok(out)
+}
+
+/// A descriptor's codes as bytes, column by column: `[sector][channel][ring]`.
+fn columns_of(descriptor: &[f32], p: &PlusParams, out: &mut [u8]) {
+    let (rings, sectors, height) = (p.rings, p.sectors, p.height());
+    for ch in 0..CHANNELS {
+        for r in 0..rings {
+            let row = &descriptor[(ch * rings + r) * sectors..(ch * rings + r + 1) * sectors];
+            for (s, &v) in row.iter().enumerate() {
+                out[s * height + ch * rings + r] = v.clamp(0.0, LEVELS as f32) as u8;
+            }
+        }
+    }
+}
+
+/// The rings of a descriptor out to the outermost one holding a code.
+fn reach(descriptor: &[f32], p: &PlusParams) -> usize {
+    let (rings, sectors) = (p.rings, p.sectors);
+    (0..rings)
+        .rev()
+        .find(|&r| {
+            (0..CHANNELS).any(|ch| {
+                let row = (ch * rings + r) * sectors;
+                descriptor[row..row + sectors].iter().any(|v| *v != 0.0)
+            })
+        })
+        .map_or(0, |r| r + 1)
+}
+
+/// A query made ready for matching: its columns turned by `t/turns` of a sector for each t
+/// (`[turn][sector][channel][ring]`, interpolated between neighbouring sectors and scaled by
+/// `turns`: exact integers), and its reach.
+struct Query {
+    turned: Vec<i16>,
+    reach: usize,
+}
+
+impl Query {
+    fn new(descriptor: &[f32], p: &PlusParams) -> Self {
+        let (sectors, height, turns) = (p.sectors, p.height(), p.turns);
+        let mut columns = vec![0u8; sectors * height];
+        columns_of(descriptor, p, &mut columns);
+        let mut turned = vec![0i16; turns * sectors * height];
+        for t in 0..turns {
+            let block = &mut turned[t * sectors * height..(t + 1) * sectors * height];
+            for s in 0..sectors {
+                let (a, b) =
+                    (&columns[s * height..(s + 1) * height], &columns[((s + 1) % sectors) * height..]);
+                for (h, o) in block[s * height..(s + 1) * height].iter_mut().enumerate() {
+                    *o = ((turns - t) * a[h] as usize + t * b[h] as usize) as i16;
+                }
+            }
+        }
+        Query { turned, reach: reach(descriptor, p) }
+    }
+}
+
+/// One database entry's columns (`[sector][channel][ring]` codes) and reach.
+#[derive(Clone, Copy)]
+struct Entry<'a> {
+    columns: &'a [u8],
+    reach: usize,
+}
+
+/// The dot product of two column parts, exact (codes below 2^12, at most 200 of them).
+#[inline(always)]
+fn dot(a: &[i16], b: &[i16]) -> i32 {
+    a.iter().zip(b).map(|(&x, &y)| x as i32 * y as i32).sum()
+}
+
+/// Per column part (`[sector][channel]`), `1/‖part‖` over the first `reach` rings, 0 for an
+/// empty part.
+fn inverse_norms(columns: &[i16], p: &PlusParams, reach: usize) -> Vec<f64> {
+    columns
+        .chunks_exact(p.rings)
+        .map(|part| {
+            let n = dot(&part[..reach], &part[..reach]);
+            if n > 0 { 1.0 / (n as f64).sqrt() } else { 0.0 }
+        })
+        .collect()
+}
+
+/// The distance of a ready query to an entry, in [0, 1], and the yaw of the query relative to
+/// it (degrees, [0, 360), counter-clockwise seen from above). Every shift of the unturned
+/// query is compared on the relief columns; then, for every turn, the shifts within the
+/// search radius of the best one, on both channels (every shift and turn when the radius
+/// covers the sectors). Per channel, `1 −` the mean cosine of the columns filled in both over
+/// the first `reach` rings, candidate column `b` against query column `(b + shift) mod
+/// sectors` (1 for a channel with none filled in both); the channels averaged. The dot
+/// products are exact integers; with AVX2 they run sixteen lanes wide, to the same sums.
+fn distance_to(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { distance_to_avx2(q, c, p) };
+    }
+    distance_to_portable(q, c, p)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn distance_to_avx2(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
+    distance_to_portable(q, c, p)
+}
+
+#[inline(always)]
+fn distance_to_portable(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
+    let (rings, sectors, height) = (p.rings, p.sectors, p.height());
+    let block = sectors * height;
+    // Compared where both reach; the outermost ring of a cut scan is half empty (shared with
+    // the ring beyond): left out.
+    let reach = q.reach.min(c.reach).max(1);
+    let reach = if reach < rings { (reach - 1).max(1) } else { reach };
+    let candidate: Vec<i16> = c.columns.iter().map(|&v| v as i16).collect();
+    let inverse_c = inverse_norms(&candidate, p, reach);
+    let inverse_q: Vec<Vec<f64>> =
+        (0..p.turns).map(|t| inverse_norms(&q.turned[t * block..(t + 1) * block], p, reach)).collect();
+    // 1 − the mean cosine per channel, averaged over `channels`.
+    let shifted = |t: usize, shift: usize, channels: usize| -> f64 {
+        let turned = &q.turned[t * block..(t + 1) * block];
+        let iq = &inverse_q[t];
+        let mut total = 0.0;
+        for ch in 0..channels {
+            let (mut sum, mut count) = (0.0f64, 0usize);
+            for b in 0..sectors {
+                let a = (b + shift) % sectors;
+                let (x, y) = (iq[a * CHANNELS + ch], inverse_c[b * CHANNELS + ch]);
+                if x > 0.0 && y > 0.0 {
+                    let qa = &turned[a * height + ch * rings..a * height + ch * rings + reach];
+                    let cb = &candidate[b * height + ch * rings..b * height + ch * rings + reach];
+                    sum += dot(qa, cb) as f64 * x * y;
+                    count += 1;
+                }
+            }
+            total += if count > 0 { 1.0 - sum / count as f64 } else { 1.0 };
+        }
+        total / channels as f64
+    };
+    let radius = (0.5 * p.search_ratio * sectors as f64).round() as usize;
+    let shifts: Vec<usize> = if 2 * radius + 1 >= sectors {
+        (0..sectors).collect()
+    } else {
+        let mut coarse = (f64::INFINITY, 0usize);
+        for shift in 0..sectors {
+            let d = shifted(0, shift, 1);
+            if d < coarse.0 {
+                coarse = (d, shift);
+            }
+        }
+        let mut out: Vec<usize> =
+            (0..=2 * radius).map(|i| (coarse.1 + sectors + i - radius) % sectors).collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    };
+    let mut best = (f64::INFINITY, 0.0);
+    for t in 0..p.turns {
+        for &shift in &shifts {
+            let d = shifted(t, shift, CHANNELS);
+            if d < best.0 {
+                let yaw = ((shift as f64 + t as f64 / p.turns as f64) * p.sector_degrees()).rem_euclid(360.0);
+                best = (d, yaw);
+            }
+        }
+    }
+    (best.0.clamp(0.0, 1.0), best.1)
+}
+
+/// The distance of `query` to `candidate` (both descriptors), in [0, 1] (1 when no column is
+/// filled in both), and the yaw of the query relative to the candidate (degrees, [0, 360),
+/// counter-clockwise seen from above) that attains it.
+pub fn distance(query: &[f32], candidate: &[f32], p: &PlusParams) -> (f64, f64) {
+    let mut columns = vec![0u8; p.len()];
+    columns_of(candidate, p, &mut columns);
+    distance_to(&Query::new(query, p), Entry { columns: &columns, reach: reach(candidate, p) }, p)
 }
 
 /// Terms of the shape key: the magnitudes of the first `SHAPE_TERMS` terms of the discrete
@@ -213,24 +544,30 @@ fn shape_terms(p: &PlusParams) -> usize {
     SHAPE_TERMS.min(p.sectors / 2 + 1)
 }
 
-/// The shape key of a descriptor, independent of the yaw: for the H0 and the H1 sums of each
-/// ring of the unturned grid, which sectors are filled (1 or 0), and of that, the magnitudes
-/// of the first [`SHAPE_TERMS`] Fourier terms along the sectors (a circular shift changes
-/// their phases only); each half scaled to length `1/√2` (all zeros stay zeros). The first
-/// term is ScanContext's ring key (the filled share of the ring); the others tell where along
-/// the ring the gaps are. Built from what is filled, not from the values, it does not move
-/// when fewer returns make the sums smaller.
+fn shape_len(p: &PlusParams) -> usize {
+    CHANNELS * p.rings * shape_terms(p)
+}
+
+fn profile_len(p: &PlusParams) -> usize {
+    2 * CHANNELS * p.rings
+}
+
+/// The shape key of a descriptor, independent of the yaw: for each channel and ring, which
+/// sectors are filled (1 or 0), and of that, the magnitudes of the first [`SHAPE_TERMS`]
+/// Fourier terms along the sectors (a circular shift changes their phases only); each channel
+/// scaled to length `1/√2` (all zeros stay zeros). The first term is ScanContext's ring key
+/// (the filled share of the ring); the others tell where along the ring the gaps are. Built
+/// from what is filled, not from the values, it does not move when fewer returns change them.
 fn shape_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
     let (rings, sectors) = (p.rings, p.sectors);
     let terms = shape_terms(p);
-    // cos and sin of 2π m / sectors, m = k · j mod sectors.
     let twiddles: Vec<(f64, f64)> = (0..sectors)
         .map(|m| {
             let angle = std::f64::consts::TAU * m as f64 / sectors as f64;
             (angle.cos(), angle.sin())
         })
         .collect();
-    let mut out = Vec::with_capacity(CHANNELS * rings * terms);
+    let mut out = Vec::with_capacity(shape_len(p));
     for channel in 0..CHANNELS {
         let rows = &descriptor[channel * rings * sectors..(channel + 1) * rings * sectors];
         let mut half = Vec::with_capacity(rings * terms);
@@ -252,301 +589,70 @@ fn shape_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
 }
 
 /// The profile key of a descriptor, independent of the yaw: the mean and the standard
-/// deviation, value by value, of the unturned grid's unit columns over its filled sectors —
-/// what a sector of this place looks like, whichever sectors are seen. A quarter of the view
-/// hidden leaves it nearly as it was, where it moves every term of the shape key.
+/// deviation, code by code, of its unit columns (both channels of a sector, each channel's part
+/// of unit length scaled by `1/√2`) over the filled sectors — what a sector of this place
+/// looks like, whichever sectors are seen. A quarter of the view hidden leaves it nearly as it
+/// was, where it moves every term of the shape key.
 fn profile_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
-    let (height, sectors) = (CHANNELS * p.rings, p.sectors);
-    let mut columns = vec![0f32; sectors * height];
-    let mut filled = vec![0u8; sectors];
-    unit_columns(&descriptor[..p.grid_len()], height, sectors, &mut columns, &mut filled);
-    let n = filled.iter().filter(|&&f| f != 0).count();
+    let (rings, sectors, height) = (p.rings, p.sectors, p.height());
+    let mut columns = vec![0u8; p.len()];
+    columns_of(descriptor, p, &mut columns);
     let (mut mean, mut square) = (vec![0f64; height], vec![0f64; height]);
-    for column in columns.chunks_exact(height).zip(&filled).filter(|(_, f)| **f != 0).map(|(c, _)| c) {
-        for ((m, s), &v) in mean.iter_mut().zip(&mut square).zip(column) {
-            *m += v as f64;
-            *s += v as f64 * v as f64;
+    let mut n = 0usize;
+    let mut unit = vec![0f64; height];
+    for column in columns.chunks_exact(height) {
+        let mut any = false;
+        for ch in 0..CHANNELS {
+            let part = &column[ch * rings..(ch + 1) * rings];
+            let norm = part.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
+            any |= norm > 0.0;
+            for (u, &v) in unit[ch * rings..(ch + 1) * rings].iter_mut().zip(part) {
+                *u = if norm > 0.0 { v as f64 / norm * std::f64::consts::FRAC_1_SQRT_2 } else { 0.0 };
+            }
+        }
+        if any {
+            n += 1;
+            for ((m, s), &v) in mean.iter_mut().zip(&mut square).zip(&unit) {
+                *m += v;
+                *s += v * v;
+            }
         }
     }
+    let _ = sectors;
     let n = n.max(1) as f64;
     let spread = mean.iter().zip(&square).map(|(m, s)| (s / n - (m / n).powi(2)).max(0.0).sqrt());
     mean.iter().map(|m| m / n).chain(spread).map(|v| v as f32).collect()
 }
 
-/// The yaw-independent key of a descriptor: its shape key, then its profile key.
+/// The ring key of a descriptor, independent of the yaw: per ring, the mean height of its
+/// cells (empty ones count 0) as a share of [`RING_KEY_SCALE`] (at most 1) — ScanContext's ring
+/// key.
+fn ring_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
+    let (rings, sectors) = (p.rings, p.sectors);
+    let heights = &descriptor[(1 - RELIEF) * rings * sectors..(2 - RELIEF) * rings * sectors];
+    heights
+        .chunks_exact(sectors)
+        .map(|row| {
+            let sum: f64 = row.iter().map(|&c| (c as f64 / LEVELS).powi(2)).sum();
+            (sum / sectors as f64 * HEIGHT_SCALE / RING_KEY_SCALE).min(1.0) as f32
+        })
+        .collect()
+}
+
+/// The mean height (m) of the largest ring key.
+const RING_KEY_SCALE: f64 = 16.0;
+
+/// The yaw-independent keys of a descriptor: its shape key, its profile key, its ring key.
 pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
     let mut out = shape_key(descriptor, p);
     out.extend(profile_key(descriptor, p));
+    out.extend(ring_key(descriptor, p));
     out
 }
 
-/// The key's length.
+/// The keys' length.
 pub fn key_len(p: &PlusParams) -> usize {
-    shape_len(p) + profile_len(p)
-}
-
-fn shape_len(p: &PlusParams) -> usize {
-    CHANNELS * p.rings * shape_terms(p)
-}
-
-fn profile_len(p: &PlusParams) -> usize {
-    2 * CHANNELS * p.rings
-}
-
-/// A descriptor made ready for matching: for each grid, its unit columns (`sectors`
-/// columns of `2 · rings` values) and which are filled; for the unturned grid, its unit H0
-/// columns (the `rings` H0 persistence sums of each sector) and which are filled.
-struct Ready {
-    columns: Vec<f32>,
-    filled: Vec<u8>,
-    h0: Vec<f32>,
-    h0_filled: Vec<u8>,
-    /// Per entry: the rings out to the outermost one holding a value (a scan cut at a shorter
-    /// range reaches fewer).
-    reach: Vec<u8>,
-}
-
-/// Borrowed parts of a [`Ready`] (one entry of a [`Searcher`]).
-#[derive(Clone, Copy)]
-struct ReadyRef<'a> {
-    columns: &'a [f32],
-    filled: &'a [u8],
-    h0: &'a [f32],
-    h0_filled: &'a [u8],
-    reach: usize,
-}
-
-/// The unit columns of `rows` consecutive rows of a grid (column `s` = the rows' values in
-/// sector `s`) written to `columns`, and whether each column is filled, to `filled`.
-fn unit_columns(grid: &[f32], rows: usize, sectors: usize, columns: &mut [f32], filled: &mut [u8]) {
-    for (s, (column, filled)) in columns.chunks_exact_mut(rows).zip(filled).enumerate() {
-        let norm = (0..rows).map(|h| (grid[h * sectors + s] as f64).powi(2)).sum::<f64>().sqrt();
-        *filled = (norm > 0.0) as u8;
-        for (h, c) in column.iter_mut().enumerate() {
-            *c = if norm > 0.0 { (grid[h * sectors + s] as f64 / norm) as f32 } else { 0.0 };
-        }
-    }
-}
-
-/// The rings of a descriptor's unturned grid out to the outermost one holding a value.
-fn reach(descriptor: &[f32], p: &PlusParams) -> usize {
-    let (rings, sectors) = (p.rings, p.sectors);
-    (0..rings)
-        .rev()
-        .find(|&r| {
-            (0..CHANNELS).any(|ch| {
-                let row = (ch * rings + r) * sectors;
-                descriptor[row..row + sectors].iter().any(|v| *v != 0.0)
-            })
-        })
-        .map_or(0, |r| r + 1)
-}
-
-/// As [`column_distance`], over the first `reach` of the `rings` rings of each channel of the
-/// columns only (`channels` channels), the columns renormalized there: two scans compare where
-/// both reach.
-#[expect(clippy::too_many_arguments, reason = "the columns, their shape and the cut")]
-fn column_distance_within(
-    q: &[f32],
-    qf: &[u8],
-    c: &[f32],
-    cf: &[u8],
-    channels: usize,
-    rings: usize,
-    reach: usize,
-    shift: usize,
-) -> f64 {
-    let sectors = qf.len();
-    let height = channels * rings;
-    let (mut sum, mut count) = (0.0f64, 0usize);
-    for b in 0..sectors {
-        let a = (b + shift) % sectors;
-        if qf[a] & cf[b] == 0 {
-            continue;
-        }
-        let (qa, cb) = (&q[a * height..(a + 1) * height], &c[b * height..(b + 1) * height]);
-        let (mut dot, mut nq, mut nc) = (0.0f64, 0.0f64, 0.0f64);
-        for ch in 0..channels {
-            for r in 0..reach {
-                let (x, y) = (qa[ch * rings + r] as f64, cb[ch * rings + r] as f64);
-                dot += x * y;
-                nq += x * x;
-                nc += y * y;
-            }
-        }
-        if nq > 0.0 && nc > 0.0 {
-            sum += dot / (nq * nc).sqrt();
-            count += 1;
-        }
-    }
-    if count > 0 { 1.0 - sum / count as f64 } else { 1.0 }
-}
-
-/// Mutable parts of one entry's [`Ready`] form.
-struct ReadyMut<'a> {
-    columns: &'a mut [f32],
-    filled: &'a mut [u8],
-    h0: &'a mut [f32],
-    h0_filled: &'a mut [u8],
-    reach: &'a mut u8,
-}
-
-impl ReadyMut<'_> {
-    /// Writes the ready form of `descriptor`.
-    fn fill(self, descriptor: &[f32], p: &PlusParams) {
-        let (height, sectors) = (CHANNELS * p.rings, p.sectors);
-        let grids = descriptor.chunks_exact(p.grid_len());
-        let columns = self.columns.chunks_exact_mut(sectors * height);
-        for ((grid, columns), filled) in grids.zip(columns).zip(self.filled.chunks_exact_mut(sectors)) {
-            unit_columns(grid, height, sectors, columns, filled);
-        }
-        unit_columns(&descriptor[..p.rings * sectors], p.rings, sectors, self.h0, self.h0_filled);
-        *self.reach = reach(descriptor, p) as u8;
-    }
-}
-
-impl Ready {
-    /// Room for `n` entries, all zero.
-    fn zeroed(n: usize, p: &PlusParams) -> Self {
-        Ready {
-            columns: vec![0.0; n * p.len()],
-            filled: vec![0; n * p.rotations * p.sectors],
-            h0: vec![0.0; n * p.rings * p.sectors],
-            h0_filled: vec![0; n * p.sectors],
-            reach: vec![0; n],
-        }
-    }
-
-    fn new(descriptor: &[f32], p: &PlusParams) -> Self {
-        let mut out = Ready::zeroed(1, p);
-        ReadyMut {
-            columns: &mut out.columns,
-            filled: &mut out.filled,
-            h0: &mut out.h0,
-            h0_filled: &mut out.h0_filled,
-            reach: &mut out.reach[0],
-        }
-        .fill(descriptor, p);
-        out
-    }
-
-    fn as_ref(&self) -> ReadyRef<'_> {
-        ReadyRef {
-            columns: &self.columns,
-            filled: &self.filled,
-            h0: &self.h0,
-            h0_filled: &self.h0_filled,
-            reach: self.reach[0] as usize,
-        }
-    }
-}
-
-/// The distance of `query` to `candidate` (both full descriptors; the query's unturned grid
-/// is compared with each of the candidate's grids, at the sector shifts around the best
-/// alignment of their H0 columns, see [`PlusParams::search_ratio`]), in [0, 1] (1 when no
-/// column is filled in both), and the yaw of the query relative to the candidate (degrees,
-/// [0, 360), counter-clockwise seen from above) that attains it.
-pub fn distance(query: &[f32], candidate: &[f32], p: &PlusParams) -> (f64, f64) {
-    distance_to(Ready::new(query, p).as_ref(), Ready::new(candidate, p).as_ref(), p)
-}
-
-/// `1 −` the mean cosine of the columns filled in both, candidate column `b` against query
-/// column `(b + shift) mod sectors` (1 when none is filled in both). With AVX2, the dot
-/// products run eight lanes wide, without fused multiply-adds: the same sums as without.
-fn column_distance(q: &[f32], qf: &[u8], c: &[f32], cf: &[u8], height: usize, shift: usize) -> f64 {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked just above.
-        return unsafe { column_distance_avx2(q, qf, c, cf, height, shift) };
-    }
-    column_distance_portable(q, qf, c, cf, height, shift)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn column_distance_avx2(q: &[f32], qf: &[u8], c: &[f32], cf: &[u8], height: usize, shift: usize) -> f64 {
-    column_distance_portable(q, qf, c, cf, height, shift)
-}
-
-#[inline(always)]
-fn column_distance_portable(q: &[f32], qf: &[u8], c: &[f32], cf: &[u8], height: usize, shift: usize) -> f64 {
-    let sectors = qf.len();
-    let (mut sum, mut count) = (0.0f64, 0usize);
-    for b in 0..sectors {
-        let a = (b + shift) % sectors;
-        if qf[a] & cf[b] != 0 {
-            sum += dot(&q[a * height..(a + 1) * height], &c[b * height..(b + 1) * height]) as f64;
-            count += 1;
-        }
-    }
-    if count > 0 { 1.0 - sum / count as f64 } else { 1.0 }
-}
-
-/// The cosine of two unit columns, as `1 − ‖a − b‖² / 2` (equal columns give exactly 1),
-/// in eight lanes summed in a fixed order.
-#[inline(always)]
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let mut lanes = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| (x - y) * (x - y)).sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..8 {
-            lanes[i] += (x[i] - y[i]) * (x[i] - y[i]);
-        }
-    }
-    1.0 - 0.5 * (lanes.iter().sum::<f32>() + tail)
-}
-
-/// The distance of a ready query to a ready candidate. The shift search is in two steps:
-/// every shift of the unturned grids compared on their H0 columns alone (a hidden sector
-/// drops out of the comparison, as it does below), then the shifts within the search radius
-/// of the best one, for each of the candidate's grids, on all channels.
-fn distance_to(q: ReadyRef<'_>, c: ReadyRef<'_>, p: &PlusParams) -> (f64, f64) {
-    let (height, sectors) = (CHANNELS * p.rings, p.sectors);
-    // Compared where both reach: a scan cut at a shorter range leaves the outer rings out.
-    let reach = q.reach.min(c.reach).max(1);
-    let cut = reach < p.rings;
-    // The outermost ring of a cut scan is half empty (shared with the ring beyond): left out.
-    let reach = if cut { (reach - 1).max(1) } else { reach };
-    let radius = (0.5 * p.search_ratio * sectors as f64).round() as usize;
-    let shifts: Vec<usize> = if 2 * radius + 1 >= sectors {
-        (0..sectors).collect()
-    } else {
-        let mut coarse = (f64::INFINITY, 0usize);
-        for shift in 0..sectors {
-            let d = if cut {
-                column_distance_within(q.h0, q.h0_filled, c.h0, c.h0_filled, 1, p.rings, reach, shift)
-            } else {
-                column_distance(q.h0, q.h0_filled, c.h0, c.h0_filled, p.rings, shift)
-            };
-            if d < coarse.0 {
-                coarse = (d, shift);
-            }
-        }
-        let mut out: Vec<usize> =
-            (0..=2 * radius).map(|i| (coarse.1 + sectors + i - radius) % sectors).collect();
-        out.sort_unstable();
-        out.dedup();
-        out
-    };
-    let (qc, qf) = (&q.columns[..sectors * height], &q.filled[..sectors]);
-    let mut best = (f64::INFINITY, 0.0);
-    for r in 0..p.rotations {
-        let cc = &c.columns[r * sectors * height..(r + 1) * sectors * height];
-        let cf = &c.filled[r * sectors..(r + 1) * sectors];
-        for &shift in &shifts {
-            let d = if cut {
-                column_distance_within(qc, qf, cc, cf, CHANNELS, p.rings, reach, shift)
-            } else {
-                column_distance(qc, qf, cc, cf, height, shift)
-            };
-            if d < best.0 {
-                let yaw = (shift as f64 * p.sector_degrees() + p.rotation_degrees(r)).rem_euclid(360.0);
-                best = (d, yaw);
-            }
-        }
-    }
-    (best.0.max(0.0), best.1)
+    shape_len(p) + profile_len(p) + p.rings
 }
 
 /// A hit: database row, distance, yaw of the query relative to it (degrees).
@@ -561,70 +667,65 @@ pub struct SearchTimes {
     pub rerank: f64,
 }
 
-/// Entries the first step of the shape half keeps, per candidate it gives: their filled
-/// shares per ring are nearest the query's.
+/// Entries the first step of the shape list keeps, per row of the list: their filled shares
+/// per ring are nearest the query's.
 const COARSE_PER_CANDIDATE: usize = 10;
 
+/// Rows of each key's list, per candidate wanted.
+const LIST_PER_CANDIDATE: usize = 4;
+
+/// The constant of the reciprocal-rank fusion: a row's score is `Σ 1 / (FUSION_K + rank)`.
+const FUSION_K: f64 = 10.0;
+
 /// Descriptors searched in two steps: candidates by the keys, then those re-ranked by
-/// [`distance`]. Half the candidates come from each key: by the shape key among the entries
-/// whose filled shares per ring (its first terms: a fast exact k-NN) are nearest the query's,
-/// and by the profile key among all entries; the two lists are taken in turn, each entry
-/// once. Each key misses what the other finds: the shape key the scans with a hidden sector,
-/// the profile key places whose sectors look alike in another order. The entries are kept
-/// ready for matching (unit columns), not as descriptors.
+/// [`distance`]. Three keys rank the entries (the shape key among the entries whose filled
+/// shares per ring, its first terms, are nearest the query's; the profile key and the ring key
+/// among all entries: exact k-NN over bytes), and the candidates are the best of the rankings
+/// fused. Each key misses what another finds: the shape and ring keys the scans with a hidden
+/// sector, the profile key places whose sectors look alike in another order. The entries are
+/// kept as their code columns (a byte a code), not as descriptors.
 pub struct Searcher {
     params: PlusParams,
     /// Entries.
     n: usize,
-    /// Every entry's ready form and keys, in one buffer of sections ([`Section`]): owned, or
+    /// Every entry's columns and keys, in one buffer of sections ([`Section`]): owned, or
     /// mapped from a cache file.
     store: Store,
     /// Byte offset of each section in `store`.
     offsets: [usize; SECTIONS],
 }
 
-/// The sections of a searcher's buffer, per entry: the ready form's unit columns (f32), filled
-/// flags (u8), unit H0 columns (f32), their filled flags (u8), reach (u8); the shape key
-/// (f32), its filled shares per ring ([`quantized`]), the profile key ([`quantized`]).
+/// The sections of a searcher's buffer, per entry: the code columns (u8), reach (u8); the first
+/// pass's keys ([`firsts`]), the shape key and the profile key (each [`quantized`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Section {
     Columns,
-    Filled,
-    H0,
-    H0Filled,
     Reach,
+    Firsts,
     Shapes,
-    Shares,
     Profiles,
 }
 
-const SECTIONS: usize = 8;
-const ALL_SECTIONS: [Section; SECTIONS] = [
-    Section::Columns,
-    Section::Filled,
-    Section::H0,
-    Section::H0Filled,
-    Section::Reach,
-    Section::Shapes,
-    Section::Shares,
-    Section::Profiles,
-];
+const SECTIONS: usize = 5;
+const ALL_SECTIONS: [Section; SECTIONS] =
+    [Section::Columns, Section::Reach, Section::Firsts, Section::Shapes, Section::Profiles];
 
 impl Section {
     /// Bytes per entry.
     fn entry_bytes(self, p: &PlusParams) -> usize {
         match self {
-            Section::Columns => 4 * p.len(),
-            Section::Filled => p.rotations * p.sectors,
-            Section::H0 => 4 * p.rings * p.sectors,
-            Section::H0Filled => p.sectors,
+            Section::Columns => p.len(),
             Section::Reach => 1,
-            Section::Shapes => 4 * shape_len(p),
-            Section::Shares => CHANNELS * p.rings,
+            Section::Firsts => FIRSTS * p.rings,
+            Section::Shapes => shape_len(p),
             Section::Profiles => profile_len(p),
         }
     }
 }
+
+/// The layout of a searcher's bytes ([`Searcher::bytes`]), as a cache file names it: a cache of
+/// another layout is rebuilt.
+pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-1";
 
 /// Sections start on 64-byte boundaries.
 const SECTION_ALIGN: usize = 64;
@@ -638,6 +739,11 @@ fn layout(n: usize, p: &PlusParams) -> ([usize; SECTIONS], usize) {
         at = (at + n * section.entry_bytes(p)).next_multiple_of(SECTION_ALIGN);
     }
     (offsets, at)
+}
+
+/// Bytes a searcher holds per entry (its sections, without their alignment).
+pub fn entry_bytes(p: &PlusParams) -> usize {
+    ALL_SECTIONS.iter().map(|s| s.entry_bytes(p)).sum()
 }
 
 /// A searcher's bytes: built in memory, or mapped from a cache file (read only; the OS pages
@@ -658,60 +764,71 @@ impl Store {
     }
 }
 
-/// Key values in [0, 1] as bytes (`round(255 v)`): the first narrowing of a search reads a
-/// quarter of the memory, and its integer distances are exact and the same on every machine.
+/// Key values in [0, 1] as bytes (`round(255 v)`): the narrowing of a search reads a quarter
+/// of the memory, and its integer distances are exact and the same on every machine.
 fn quantized(values: &[f32]) -> Vec<u8> {
     values.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect()
 }
 
-/// The `m` rows of `rows` (row-major, `query.len()` bytes each) nearest `query` by squared
-/// Euclidean distance, ties to the lower row, in that order.
-fn nearest_rows(rows: &[u8], query: &[u8], m: usize) -> Vec<usize> {
+/// For each of the [`FIRSTS`] keys of `rows` (row-major, `FIRSTS × width` bytes a row, key `i`
+/// at bytes `i · width..`), the `m[i]` rows nearest the query's by squared Euclidean distance,
+/// ties to the lower row, in that order: one pass over the rows.
+fn nearest_rows_3(rows: &[u8], query: &[u8], width: usize, m: [usize; FIRSTS]) -> [Vec<usize>; FIRSTS] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
-        return unsafe { nearest_rows_avx2(rows, query, m) };
+        return unsafe { nearest_rows_3_avx2(rows, query, width, m) };
     }
-    nearest_rows_portable(rows, query, m)
+    nearest_rows_3_portable(rows, query, width, m)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn nearest_rows_avx2(rows: &[u8], query: &[u8], m: usize) -> Vec<usize> {
-    nearest_rows_portable(rows, query, m)
+fn nearest_rows_3_avx2(rows: &[u8], query: &[u8], width: usize, m: [usize; FIRSTS]) -> [Vec<usize>; FIRSTS] {
+    nearest_rows_3_portable(rows, query, width, m)
 }
 
 #[inline(always)]
-fn nearest_rows_portable(rows: &[u8], query: &[u8], m: usize) -> Vec<usize> {
+fn nearest_rows_3_portable(
+    rows: &[u8],
+    query: &[u8],
+    width: usize,
+    m: [usize; FIRSTS],
+) -> [Vec<usize>; FIRSTS] {
+    use std::collections::BinaryHeap;
     // The m smallest (distance << 32 | row) so far, largest on top: one integer to compare,
     // ties to the lower row; most rows are refused by one comparison with the top.
-    let mut best: std::collections::BinaryHeap<u64> = std::collections::BinaryHeap::with_capacity(m + 1);
-    if m == 0 {
-        return Vec::new();
+    let mut best: [BinaryHeap<u64>; FIRSTS] = m.map(|m| BinaryHeap::with_capacity(m + 1));
+    if width == 0 {
+        return [Vec::new(), Vec::new(), Vec::new()];
     }
-    for (i, r) in rows.chunks_exact(query.len()).enumerate() {
-        let sum: i32 = r
+    let squared = |a: &[u8], b: &[u8]| -> u64 {
+        let sum: i32 = a
             .iter()
-            .zip(query)
-            .map(|(&a, &b)| {
-                let d = a as i16 - b as i16;
+            .zip(b)
+            .map(|(&x, &y)| {
+                let d = x as i16 - y as i16;
                 d as i32 * d as i32
             })
             .sum();
-        let key = ((sum as u64) << 32) | i as u64;
-        if best.len() < m {
-            best.push(key);
-        } else if key < *best.peek().expect("m > 0") {
-            best.pop();
-            best.push(key);
+        sum as u64
+    };
+    for (i, r) in rows.chunks_exact(FIRSTS * width).enumerate() {
+        for (k, heap) in best.iter_mut().enumerate() {
+            if m[k] == 0 {
+                continue;
+            }
+            let key = (squared(&r[k * width..(k + 1) * width], &query[k * width..(k + 1) * width]) << 32)
+                | i as u64;
+            if heap.len() < m[k] {
+                heap.push(key);
+            } else if key < *heap.peek().expect("m > 0") {
+                heap.pop();
+                heap.push(key);
+            }
         }
     }
-    best.into_sorted_vec().into_iter().map(|v| (v & 0xffff_ffff) as usize).collect()
-}
-
-/// The filled shares per ring of a shape key (its terms of order 0).
-fn shares_of(shape: &[f32], p: &PlusParams) -> Vec<f32> {
-    shape.iter().step_by(shape_terms(p)).copied().collect()
+    best.map(|heap| heap.into_sorted_vec().into_iter().map(|v| (v & 0xffff_ffff) as usize).collect())
 }
 
 impl Searcher {
@@ -734,30 +851,23 @@ impl Searcher {
                 rest = tail;
                 at = o + n * section.entry_bytes(p);
             }
-            let [columns, filled, h0, h0_filled, reach, shapes, shares, profiles]: [&mut [u8]; SECTIONS] =
+            let [columns, reach_of, firsts_of, shapes, profiles]: [&mut [u8]; SECTIONS] =
                 parts.try_into().unwrap_or_else(|_| unreachable!("{SECTIONS} sections"));
-            let columns: &mut [f32] = bytemuck::cast_slice_mut(columns);
-            let h0: &mut [f32] = bytemuck::cast_slice_mut(h0);
-            let shapes: &mut [f32] = bytemuck::cast_slice_mut(shapes);
             descriptors
                 .par_chunks_exact(p.len())
                 .zip(columns.par_chunks_exact_mut(p.len()))
-                .zip(filled.par_chunks_exact_mut(p.rotations * p.sectors))
-                .zip(h0.par_chunks_exact_mut(p.rings * p.sectors))
-                .zip(h0_filled.par_chunks_exact_mut(p.sectors))
+                .zip(firsts_of.par_chunks_exact_mut(FIRSTS * p.rings))
                 .zip(shapes.par_chunks_exact_mut(shape_len(p)))
-                .zip(shares.par_chunks_exact_mut(CHANNELS * p.rings))
                 .zip(profiles.par_chunks_exact_mut(profile_len(p)))
-                .zip(reach.par_iter_mut())
-                .for_each(
-                    |((((((((d, columns), filled), h0), h0_filled), shape), share), profile), reach)| {
-                        ReadyMut { columns, filled, h0, h0_filled, reach }.fill(d, p);
-                        let key = shape_key(d, p);
-                        share.copy_from_slice(&quantized(&shares_of(&key, p)));
-                        shape.copy_from_slice(&key);
-                        profile.copy_from_slice(&quantized(&profile_key(d, p)));
-                    },
-                );
+                .zip(reach_of.par_iter_mut())
+                .for_each(|(((((d, columns), first), shape), profile), reach_of)| {
+                    columns_of(d, p, columns);
+                    *reach_of = reach(d, p) as u8;
+                    let (shape_k, profile_k) = (quantized(&shape_key(d, p)), quantized(&profile_key(d, p)));
+                    first.copy_from_slice(&firsts(&shape_k, &profile_k, &quantized(&ring_key(d, p)), p));
+                    shape.copy_from_slice(&shape_k);
+                    profile.copy_from_slice(&profile_k);
+                });
         }
         drop(descriptors);
         Searcher { params, n, store: Store::Owned(buffer), offsets }
@@ -808,17 +918,16 @@ impl Searcher {
     }
 
     /// One section of every entry.
-    fn section<T: bytemuck::Pod>(&self, section: Section) -> &[T] {
+    fn section(&self, section: Section) -> &[u8] {
         let i = section as usize;
         let start = self.offsets[i];
-        bytemuck::cast_slice(&self.store.bytes()[start..start + self.n * section.entry_bytes(&self.params)])
+        &self.store.bytes()[start..start + self.n * section.entry_bytes(&self.params)]
     }
 
     /// One section of entry `row`.
-    fn entry_section<T: bytemuck::Pod>(&self, section: Section, row: usize) -> &[T] {
-        let all = self.section::<T>(section);
-        let per = all.len() / self.n.max(1);
-        &all[row * per..(row + 1) * per]
+    fn entry_section(&self, section: Section, row: usize) -> &[u8] {
+        let per = section.entry_bytes(&self.params);
+        &self.section(section)[row * per..(row + 1) * per]
     }
 
     /// Rows.
@@ -837,51 +946,53 @@ impl Searcher {
     }
 
     /// Entry `row`, ready for matching.
-    fn entry(&self, row: usize) -> ReadyRef<'_> {
-        ReadyRef {
+    fn entry(&self, row: usize) -> Entry<'_> {
+        Entry {
             columns: self.entry_section(Section::Columns, row),
-            filled: self.entry_section(Section::Filled, row),
-            h0: self.entry_section(Section::H0, row),
-            h0_filled: self.entry_section(Section::H0Filled, row),
-            reach: self.entry_section::<u8>(Section::Reach, row)[0] as usize,
+            reach: self.entry_section(Section::Reach, row)[0] as usize,
         }
     }
 
-    /// The candidates for `query`: at most `wanted` rows, half by each key, taken in turn.
+    /// The candidates for `query`: the `wanted` rows best by the reciprocal-rank fusion of three
+    /// lists of `LIST_PER_CANDIDATE × wanted` rows, one by each key (a row's score is the sum
+    /// over the lists of `1 / (FUSION_K + rank)`, ties to the lower row): the ring key's, and
+    /// the shape key's and the profile key's among the `COARSE_PER_CANDIDATE` times as many
+    /// rows nearest the query by their first terms ([`firsts`], all three read in one pass).
     fn candidates(&self, query: &[f32], wanted: usize) -> Vec<usize> {
         let p = &self.params;
-        let half = wanted.div_ceil(2);
-        let shape = shape_key(query, p);
-        let width = shape_len(p);
-        let mut by_shape: Vec<(f64, usize)> = nearest_rows(
-            self.section(Section::Shares),
-            &quantized(&shares_of(&shape, p)),
-            COARSE_PER_CANDIDATE * half,
-        )
-        .into_iter()
-        .map(|row| {
-            let e = &self.section::<f32>(Section::Shapes)[row * width..(row + 1) * width];
-            (shape.iter().zip(e).map(|(a, b)| ((a - b) as f64).powi(2)).sum(), row)
-        })
-        .collect();
-        by_shape.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let by_profile =
-            nearest_rows(self.section(Section::Profiles), &quantized(&profile_key(query, p)), wanted);
-        let lists = [by_shape.into_iter().map(|(_, row)| row).collect::<Vec<_>>(), by_profile];
-        // In turn, each row once: half from each list unless they share rows.
-        let mut out = Vec::with_capacity(wanted);
-        let mut taken = std::collections::HashSet::with_capacity(wanted);
-        for i in 0..lists[0].len().max(lists[1].len()) {
-            for list in &lists {
-                if let Some(&row) = list.get(i)
-                    && out.len() < wanted
-                    && taken.insert(row)
-                {
-                    out.push(row);
-                }
+        let long = LIST_PER_CANDIDATE * wanted;
+        let (shape, profile) = (quantized(&shape_key(query, p)), quantized(&profile_key(query, p)));
+        let first = firsts(&shape, &profile, &quantized(&ring_key(query, p)), p);
+        let [by_ring, coarse_shape, coarse_profile] = nearest_rows_3(
+            self.section(Section::Firsts),
+            &first,
+            p.rings,
+            [long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long],
+        );
+        let refined = |section: Section, key: &[u8], coarse: Vec<usize>| -> Vec<usize> {
+            let all = self.section(section);
+            let mut scored: Vec<(u32, usize)> = coarse
+                .into_iter()
+                .map(|row| {
+                    let e = &all[row * key.len()..(row + 1) * key.len()];
+                    (key.iter().zip(e).map(|(&a, &b)| (a as i32 - b as i32).pow(2) as u32).sum(), row)
+                })
+                .collect();
+            scored.sort_unstable();
+            scored.into_iter().take(long).map(|(_, row)| row).collect()
+        };
+        let by_shape = refined(Section::Shapes, &shape, coarse_shape);
+        let by_profile = refined(Section::Profiles, &profile, coarse_profile);
+        let mut score: std::collections::HashMap<usize, f64> =
+            std::collections::HashMap::with_capacity(3 * long);
+        for list in [&by_ring, &by_shape, &by_profile] {
+            for (rank, &row) in list.iter().enumerate() {
+                *score.entry(row).or_default() += 1.0 / (FUSION_K + rank as f64);
             }
         }
-        out
+        let mut fused: Vec<(f64, usize)> = score.into_iter().map(|(row, s)| (s, row)).collect();
+        fused.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        fused.into_iter().take(wanted).map(|(_, row)| row).collect()
     }
 
     /// The `k` best rows for `query`, by (distance, row), with the time of each step.
@@ -889,14 +1000,15 @@ impl Searcher {
         let p = &self.params;
         let t = std::time::Instant::now();
         let wanted = p.candidates.max(k).min(self.len());
-        let rows = self.candidates(query, wanted);
+        let rows =
+            if wanted >= self.len() { (0..self.len()).collect() } else { self.candidates(query, wanted) };
         let candidates_secs = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
-        let q = Ready::new(query, p);
+        let q = Query::new(query, p);
         let mut hits: Vec<PlusHit> = rows
             .into_iter()
             .map(|row| {
-                let (d, yaw) = distance_to(q.as_ref(), self.entry(row), p);
+                let (d, yaw) = distance_to(&q, self.entry(row), p);
                 (row, d, yaw)
             })
             .collect();
@@ -906,12 +1018,26 @@ impl Searcher {
     }
 }
 
+/// Keys of the first pass, each `rings` bytes.
+const FIRSTS: usize = 3;
+
+/// The first pass's keys of an entry, `rings` bytes each: its ring key, the filled shares per
+/// ring of its relief channel (the shape key's terms of order 0), and the mean of its unit
+/// relief columns (the profile key's first part).
+fn firsts(shape: &[u8], profile: &[u8], ring: &[u8], p: &PlusParams) -> Vec<u8> {
+    let shares = shape[RELIEF * p.rings * shape_terms(p)..(RELIEF + 1) * p.rings * shape_terms(p)]
+        .iter()
+        .step_by(shape_terms(p));
+    let means = &profile[RELIEF * p.rings..(RELIEF + 1) * p.rings];
+    ring.iter().copied().chain(shares.copied()).chain(means.iter().copied()).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     /// Box walls around the sensor, sampled every 20 cm with a few centimetres of noise (in
-    /// general position: no point on a voxel boundary, no four on a circle).
+    /// general position: no two squares at the same height).
     fn scene() -> Vec<Point> {
         let mut rng = crate::rng::SplitMix64(7);
         let mut jitter = move || (rng.next_f64() - 0.5) * 0.04;
@@ -953,29 +1079,65 @@ mod tests {
     }
 
     #[test]
+    fn relief_is_the_height_above_where_the_class_dies() {
+        // One row of 1 m squares: peak A (5 m), a saddle (2 m), peak B (4 m), a foot (1 m),
+        // in x order A S B D. Heights enter A, B, S, D: B is born apart from A, and S joins
+        // them, so B (the younger, lower peak) dies at 2 m; S and D join A's class, which
+        // never dies and ends at the lowest square (1 m). Relief: A 5 − 1 = 4 (its
+        // persistence), B 4 − 2 = 2 (its persistence), S 2 − 1 = 1, D 1 − 1 = 0.
+        let p = PlusParams { cell: 1.0, max_radius: 10.0, ..PlusParams::default() };
+        let points = [[0.5, 0.5, 5.0], [1.5, 0.5, 2.0], [2.5, 0.5, 4.0], [3.5, 0.5, 1.0]];
+        let field = height_field(&points, &p);
+        let (order, relief) = field.relief();
+        let at = |x: f64| {
+            let k =
+                order.iter().position(|&k| (field.centre(k as usize, p.cell).0 - x).abs() < 1e-9).unwrap();
+            relief[k]
+        };
+        assert_eq!([at(0.5), at(1.5), at(2.5), at(3.5)], [4.0, 1.0, 2.0, 0.0]);
+        // Two returns above one square: the height channel holds its highest, 5 m + 2 m, as the
+        // code round(255 · √(7 / 64)) = round(84.33) = 84; the relief channel the square's relief
+        // (5 − 5 = 0: its class ends at the lowest square, itself).
+        let two = [[0.5, 0.5, 5.0], [0.6, 0.7, 3.0]];
+        let d = describe(&two, &p).unwrap();
+        let height: Vec<f32> = d[p.rings * p.sectors..].iter().copied().filter(|&v| v > 0.0).collect();
+        assert_eq!(height, [84.0]);
+        assert!(d[..p.rings * p.sectors].iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
     fn a_quarter_turn_is_matched_exactly_and_its_yaw_found() {
         let p = PlusParams::default();
         let a = describe(&scene(), &p).unwrap();
         assert!(a.iter().any(|&v| v > 0.0));
         for q in 1..4 {
             let b = describe(&turned(&scene(), q), &p).unwrap();
+            // The descriptor is the original's, its sectors shifted by a quarter.
+            for row in 0..2 * p.rings {
+                for s in 0..p.sectors {
+                    let shifted = (s + q * p.sectors / 4) % p.sectors;
+                    assert_eq!(b[row * p.sectors + shifted], a[row * p.sectors + s]);
+                }
+            }
             let (d, yaw) = distance(&b, &a, &p);
-            assert_eq!(d, 0.0, "{q} quarter turns: distance {d}");
-            assert!((yaw - 90.0 * q as f64).abs() < 1e-9, "{q} quarter turns: yaw {yaw}");
+            assert!(d <= 1e-12, "{q} quarter turns: distance {d}");
+            assert_eq!(yaw, 90.0 * q as f64, "{q} quarter turns");
         }
     }
 
     #[test]
-    fn keys_do_not_depend_on_quarter_turns_and_distances_are_symmetric_in_range() {
+    fn keys_do_not_depend_on_quarter_turns_and_an_empty_scan_has_no_descriptor() {
         let p = PlusParams::default();
         let a = describe(&scene(), &p).unwrap();
         let b = describe(&turned(&scene(), 1), &p).unwrap();
         let (ka, kb) = (key(&a, &p), key(&b, &p));
+        assert_eq!(ka.len(), key_len(&p));
         for (x, y) in ka.iter().zip(&kb) {
             assert!((x - y).abs() < 1e-6);
         }
-        let empty = describe(&[], &p).unwrap();
-        assert_eq!(distance(&empty, &a, &p).0, 1.0, "an empty scan matches nothing");
+        let far = [[100.0, 0.0, 1.0]];
+        assert_eq!(describe(&far, &p).unwrap_err(), "no return within 80 m of the sensor");
+        assert!(describe(&[], &p).is_err());
     }
 
     #[test]
@@ -1004,28 +1166,28 @@ mod tests {
         let cut = describe(&near, &p).unwrap();
         let (r_full, r_cut) = (reach(&full, &p), reach(&cut, &p));
         assert!(r_cut < r_full && r_cut <= 11, "reach {r_cut} of {r_full} rings");
-        // Within the rings both reach (the cut's last, half-empty ring left out), the cut scan
-        // is its own place: nearer it than the place turned and stretched, and than it was
-        // when the rings beyond the cut counted.
         let other: Vec<Point> =
             turned(&scene(), 1).into_iter().map(|q| [q[0] * 1.7, q[1] * 0.6, q[2]]).collect();
         let other = describe(&other, &p).unwrap();
         let (d, _) = distance(&cut, &full, &p);
         assert!(d < distance(&cut, &other, &p).0, "{d}");
-        let ready = |x: &[f32]| Ready::new(x, &p);
-        let (q, c) = (ready(&cut), ready(&full));
-        let everywhere = (0..p.sectors)
-            .map(|s| {
-                column_distance(
-                    &q.columns[..p.sectors * 2 * p.rings],
-                    &q.filled[..p.sectors],
-                    &c.columns[..p.sectors * 2 * p.rings],
-                    &c.filled[..p.sectors],
-                    2 * p.rings,
-                    s,
-                )
-            })
-            .fold(f64::INFINITY, f64::min);
-        assert!(d < everywhere, "{d} within the reach, {everywhere} over every ring");
+    }
+
+    #[test]
+    fn search_finds_a_turned_scan_and_its_yaw() {
+        let p = PlusParams::default();
+        let scenes: Vec<Vec<Point>> = (0..6)
+            .map(|i| scene().into_iter().map(|q| [q[0] * (1.0 + 0.15 * i as f64), q[1], q[2]]).collect())
+            .collect();
+        let db: Vec<f32> = scenes.iter().flat_map(|s| describe(s, &p).unwrap()).collect();
+        // Every entry re-ranked (more candidates than entries), and two by the keys.
+        for candidates in [50, 2] {
+            let searcher = Searcher::new(db.clone(), p.clone()).with_search(candidates, 0.1);
+            for (i, s) in scenes.iter().enumerate() {
+                let q = describe(&turned(s, 2), &p).unwrap();
+                let (hits, _) = searcher.search(&q, 1);
+                assert_eq!((hits[0].0, hits[0].2), (i, 180.0), "{candidates} candidates");
+            }
+        }
     }
 }

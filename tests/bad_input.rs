@@ -243,8 +243,14 @@ fn bad_inputs_table() {
         ("an unknown m2dp key", "[m2dp]\nvoxels = 1.0\n", &["m2dp", "voxels"]),
         (
             "toporec-plus out of range",
-            "[descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\nvoxel = 0\nsectors = 2\nrotations = 17\nsearch_ratio = 2\n",
-            &["toporec-plus.voxel", "sectors", "toporec-plus.rotations", "toporec-plus.search_ratio"],
+            "[descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\ncell = 0\nsectors = 2\nturns = 17\nsearch_ratio = 2\nlidar_height = inf\n",
+            &[
+                "toporec-plus.cell",
+                "sectors",
+                "toporec-plus.turns",
+                "toporec-plus.search_ratio",
+                "toporec-plus.lidar_height",
+            ],
         ),
         ("an unknown toporec-plus key", "[toporec-plus]\nvoxels = 1.0\n", &["toporec-plus", "voxels"]),
     ];

@@ -521,21 +521,20 @@ fn errors_name_the_table_and_the_file_at_fault() {
 }
 
 #[test]
-fn toporec_plus_scans_without_a_complex_are_error_rows() {
+fn toporec_plus_scans_it_cannot_describe_are_error_rows() {
     let dir = scratch_dir("integrity_plus_errors");
     let data = sample_copy(&dir, &["2026-01-01"]);
+    // A radius inside the ego vehicle's shadow: no scan has a return within it.
     let body = format!(
         "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n\
-         [descriptors]\nmethods = [\"toporec-plus\"]\n",
+         [descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\nmax_radius = 0.5\n",
         data.join("velodyne_data").display().to_string()
     );
     let p = dir.join("plus.toml");
     std::fs::write(&p, body).unwrap();
     let index = dir.join("idx");
-    // Every scan's complex past the engine's (lowered) cell limit.
     let o = Command::new(env!("CARGO_BIN_EXE_toporec"))
         .args(["run", p.to_str().unwrap(), "--index", index.to_str().unwrap(), "--no-progress"])
-        .env("TOPOREC_CELL_LIMIT", "50")
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
@@ -545,7 +544,7 @@ fn toporec_plus_scans_without_a_complex_are_error_rows() {
     for s in &scans {
         assert_eq!(s.status, toporec::sinks::parquet::Status::Error, "{}", s.scan_id);
         let e = s.error.as_deref().unwrap();
-        assert!(e.contains("(toporec-plus)") && e.contains("more than 50 cells"), "{e}");
+        assert!(e.contains("(toporec-plus)") && e.contains("no return within 0.5 m of the sensor"), "{e}");
     }
     assert!(reader.descriptors_of("toporec-plus", &[], None).unwrap().is_empty(), "no zero vectors stored");
 }

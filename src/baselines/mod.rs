@@ -170,9 +170,9 @@ impl Method {
 
     /// The descriptor of a raw scan (sensor frame, metres) for the methods computed from it
     /// (ScanContext, M2DP, SOLiD, toporec-plus), after the method's own preprocessing (its voxel
-    /// grid); `None` for the others. An error when the method could not describe the scan
-    /// (toporec-plus: the scan's alpha complex could not be built).
-    pub fn describe_raw(&self, points: &[Point]) -> Option<Result<Vec<f32>, crate::homology::ComplexError>> {
+    /// grid); `None` for the others. An error, with the reason, when the method could not
+    /// describe the scan (toporec-plus: no return within its radius).
+    pub fn describe_raw(&self, points: &[Point]) -> Option<Result<Vec<f32>, String>> {
         let grid = |voxel: f64| if voxel > 0.0 { voxel_grid(points, voxel) } else { points.to_vec() };
         match &self.kind {
             MethodKind::ScanContext(p) => Some(Ok(scancontext::describe(&grid(p.voxel), p))),

@@ -28,7 +28,8 @@ pub const FOLDER: &str = "searchers";
 /// A cache file's extension.
 pub const EXTENSION: &str = "searcher";
 const MAGIC: &[u8; 16] = b"toporec-search\0\0";
-const FORMAT_VERSION: u64 = 1;
+/// The layout of this file (not of the body: [`Header::layout`] says that).
+pub const FORMAT_VERSION: u64 = 1;
 /// The body starts on a page boundary, so its sections are aligned when mapped.
 const PAGE: usize = 4096;
 
@@ -50,6 +51,10 @@ pub struct Header {
     pub id: String,
     /// The method's parameters.
     pub params: serde_json::Value,
+    /// The layout of the body, as the method's searcher names it (a cache of another layout,
+    /// made by another version of toporec, is stale).
+    #[serde(default)]
+    pub layout: String,
     /// Entries.
     pub rows: usize,
     /// The sessions the rows name (by index).
@@ -98,16 +103,18 @@ pub fn write(path: &Path, header: &Header, rows: &[IndexedScan], body: &[u8]) ->
     f.commit().map(drop)
 }
 
-/// Opens the cache at `path` when it was built from `generation` and `id`; `None` when there
-/// is none, or it is stale or unreadable (it is then rebuilt).
-pub fn open(path: &Path, generation: u64, id: &str) -> Option<Mapped> {
+/// Opens the cache at `path` when it was built from `generation` and `id` in `layout`; `None`
+/// when there is none, or it is stale or unreadable (it is then rebuilt).
+pub fn open(path: &Path, generation: u64, id: &str, layout: &str) -> Option<Mapped> {
     let file = std::fs::File::open(path).ok()?;
     // SAFETY: cache files are replaced by rename, never written in place, so the mapped bytes
     // do not change under the map.
     let map = unsafe { memmap2::Mmap::map(&file) }.ok()?;
     let parsed = parse(&map);
     match parsed {
-        Ok((header, rows)) if header.generation == generation && header.id == id => {
+        Ok((header, rows))
+            if header.generation == generation && header.id == id && header.layout == layout =>
+        {
             Some(Mapped { header, rows, map })
         }
         Ok(_) => None,
