@@ -716,7 +716,7 @@ impl Section {
         match self {
             Section::Columns => p.len(),
             Section::Reach => 1,
-            Section::Firsts => FIRSTS * p.rings,
+            Section::Firsts => FIRSTS * first_width(p),
             Section::Shapes => shape_len(p),
             Section::Profiles => profile_len(p),
         }
@@ -725,7 +725,7 @@ impl Section {
 
 /// The layout of a searcher's bytes ([`Searcher::bytes`]), as a cache file names it: a cache of
 /// another layout is rebuilt.
-pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-1";
+pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-2";
 
 /// Sections start on 64-byte boundaries.
 const SECTION_ALIGN: usize = 64;
@@ -771,8 +771,9 @@ fn quantized(values: &[f32]) -> Vec<u8> {
 }
 
 /// For each of the [`FIRSTS`] keys of `rows` (row-major, `FIRSTS × width` bytes a row, key `i`
-/// at bytes `i · width..`), the `m[i]` rows nearest the query's by squared Euclidean distance,
-/// ties to the lower row, in that order: one pass over the rows.
+/// at bytes `i · width..`, `width` a multiple of 8), the `m[i]` rows nearest the query's by
+/// the L1 distance (the sum of absolute differences), ties to the lower row, in that order: one
+/// pass over the rows.
 fn nearest_rows_3(rows: &[u8], query: &[u8], width: usize, m: [usize; FIRSTS]) -> [Vec<usize>; FIRSTS] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -785,7 +786,44 @@ fn nearest_rows_3(rows: &[u8], query: &[u8], width: usize, m: [usize; FIRSTS]) -
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn nearest_rows_3_avx2(rows: &[u8], query: &[u8], width: usize, m: [usize; FIRSTS]) -> [Vec<usize>; FIRSTS] {
-    nearest_rows_3_portable(rows, query, width, m)
+    use std::arch::x86_64::*;
+    if width != 24 {
+        return nearest_rows_3_portable(rows, query, width, m);
+    }
+    // 72 bytes a row: sums of absolute differences of 8-byte groups (psadbw), three groups a
+    // key — the same integers as the portable loop.
+    let mut best = Nearest::new(m);
+    let q = query.as_ptr();
+    // SAFETY: every load reads within `query` (72 bytes) or within one 72-byte row of `rows`
+    // (chunks_exact), unaligned loads.
+    unsafe {
+        let (qa, qb, qc) = (
+            _mm256_loadu_si256(q as *const __m256i),
+            _mm256_loadu_si256(q.add(32) as *const __m256i),
+            _mm_loadl_epi64(q.add(64) as *const __m128i),
+        );
+        for (i, r) in rows.chunks_exact(72).enumerate() {
+            let r = r.as_ptr();
+            let a = _mm256_sad_epu8(_mm256_loadu_si256(r as *const __m256i), qa);
+            let b = _mm256_sad_epu8(_mm256_loadu_si256(r.add(32) as *const __m256i), qb);
+            let c = _mm_sad_epu8(_mm_loadl_epi64(r.add(64) as *const __m128i), qc);
+            let (a0, a1, a2, a3) = (
+                _mm256_extract_epi64::<0>(a),
+                _mm256_extract_epi64::<1>(a),
+                _mm256_extract_epi64::<2>(a),
+                _mm256_extract_epi64::<3>(a),
+            );
+            let (b0, b1, b2, b3) = (
+                _mm256_extract_epi64::<0>(b),
+                _mm256_extract_epi64::<1>(b),
+                _mm256_extract_epi64::<2>(b),
+                _mm256_extract_epi64::<3>(b),
+            );
+            let c0 = _mm_cvtsi128_si64(c);
+            best.offer(i, [(a0 + a1 + a2) as u32, (a3 + b0 + b1) as u32, (b2 + b3 + c0) as u32]);
+        }
+    }
+    best.rows()
 }
 
 #[inline(always)]
@@ -795,40 +833,84 @@ fn nearest_rows_3_portable(
     width: usize,
     m: [usize; FIRSTS],
 ) -> [Vec<usize>; FIRSTS] {
-    use std::collections::BinaryHeap;
-    // The m smallest (distance << 32 | row) so far, largest on top: one integer to compare,
-    // ties to the lower row; most rows are refused by one comparison with the top.
-    let mut best: [BinaryHeap<u64>; FIRSTS] = m.map(|m| BinaryHeap::with_capacity(m + 1));
-    if width == 0 {
-        return [Vec::new(), Vec::new(), Vec::new()];
+    // The default 20 rings (24 bytes a key) as fixed-size arrays: each distance one unrolled
+    // sum of absolute differences (psadbw); other widths through slices.
+    if width == 24 {
+        return nearest_rows_3_fixed::<24>(rows, query, m);
     }
-    let squared = |a: &[u8], b: &[u8]| -> u64 {
-        let sum: i32 = a
-            .iter()
-            .zip(b)
-            .map(|(&x, &y)| {
-                let d = x as i16 - y as i16;
-                d as i32 * d as i32
-            })
-            .sum();
-        sum as u64
-    };
+    let l1 = |a: &[u8], b: &[u8]| -> u32 { a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y) as u32).sum() };
+    let mut best = Nearest::new(m);
     for (i, r) in rows.chunks_exact(FIRSTS * width).enumerate() {
-        for (k, heap) in best.iter_mut().enumerate() {
-            if m[k] == 0 {
-                continue;
-            }
-            let key = (squared(&r[k * width..(k + 1) * width], &query[k * width..(k + 1) * width]) << 32)
-                | i as u64;
-            if heap.len() < m[k] {
+        let d =
+            std::array::from_fn(|k| l1(&r[k * width..(k + 1) * width], &query[k * width..(k + 1) * width]));
+        best.offer(i, d);
+    }
+    best.rows()
+}
+
+#[inline(always)]
+fn nearest_rows_3_fixed<const W: usize>(
+    rows: &[u8],
+    query: &[u8],
+    m: [usize; FIRSTS],
+) -> [Vec<usize>; FIRSTS] {
+    #[inline(always)]
+    fn l1<const W: usize>(a: &[u8; W], b: &[u8; W]) -> u32 {
+        let mut sum = 0u32;
+        for j in 0..W {
+            sum += a[j].abs_diff(b[j]) as u32;
+        }
+        sum
+    }
+    let q: [&[u8; W]; FIRSTS] =
+        std::array::from_fn(|k| query[k * W..(k + 1) * W].try_into().expect("W bytes"));
+    let mut best = Nearest::new(m);
+    for (i, r) in rows.chunks_exact(FIRSTS * W).enumerate() {
+        let d = std::array::from_fn(|k| l1::<W>(r[k * W..(k + 1) * W].try_into().expect("W bytes"), q[k]));
+        best.offer(i, d);
+    }
+    best.rows()
+}
+
+/// The `m[k]` smallest (distance, row) for each of the [`FIRSTS`] keys, ties to the lower row.
+struct Nearest {
+    m: [usize; FIRSTS],
+    heaps: [std::collections::BinaryHeap<u64>; FIRSTS],
+    /// The largest kept key per heap once full (u64::MAX before): most rows are refused by one
+    /// comparison with it.
+    bound: [u64; FIRSTS],
+}
+
+impl Nearest {
+    fn new(m: [usize; FIRSTS]) -> Self {
+        Nearest {
+            m,
+            heaps: m.map(|m| std::collections::BinaryHeap::with_capacity(m + 1)),
+            bound: m.map(|m| if m == 0 { 0 } else { u64::MAX }),
+        }
+    }
+
+    #[inline(always)]
+    fn offer(&mut self, row: usize, distances: [u32; FIRSTS]) {
+        for k in 0..FIRSTS {
+            let key = ((distances[k] as u64) << 32) | row as u64;
+            if key < self.bound[k] {
+                let heap = &mut self.heaps[k];
                 heap.push(key);
-            } else if key < *heap.peek().expect("m > 0") {
-                heap.pop();
-                heap.push(key);
+                if heap.len() > self.m[k] {
+                    heap.pop();
+                }
+                if heap.len() == self.m[k] {
+                    self.bound[k] = *heap.peek().expect("m > 0");
+                }
             }
         }
     }
-    best.map(|heap| heap.into_sorted_vec().into_iter().map(|v| (v & 0xffff_ffff) as usize).collect())
+
+    fn rows(self) -> [Vec<usize>; FIRSTS] {
+        self.heaps
+            .map(|heap| heap.into_sorted_vec().into_iter().map(|v| (v & 0xffff_ffff) as usize).collect())
+    }
 }
 
 impl Searcher {
@@ -856,7 +938,7 @@ impl Searcher {
             descriptors
                 .par_chunks_exact(p.len())
                 .zip(columns.par_chunks_exact_mut(p.len()))
-                .zip(firsts_of.par_chunks_exact_mut(FIRSTS * p.rings))
+                .zip(firsts_of.par_chunks_exact_mut(FIRSTS * first_width(p)))
                 .zip(shapes.par_chunks_exact_mut(shape_len(p)))
                 .zip(profiles.par_chunks_exact_mut(profile_len(p)))
                 .zip(reach_of.par_iter_mut())
@@ -966,7 +1048,7 @@ impl Searcher {
         let [by_ring, coarse_shape, coarse_profile] = nearest_rows_3(
             self.section(Section::Firsts),
             &first,
-            p.rings,
+            first_width(p),
             [long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long],
         );
         let refined = |section: Section, key: &[u8], coarse: Vec<usize>| -> Vec<usize> {
@@ -1025,11 +1107,22 @@ const FIRSTS: usize = 3;
 /// ring of its relief channel (the shape key's terms of order 0), and the mean of its unit
 /// relief columns (the profile key's first part).
 fn firsts(shape: &[u8], profile: &[u8], ring: &[u8], p: &PlusParams) -> Vec<u8> {
-    let shares = shape[RELIEF * p.rings * shape_terms(p)..(RELIEF + 1) * p.rings * shape_terms(p)]
+    let shares: Vec<u8> = shape[RELIEF * p.rings * shape_terms(p)..(RELIEF + 1) * p.rings * shape_terms(p)]
         .iter()
-        .step_by(shape_terms(p));
+        .step_by(shape_terms(p))
+        .copied()
+        .collect();
     let means = &profile[RELIEF * p.rings..(RELIEF + 1) * p.rings];
-    ring.iter().copied().chain(shares.copied()).chain(means.iter().copied()).collect()
+    let mut out = vec![0u8; FIRSTS * first_width(p)];
+    for (k, key) in [ring, &shares, means].into_iter().enumerate() {
+        out[k * first_width(p)..k * first_width(p) + p.rings].copy_from_slice(key);
+    }
+    out
+}
+
+/// Bytes of each first-pass key: `rings`, zero-padded to a multiple of 8.
+fn first_width(p: &PlusParams) -> usize {
+    p.rings.next_multiple_of(8)
 }
 
 #[cfg(test)]
@@ -1171,6 +1264,31 @@ mod tests {
         let other = describe(&other, &p).unwrap();
         let (d, _) = distance(&cut, &full, &p);
         assert!(d < distance(&cut, &other, &p).0, "{d}");
+    }
+
+    #[test]
+    fn the_first_pass_is_the_same_on_every_route() {
+        // Rows of three 24-byte keys (20 codes and 4 zero bytes each), many of them at equal
+        // distances: the vector route and the portable loop keep the same rows in the same order.
+        let mut rng = crate::rng::SplitMix64(3);
+        let rows: Vec<u8> =
+            (0..5000 * 72).map(|i| if i % 24 < 20 { (rng.next_u64() % 8) as u8 } else { 0 }).collect();
+        let query = rows[72 * 17..72 * 18].to_vec();
+        let m = [30, 300, 7];
+        let fast = nearest_rows_3(&rows, &query, 24, m);
+        let plain = nearest_rows_3_portable(&rows, &query, 24, m);
+        assert_eq!(fast, plain);
+        assert_eq!(fast[0][0], 17);
+        let l1 = |r: usize, k: usize| -> u32 {
+            (0..24).map(|j| rows[r * 72 + k * 24 + j].abs_diff(query[k * 24 + j]) as u32).sum()
+        };
+        for k in 0..3 {
+            assert_eq!(fast[k].len(), m[k]);
+            assert!(
+                fast[k].windows(2).all(|w| (l1(w[0], k), w[0]) < (l1(w[1], k), w[1])),
+                "key {k} in order"
+            );
+        }
     }
 
     #[test]

@@ -119,7 +119,8 @@ def alpha_persistence_located(points: Any) -> Tuple[np.ndarray, np.ndarray]:
     """The pairs of :func:`alpha_persistence` (every dimension, squared radii) with where each
     class dies: the centroid of the simplex whose entrance kills it (H0: the merging edge's
     midpoint; H1: the triangle that fills the loop; H2: the tetrahedron that fills the void),
-    in the input's coordinates. ``toporec-plus`` places each class on its grid by it.
+    in the input's coordinates: the topology of a cloud with its place, for descriptors that
+    lay it out in space.
 
     Returns:
         ``(pairs, locations)``: an ``(n, 3)`` array of ``dim, birth, death`` rows and an
