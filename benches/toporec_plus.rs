@@ -245,7 +245,7 @@ fn main() {
             body: (0, 0),
         };
         let t = Instant::now();
-        toporec::sinks::index::searchers::write(&path, &header, &rows, searcher.bytes()).expect("cache written");
+        toporec::sinks::index::searchers::write(&path, &header, &rows, &searcher.bytes()).expect("cache written");
         let written = t.elapsed().as_secs_f64();
         drop(searcher);
         let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);

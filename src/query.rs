@@ -278,7 +278,7 @@ impl Engine {
                     body: (0, 0),
                 };
                 // An index that cannot be written (read-only, another user's) gets no cache.
-                if let Err(e) = searchers::write(&path, &header, &rows, searcher.bytes()) {
+                if let Err(e) = searchers::write(&path, &header, &rows, &searcher.bytes()) {
                     tracing::info!("{}: not cached ({e})", path.display());
                 }
                 (searcher, rows)

@@ -688,11 +688,9 @@ pub struct Searcher {
     params: PlusParams,
     /// Entries.
     n: usize,
-    /// Every entry's columns and keys, in one buffer of sections ([`Section`]): owned, or
+    /// Every entry's columns and keys, by sections ([`Section`]): owned (and growing), or
     /// mapped from a cache file.
     store: Store,
-    /// Byte offset of each section in `store`.
-    offsets: [usize; SECTIONS],
 }
 
 /// The sections of a searcher's buffer, per entry: the code columns (u8), reach (u8); the first
@@ -746,22 +744,16 @@ pub fn entry_bytes(p: &PlusParams) -> usize {
     ALL_SECTIONS.iter().map(|s| s.entry_bytes(p)).sum()
 }
 
-/// A searcher's bytes: built in memory, or mapped from a cache file (read only; the OS pages
-/// it in as searches touch it).
+/// A searcher's sections: built in memory (one growing vector each), or mapped from a cache
+/// file (read only; the OS pages it in as searches touch it).
 enum Store {
-    /// 8-byte aligned.
-    Owned(Vec<u64>),
-    /// The file's bytes from `body` on (page aligned, so the sections are too).
-    Mapped { map: memmap2::Mmap, body: usize },
-}
-
-impl Store {
-    fn bytes(&self) -> &[u8] {
-        match self {
-            Store::Owned(v) => bytemuck::cast_slice(v),
-            Store::Mapped { map, body } => &map[*body..],
-        }
-    }
+    Owned([Vec<u8>; SECTIONS]),
+    /// The file's bytes from `body` on, the sections at `offsets` ([`layout`]).
+    Mapped {
+        map: memmap2::Mmap,
+        body: usize,
+        offsets: [usize; SECTIONS],
+    },
 }
 
 /// Key values in [0, 1] as bytes (`round(255 v)`): the narrowing of a search reads a quarter
@@ -774,25 +766,37 @@ fn quantized(values: &[f32]) -> Vec<u8> {
 /// at bytes `i · width..`, `width` a multiple of 8), the `m[i]` rows nearest the query's by
 /// the L1 distance (the sum of absolute differences), ties to the lower row, in that order: one
 /// pass over the rows.
-fn nearest_rows_3(rows: &[u8], query: &[u8], width: usize, m: [usize; FIRSTS]) -> [Vec<usize>; FIRSTS] {
+fn nearest_rows_3(
+    rows: &[u8],
+    query: &[u8],
+    width: usize,
+    m: [usize; FIRSTS],
+    allowed: &dyn Fn(usize) -> bool,
+) -> [Vec<usize>; FIRSTS] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
-        return unsafe { nearest_rows_3_avx2(rows, query, width, m) };
+        return unsafe { nearest_rows_3_avx2(rows, query, width, m, allowed) };
     }
-    nearest_rows_3_portable(rows, query, width, m)
+    nearest_rows_3_portable(rows, query, width, m, allowed)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn nearest_rows_3_avx2(rows: &[u8], query: &[u8], width: usize, m: [usize; FIRSTS]) -> [Vec<usize>; FIRSTS] {
+fn nearest_rows_3_avx2(
+    rows: &[u8],
+    query: &[u8],
+    width: usize,
+    m: [usize; FIRSTS],
+    allowed: &dyn Fn(usize) -> bool,
+) -> [Vec<usize>; FIRSTS] {
     use std::arch::x86_64::*;
     if width != 24 {
-        return nearest_rows_3_portable(rows, query, width, m);
+        return nearest_rows_3_portable(rows, query, width, m, allowed);
     }
     // 72 bytes a row: sums of absolute differences of 8-byte groups (psadbw), three groups a
     // key — the same integers as the portable loop.
-    let mut best = Nearest::new(m);
+    let mut best = Nearest::new(m, allowed);
     let q = query.as_ptr();
     // SAFETY: every load reads within `query` (72 bytes) or within one 72-byte row of `rows`
     // (chunks_exact), unaligned loads.
@@ -832,14 +836,15 @@ fn nearest_rows_3_portable(
     query: &[u8],
     width: usize,
     m: [usize; FIRSTS],
+    allowed: &dyn Fn(usize) -> bool,
 ) -> [Vec<usize>; FIRSTS] {
     // The default 20 rings (24 bytes a key) as fixed-size arrays: each distance one unrolled
     // sum of absolute differences (psadbw); other widths through slices.
     if width == 24 {
-        return nearest_rows_3_fixed::<24>(rows, query, m);
+        return nearest_rows_3_fixed::<24>(rows, query, m, allowed);
     }
     let l1 = |a: &[u8], b: &[u8]| -> u32 { a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y) as u32).sum() };
-    let mut best = Nearest::new(m);
+    let mut best = Nearest::new(m, allowed);
     for (i, r) in rows.chunks_exact(FIRSTS * width).enumerate() {
         let d =
             std::array::from_fn(|k| l1(&r[k * width..(k + 1) * width], &query[k * width..(k + 1) * width]));
@@ -853,6 +858,7 @@ fn nearest_rows_3_fixed<const W: usize>(
     rows: &[u8],
     query: &[u8],
     m: [usize; FIRSTS],
+    allowed: &dyn Fn(usize) -> bool,
 ) -> [Vec<usize>; FIRSTS] {
     #[inline(always)]
     fn l1<const W: usize>(a: &[u8; W], b: &[u8; W]) -> u32 {
@@ -864,7 +870,7 @@ fn nearest_rows_3_fixed<const W: usize>(
     }
     let q: [&[u8; W]; FIRSTS] =
         std::array::from_fn(|k| query[k * W..(k + 1) * W].try_into().expect("W bytes"));
-    let mut best = Nearest::new(m);
+    let mut best = Nearest::new(m, allowed);
     for (i, r) in rows.chunks_exact(FIRSTS * W).enumerate() {
         let d = std::array::from_fn(|k| l1::<W>(r[k * W..(k + 1) * W].try_into().expect("W bytes"), q[k]));
         best.offer(i, d);
@@ -872,8 +878,10 @@ fn nearest_rows_3_fixed<const W: usize>(
     best.rows()
 }
 
-/// The `m[k]` smallest (distance, row) for each of the [`FIRSTS`] keys, ties to the lower row.
-struct Nearest {
+/// The `m[k]` smallest (distance, row) for each of the [`FIRSTS`] keys among the rows
+/// `allowed` admits (asked only of a row that would be kept), ties to the lower row.
+struct Nearest<'a> {
+    allowed: &'a dyn Fn(usize) -> bool,
     m: [usize; FIRSTS],
     heaps: [std::collections::BinaryHeap<u64>; FIRSTS],
     /// The largest kept key per heap once full (u64::MAX before): most rows are refused by one
@@ -881,9 +889,10 @@ struct Nearest {
     bound: [u64; FIRSTS],
 }
 
-impl Nearest {
-    fn new(m: [usize; FIRSTS]) -> Self {
+impl<'a> Nearest<'a> {
+    fn new(m: [usize; FIRSTS], allowed: &'a dyn Fn(usize) -> bool) -> Self {
         Nearest {
+            allowed,
             m,
             heaps: m.map(|m| std::collections::BinaryHeap::with_capacity(m + 1)),
             bound: m.map(|m| if m == 0 { 0 } else { u64::MAX }),
@@ -892,9 +901,11 @@ impl Nearest {
 
     #[inline(always)]
     fn offer(&mut self, row: usize, distances: [u32; FIRSTS]) {
-        for k in 0..FIRSTS {
-            let key = ((distances[k] as u64) << 32) | row as u64;
-            if key < self.bound[k] {
+        // Whether the row is allowed: asked once, and only of a row some heap would keep.
+        let mut admitted: Option<bool> = None;
+        for (k, &distance) in distances.iter().enumerate() {
+            let key = ((distance as u64) << 32) | row as u64;
+            if key < self.bound[k] && *admitted.get_or_insert_with(|| (self.allowed)(row)) {
                 let heap = &mut self.heaps[k];
                 heap.push(key);
                 if heap.len() > self.m[k] {
@@ -918,77 +929,76 @@ impl Searcher {
     pub fn new(descriptors: Vec<f32>, params: PlusParams) -> Self {
         use rayon::prelude::*;
         let p = &params;
-        let n = descriptors.len() / p.len();
-        let (offsets, total) = layout(n, p);
-        let mut buffer = vec![0u64; total.div_ceil(8)];
-        {
-            // The sections, each borrowed mutably on its own.
-            let mut rest: &mut [u8] = bytemuck::cast_slice_mut(&mut buffer);
-            let mut parts: Vec<&mut [u8]> = Vec::with_capacity(SECTIONS);
-            let mut at = 0;
-            for (o, section) in offsets.iter().zip(ALL_SECTIONS) {
-                let (_, tail) = std::mem::take(&mut rest).split_at_mut(o - at);
-                let (part, tail) = tail.split_at_mut(n * section.entry_bytes(p));
-                parts.push(part);
-                rest = tail;
-                at = o + n * section.entry_bytes(p);
-            }
-            let [columns, reach_of, firsts_of, shapes, profiles]: [&mut [u8]; SECTIONS] =
-                parts.try_into().unwrap_or_else(|_| unreachable!("{SECTIONS} sections"));
-            descriptors
-                .par_chunks_exact(p.len())
-                .zip(columns.par_chunks_exact_mut(p.len()))
-                .zip(firsts_of.par_chunks_exact_mut(FIRSTS * first_width(p)))
-                .zip(shapes.par_chunks_exact_mut(shape_len(p)))
-                .zip(profiles.par_chunks_exact_mut(profile_len(p)))
-                .zip(reach_of.par_iter_mut())
-                .for_each(|(((((d, columns), first), shape), profile), reach_of)| {
-                    columns_of(d, p, columns);
-                    *reach_of = reach(d, p) as u8;
-                    let (shape_k, profile_k) = (quantized(&shape_key(d, p)), quantized(&profile_key(d, p)));
-                    first.copy_from_slice(&firsts(&shape_k, &profile_k, &quantized(&ring_key(d, p)), p));
-                    shape.copy_from_slice(&shape_k);
-                    profile.copy_from_slice(&profile_k);
-                });
-        }
+        let parts: Vec<[Vec<u8>; SECTIONS]> =
+            descriptors.par_chunks_exact(p.len()).map(|d| entry(d, p)).collect();
         drop(descriptors);
-        Searcher { params, n, store: Store::Owned(buffer), offsets }
+        let mut sections: [Vec<u8>; SECTIONS] =
+            ALL_SECTIONS.map(|section| Vec::with_capacity(parts.len() * section.entry_bytes(p)));
+        for part in &parts {
+            for (to, from) in sections.iter_mut().zip(part) {
+                to.extend_from_slice(from);
+            }
+        }
+        Searcher { n: parts.len(), params, store: Store::Owned(sections) }
     }
 
-    /// The searcher's bytes (its sections, as a cache file's body holds them).
-    pub fn bytes(&self) -> &[u8] {
-        let (_, total) = layout(self.n, &self.params);
-        &self.store.bytes()[..total]
+    /// One more entry, after the others (a mapped searcher is copied into memory first).
+    pub fn push(&mut self, descriptor: &[f32]) {
+        if let Store::Mapped { .. } = self.store {
+            *self = self.subset(&(0..self.n).collect::<Vec<_>>());
+        }
+        let parts = entry(descriptor, &self.params);
+        if let Store::Owned(sections) = &mut self.store {
+            for (to, from) in sections.iter_mut().zip(&parts) {
+                to.extend_from_slice(from);
+            }
+        }
+        self.n += 1;
+    }
+
+    /// The searcher's bytes, its sections laid out as a cache file's body holds them
+    /// ([`layout`]).
+    pub fn bytes(&self) -> std::borrow::Cow<'_, [u8]> {
+        let (offsets, total) = layout(self.n, &self.params);
+        match &self.store {
+            Store::Mapped { map, body, .. } => std::borrow::Cow::Borrowed(&map[*body..*body + total]),
+            Store::Owned(_) => {
+                let mut out = vec![0u8; total];
+                for (i, section) in ALL_SECTIONS.into_iter().enumerate() {
+                    let bytes = self.section(section);
+                    out[offsets[i]..offsets[i] + bytes.len()].copy_from_slice(bytes);
+                }
+                std::borrow::Cow::Owned(out)
+            }
+        }
     }
 
     /// A searcher over the `n` entries laid out in `map` from byte `body` on (a cache file
     /// written from [`Searcher::bytes`]).
     pub fn mapped(map: memmap2::Mmap, body: usize, n: usize, params: PlusParams) -> Result<Self, String> {
         let (offsets, total) = layout(n, &params);
-        if map.len() < body + total || !body.is_multiple_of(SECTION_ALIGN) {
+        if map.len() < body + total {
             return Err(format!(
                 "{} bytes for {n} entries, {total} expected",
                 map.len().saturating_sub(body)
             ));
         }
-        Ok(Searcher { params, n, store: Store::Mapped { map, body }, offsets })
+        Ok(Searcher { params, n, store: Store::Mapped { map, body, offsets } })
     }
 
     /// The entries `rows` (in that order) in a searcher of their own, copied.
     pub fn subset(&self, rows: &[usize]) -> Self {
         let p = &self.params;
-        let (offsets, total) = layout(rows.len(), p);
-        let mut buffer = vec![0u64; total.div_ceil(8)];
-        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut buffer);
-        for (i, section) in ALL_SECTIONS.into_iter().enumerate() {
+        let sections = ALL_SECTIONS.map(|section| {
             let per = section.entry_bytes(p);
-            let from = &self.store.bytes()[self.offsets[i]..];
-            for (k, &row) in rows.iter().enumerate() {
-                let to = offsets[i] + k * per;
-                bytes[to..to + per].copy_from_slice(&from[row * per..(row + 1) * per]);
+            let from = self.section(section);
+            let mut out = Vec::with_capacity(rows.len() * per);
+            for &row in rows {
+                out.extend_from_slice(&from[row * per..(row + 1) * per]);
             }
-        }
-        Searcher { params: self.params.clone(), n: rows.len(), store: Store::Owned(buffer), offsets }
+            out
+        });
+        Searcher { params: self.params.clone(), n: rows.len(), store: Store::Owned(sections) }
     }
 
     /// The same entries searched with other search settings (candidates, shift range); the
@@ -1002,8 +1012,11 @@ impl Searcher {
     /// One section of every entry.
     fn section(&self, section: Section) -> &[u8] {
         let i = section as usize;
-        let start = self.offsets[i];
-        &self.store.bytes()[start..start + self.n * section.entry_bytes(&self.params)]
+        let len = self.n * section.entry_bytes(&self.params);
+        match &self.store {
+            Store::Owned(sections) => &sections[i][..len],
+            Store::Mapped { map, body, offsets } => &map[body + offsets[i]..body + offsets[i] + len],
+        }
     }
 
     /// One section of entry `row`.
@@ -1040,7 +1053,7 @@ impl Searcher {
     /// over the lists of `1 / (FUSION_K + rank)`, ties to the lower row): the ring key's, and
     /// the shape key's and the profile key's among the `COARSE_PER_CANDIDATE` times as many
     /// rows nearest the query by their first terms ([`firsts`], all three read in one pass).
-    fn candidates(&self, query: &[f32], wanted: usize) -> Vec<usize> {
+    fn candidates(&self, query: &[f32], wanted: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<usize> {
         let p = &self.params;
         let long = LIST_PER_CANDIDATE * wanted;
         let (shape, profile) = (quantized(&shape_key(query, p)), quantized(&profile_key(query, p)));
@@ -1050,6 +1063,7 @@ impl Searcher {
             &first,
             first_width(p),
             [long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long],
+            allowed,
         );
         let refined = |section: Section, key: &[u8], coarse: Vec<usize>| -> Vec<usize> {
             let all = self.section(section);
@@ -1079,11 +1093,26 @@ impl Searcher {
 
     /// The `k` best rows for `query`, by (distance, row), with the time of each step.
     pub fn search(&self, query: &[f32], k: usize) -> (Vec<PlusHit>, SearchTimes) {
+        self.search_where(query, k, &|_| true)
+    }
+
+    /// The `k` best rows for `query` among those `allowed` admits, by (distance, row), with the
+    /// time of each step: the rows and distances a searcher of those rows alone would give.
+    pub fn search_where(
+        &self,
+        query: &[f32],
+        k: usize,
+        allowed: &dyn Fn(usize) -> bool,
+    ) -> (Vec<PlusHit>, SearchTimes) {
         let p = &self.params;
         let t = std::time::Instant::now();
-        let wanted = p.candidates.max(k).min(self.len());
-        let rows =
-            if wanted >= self.len() { (0..self.len()).collect() } else { self.candidates(query, wanted) };
+        let wanted = p.candidates.max(k);
+        // With no more allowed rows than wanted, the keys' lists hold them all.
+        let rows = if wanted >= self.len() {
+            (0..self.len()).filter(|&row| allowed(row)).collect()
+        } else {
+            self.candidates(query, wanted, allowed)
+        };
         let candidates_secs = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
         let q = Query::new(query, p);
@@ -1098,6 +1127,15 @@ impl Searcher {
         hits.truncate(k);
         (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
     }
+}
+
+/// The sections' bytes of one entry.
+fn entry(d: &[f32], p: &PlusParams) -> [Vec<u8>; SECTIONS] {
+    let mut columns = vec![0u8; p.len()];
+    columns_of(d, p, &mut columns);
+    let (shape, profile) = (quantized(&shape_key(d, p)), quantized(&profile_key(d, p)));
+    let first = firsts(&shape, &profile, &quantized(&ring_key(d, p)), p);
+    [columns, vec![reach(d, p) as u8], first, shape, profile]
 }
 
 /// Keys of the first pass, each `rings` bytes.
@@ -1275,10 +1313,17 @@ mod tests {
             (0..5000 * 72).map(|i| if i % 24 < 20 { (rng.next_u64() % 8) as u8 } else { 0 }).collect();
         let query = rows[72 * 17..72 * 18].to_vec();
         let m = [30, 300, 7];
-        let fast = nearest_rows_3(&rows, &query, 24, m);
-        let plain = nearest_rows_3_portable(&rows, &query, 24, m);
+        let fast = nearest_rows_3(&rows, &query, 24, m, &|_| true);
+        let plain = nearest_rows_3_portable(&rows, &query, 24, m, &|_| true);
         assert_eq!(fast, plain);
         assert_eq!(fast[0][0], 17);
+        // Rows left out are never kept, on either route.
+        let odd = |row: usize| row % 2 == 1;
+        let (fast, plain) =
+            (nearest_rows_3(&rows, &query, 24, m, &odd), nearest_rows_3_portable(&rows, &query, 24, m, &odd));
+        assert_eq!(fast, plain);
+        assert!(fast.iter().flatten().all(|&row| odd(row)));
+        let fast = nearest_rows_3(&rows, &query, 24, m, &|_| true);
         let l1 = |r: usize, k: usize| -> u32 {
             (0..24).map(|j| rows[r * 72 + k * 24 + j].abs_diff(query[k * 24 + j]) as u32).sum()
         };
@@ -1289,6 +1334,35 @@ mod tests {
                 "key {k} in order"
             );
         }
+    }
+
+    #[test]
+    fn a_grown_searcher_and_a_restricted_search_equal_a_searcher_of_those_rows() {
+        let p = PlusParams { candidates: 3, ..PlusParams::default() };
+        let scenes: Vec<Vec<f32>> = (0..12)
+            .map(|i| {
+                let s: Vec<Point> = scene()
+                    .into_iter()
+                    .map(|q| [q[0] * (1.0 + 0.05 * i as f64), q[1] - i as f64, q[2]])
+                    .collect();
+                describe(&s, &p).unwrap()
+            })
+            .collect();
+        let all: Vec<f32> = scenes.concat();
+        let built = Searcher::new(all.clone(), p.clone());
+        let mut grown = Searcher::new(Vec::new(), p.clone());
+        for d in &scenes {
+            grown.push(d);
+        }
+        assert_eq!(grown.bytes(), built.bytes());
+        let query = describe(&turned(&scene(), 1), &p).unwrap();
+        // Rows 2, 5, 7 and 9 alone: the same hits as a searcher of those rows, renumbered.
+        let kept = [2usize, 5, 7, 9];
+        let alone = built.subset(&kept);
+        let (restricted, _) = grown.search_where(&query, 2, &|row| kept.contains(&row));
+        let (only, _) = alone.search(&query, 2);
+        let renumbered: Vec<PlusHit> = only.iter().map(|&(row, d, yaw)| (kept[row], d, yaw)).collect();
+        assert_eq!(restricted, renumbered);
     }
 
     #[test]

@@ -481,6 +481,94 @@ fn index_files(
     py.detach(|| toporec::info::files(&index, table.as_deref(), method.as_deref())).map_err(toporec_error)
 }
 
+/// The points of one scan file (KITTI `.bin`, NCLT `velodyne_sync` `.bin`, `.csv`), in the
+/// sensor frame as toporec's sources read them.
+#[pyfunction]
+fn read_points<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let points =
+        py.detach(|| toporec::sources::read_cloud(&path, None)).map_err(|e| value_error(e.to_string()))?;
+    let flat: Vec<f64> = points.iter().flatten().copied().collect();
+    Ok(Array2::from_shape_vec((points.len(), 3), flat).expect("n × 3 values").into_pyarray(py))
+}
+
+/// The online loop detector of one method.
+#[pyclass(module = "toporec._toporec")]
+struct LoopDetector {
+    inner: std::sync::Mutex<toporec::loops::Detector>,
+}
+
+#[pymethods]
+impl LoopDetector {
+    #[new]
+    #[pyo3(signature = (method, settings, index, exclude_seconds, exclude_scans, threshold))]
+    fn new(
+        py: Python<'_>,
+        method: &str,
+        settings: &str,
+        index: Option<PathBuf>,
+        exclude_seconds: f64,
+        exclude_scans: Option<usize>,
+        threshold: f64,
+    ) -> PyResult<Self> {
+        let m = match index {
+            Some(index) => py
+                .detach(|| toporec::loops::detector::method_of_index(&index, method))
+                .map_err(toporec_error)?,
+            None => {
+                let settings: serde_json::Value = serde_json::from_str(settings).map_err(value_error)?;
+                toporec::baselines::Method::from_settings(method, &settings).map_err(value_error)?
+            }
+        };
+        if !(exclude_seconds.is_finite() && exclude_seconds >= 0.0) {
+            return Err(value_error(format!("exclude_seconds {exclude_seconds}: must be finite and >= 0")));
+        }
+        let exclusion = match exclude_scans {
+            Some(n) => toporec::loops::Exclusion::Scans(n),
+            None => toporec::loops::Exclusion::Seconds(exclude_seconds),
+        };
+        let inner = toporec::loops::Detector::new(m, exclusion, threshold).map_err(value_error)?;
+        Ok(LoopDetector { inner: std::sync::Mutex::new(inner) })
+    }
+
+    /// Describes and adds one scan; its best allowed earlier match as
+    /// `(row, distance, yaw, rank2, true_distance, accepted)`, or None for the first scans.
+    #[pyo3(signature = (points, time, session, pose))]
+    #[expect(clippy::type_complexity, reason = "a plain tuple the Python layer names")]
+    fn add(
+        &self,
+        py: Python<'_>,
+        points: PyReadonlyArray2<'_, f64>,
+        time: Option<f64>,
+        session: &str,
+        pose: Option<[f64; 3]>,
+    ) -> PyResult<Option<(usize, f64, Option<f64>, Option<f64>, Option<f64>, bool)>> {
+        let a = points.as_array();
+        if a.ncols() != 3 {
+            return Err(value_error(format!("points: expected an (n, 3) array, got shape {:?}", a.shape())));
+        }
+        let pts: Vec<[f64; 3]> = a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+        if let Some(t) = time.filter(|t| !t.is_finite()) {
+            return Err(value_error(format!("time {t}: must be finite")));
+        }
+        let utime = time.map(|t| (t * 1e6).round() as i64);
+        let found = py
+            .detach(|| self.inner.lock().expect("not poisoned").add(&pts, utime, session, pose))
+            .map_err(value_error)?;
+        Ok(found.map(|m| (m.row, m.distance, m.yaw_degrees, m.rank2_distance, m.true_distance_m, m.accepted)))
+    }
+
+    /// Scans added.
+    fn __len__(&self) -> usize {
+        self.inner.lock().expect("not poisoned").len()
+    }
+
+    /// Seconds the last `add` spent describing, and searching plus inserting.
+    fn last_times(&self) -> (f64, f64) {
+        let t = self.inner.lock().expect("not poisoned").last_times();
+        (t.describe, t.search_insert)
+    }
+}
+
 /// Answers queries against one method of an index.
 #[pyclass(module = "toporec._toporec")]
 struct QueryEngine {
@@ -808,6 +896,8 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(index_files, m)?)?;
     m.add_class::<ArrowStream>()?;
     m.add_class::<QueryEngine>()?;
+    m.add_class::<LoopDetector>()?;
+    m.add_function(wrap_pyfunction!(read_points, m)?)?;
     m.add_class::<BatchDescriber>()?;
     Ok(())
 }

@@ -109,6 +109,39 @@ impl Method {
         Method { name: TOPOREC_PLUS.into(), kind: MethodKind::ToporecPlus(p) }
     }
 
+    /// A method computed from raw scans by its name (`toporec-plus`, `scancontext`, `solid`,
+    /// `m2dp`) and its settings (the keys of its pipeline-file section, as JSON; `null` or `{}`
+    /// for the defaults); an error naming each problem.
+    pub fn from_settings(name: &str, settings: &serde_json::Value) -> Result<Method, String> {
+        fn parse<T: serde::de::DeserializeOwned + Default>(
+            name: &str,
+            v: &serde_json::Value,
+        ) -> Result<T, String> {
+            if v.is_null() {
+                return Ok(T::default());
+            }
+            serde_json::from_value(v.clone()).map_err(|e| format!("{name}: {e}"))
+        }
+        let method = match name {
+            TOPOREC_PLUS => Method::toporec_plus(parse(name, settings)?),
+            SCANCONTEXT => Method::scancontext(parse(name, settings)?),
+            SOLID => Method::solid(parse(name, settings)?),
+            M2DP => Method::m2dp(parse(name, settings)?),
+            _ => {
+                return Err(format!(
+                    "unknown method `{name}` (computed from raw scans: toporec-plus, scancontext, solid, m2dp)"
+                ));
+            }
+        };
+        let problems = match &method.kind {
+            MethodKind::ToporecPlus(p) => p.problems(),
+            MethodKind::ScanContext(p) => p.problems(),
+            MethodKind::Solid(p) => p.problems(),
+            _ => Vec::new(),
+        };
+        if problems.is_empty() { Ok(method) } else { Err(problems.join("; ")) }
+    }
+
     /// The kind's name (`scancontext`, `m2dp`, `solid`, `toporec-plus`, `imported`, `toporec`).
     pub fn kind_name(&self) -> &'static str {
         match self.kind {

@@ -1,15 +1,21 @@
-//! Loop closures from an index: `toporec loops`.
+//! Loop closures: `toporec loops` over an index, and the online [`Detector`].
 //!
 //! The index's scans are walked in time order (by timestamp, then session and scan id; scans
 //! without a timestamp last). Each scan is searched against the scans before it, leaving out
-//! those of its own session within `exclude_seconds` (or `exclude_scans` positions) of it: the
-//! method's own search over the whole index, its hits filtered to the allowed scans, with more
-//! neighbours asked for until two allowed ones are found. The best allowed match is a loop when
-//! its descriptor distance is below the threshold. Each row keeps the runner-up's distance (a
-//! margin for the user's own checks) and, where both scans have poses, their true distance.
+//! those of its own session within `exclude_seconds` (or `exclude_scans` positions) of it, by
+//! the method's own search at its default budget over those allowed scans alone
+//! ([`search::Growing`]); the online [`Detector`] does the same one scan at a time, so both give
+//! the same matches. The best allowed match is a loop when its descriptor distance is below the
+//! threshold. Each row keeps the runner-up's distance (a margin for the user's own checks) and,
+//! where both scans have poses, their true distance.
 //!
 //! Thresholds: given, read from a calibration file, or calibrated on the index's own poses
 //! ([`calibrate`]: the largest threshold whose accepted matches reach a target precision).
+
+pub mod detector;
+pub mod search;
+
+pub use detector::{Detector, Match};
 
 use crate::error::{Error, Result, ResultExt};
 use crate::query::Engine;
@@ -135,16 +141,13 @@ impl<'a> Allowed<'a> {
         if self.position[row] >= self.position[query] {
             return false;
         }
-        if scans[row].session != scans[query].session {
-            return true;
-        }
-        match self.exclusion {
-            Exclusion::Scans(n) => self.in_session[query] - self.in_session[row] > n,
-            Exclusion::Seconds(s) => match (scans[query].utime, scans[row].utime) {
-                (Some(a), Some(b)) => (a - b).unsigned_abs() as f64 >= s * 1e6,
-                _ => true,
-            },
-        }
+        // Sessions compared by name: 0 for the query's, 1 for another.
+        let session = |r: usize| u32::from(scans[r].session != scans[query].session);
+        detector::allowed_by(
+            self.exclusion,
+            (0, self.in_session[query], scans[query].utime),
+            (session(row), self.in_session[row], scans[row].utime),
+        )
     }
 
     /// Which scans have an allowed scan within `radius` metres (both with poses): the scans a
@@ -175,34 +178,25 @@ impl<'a> Allowed<'a> {
 }
 
 /// Every scan's best allowed earlier matches (up to two), in time order; `queries[i]` is the
-/// descriptor of `engine.scans[i]`, and `rule` is over `engine.scans`.
+/// descriptor of `engine.scans[i]`, and `rule` is over `engine.scans`. The scans are searched
+/// in one structure holding them in time order, each query restricted to its allowed rows: the
+/// matches a [`Detector`] given the scans in that order finds.
 pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], rule: &Allowed) -> Matches {
     use rayon::prelude::*;
-    let scans = &engine.scans;
-    let allowed = |query: usize, row: usize| rule.allows(query, row);
     let order = &rule.order;
+    let mut growing = search::Growing::new(&engine.method, queries.first().map_or(0, |d| d.len()));
+    for &row in order {
+        growing.push(&queries[row]);
+    }
     order
         .par_iter()
-        .filter_map(|&query| {
-            let earlier =
-                order.iter().take_while(|&&r| r != query).filter(|&&r| allowed(query, r)).take(2).count();
-            if earlier == 0 {
-                return None;
-            }
-            let mut k = 8.min(scans.len());
-            loop {
-                let (found, _) = engine.find(&queries[query], k);
-                let best: Vec<(usize, f64, Option<f64>)> = found
-                    .iter()
-                    .filter(|f| allowed(query, f.row))
-                    .take(2)
-                    .map(|f| (f.row, f.distance, f.yaw_degrees))
-                    .collect();
-                if best.len() >= earlier || k >= scans.len() {
-                    return Some((query, best));
-                }
-                k = (k * 4).min(scans.len());
-            }
+        .enumerate()
+        .filter_map(|(at, &query)| {
+            let allowed = |position: usize| position < at && rule.allows(query, order[position]);
+            let best = growing.search(&queries[query], 2, &allowed);
+            (!best.is_empty()).then(|| {
+                (query, best.into_iter().map(|(position, d, yaw)| (order[position], d, yaw)).collect())
+            })
         })
         .collect()
 }
@@ -235,7 +229,7 @@ pub fn rows(engine: &Engine, matches: &Matches) -> Vec<LoopRow> {
         .collect()
 }
 
-fn distance3(a: [f64; 3], b: [f64; 3]) -> f64 {
+pub(crate) fn distance3(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 

@@ -1,0 +1,131 @@
+//! A search structure that grows by one scan at a time and answers for the scans a rule
+//! allows: the loop detector's ([`super::Detector`]) and `toporec loops`' (which holds every
+//! scan in time order and allows each query the earlier ones outside its exclusion window, so
+//! both give the same matches).
+//!
+//! Each method searches as its own searcher does at its default budget, restricted to the
+//! allowed rows: toporec-plus by its keys and its distance ([`crate::toporec_plus::Searcher`]),
+//! ScanContext by its ring keys' nearest allowed rows re-ranked by its distance, SOLiD by its
+//! exact distance to every allowed row, the others (TopoRec, M2DP, imported vectors) by exact
+//! Euclidean distance. Ties go to the lower row.
+
+use crate::baselines::{Method, MethodKind, scancontext, solid};
+use crate::toporec_plus;
+
+/// A hit: row, distance, and the yaw of the query relative to the row (degrees), for the
+/// methods that estimate one.
+pub type LoopHit = (usize, f64, Option<f64>);
+
+/// The growing search structure of one method.
+pub struct Growing(Inner);
+
+enum Inner {
+    /// toporec-plus's own searcher.
+    Plus(toporec_plus::Searcher),
+    /// ScanContext: descriptors and ring keys.
+    ScanContext { params: scancontext::ScanContextParams, descriptors: Vec<f32>, keys: Vec<f32> },
+    /// SOLiD: descriptors.
+    Solid { params: solid::SolidParams, descriptors: Vec<f32> },
+    /// Exact Euclidean search over vectors of `dim` values.
+    Euclidean { dim: usize, vectors: Vec<f32> },
+}
+
+impl Growing {
+    /// An empty structure for `method`'s descriptors of `length` values.
+    pub fn new(method: &Method, length: usize) -> Self {
+        Growing(match &method.kind {
+            MethodKind::ToporecPlus(p) => Inner::Plus(toporec_plus::Searcher::new(Vec::new(), p.clone())),
+            MethodKind::ScanContext(p) => {
+                Inner::ScanContext { params: p.clone(), descriptors: Vec::new(), keys: Vec::new() }
+            }
+            MethodKind::Solid(p) => Inner::Solid { params: p.clone(), descriptors: Vec::new() },
+            _ => Inner::Euclidean { dim: length.max(1), vectors: Vec::new() },
+        })
+    }
+
+    /// Rows.
+    pub fn len(&self) -> usize {
+        match &self.0 {
+            Inner::Plus(s) => s.len(),
+            Inner::ScanContext { params, descriptors, .. } => descriptors.len() / params.len(),
+            Inner::Solid { params, descriptors } => descriptors.len() / params.len(),
+            Inner::Euclidean { dim, vectors } => vectors.len() / dim,
+        }
+    }
+
+    /// Whether there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// One more row, after the others.
+    pub fn push(&mut self, descriptor: &[f32]) {
+        match &mut self.0 {
+            Inner::Plus(s) => s.push(descriptor),
+            Inner::ScanContext { params, descriptors, keys } => {
+                descriptors.extend_from_slice(descriptor);
+                keys.extend(scancontext::ring_key(descriptor, params));
+            }
+            Inner::Solid { descriptors, .. } => descriptors.extend_from_slice(descriptor),
+            Inner::Euclidean { vectors, .. } => vectors.extend_from_slice(descriptor),
+        }
+    }
+
+    /// The `k` best rows for `query` among those `allowed` admits, by (distance, row).
+    pub fn search(&self, query: &[f32], k: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<LoopHit> {
+        let rows = (0..self.len()).filter(|&r| allowed(r));
+        let best = |mut scored: Vec<(usize, f64, Option<f64>)>, k: usize| {
+            scored.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            scored.truncate(k);
+            scored
+        };
+        match &self.0 {
+            Inner::Plus(s) => s
+                .search_where(query, k, allowed)
+                .0
+                .into_iter()
+                .map(|(row, d, yaw)| (row, d, Some(yaw)))
+                .collect(),
+            Inner::ScanContext { params: p, descriptors, keys } => {
+                // The ring key's nearest allowed rows (exact, squared distances in f64), then
+                // the ScanContext distance of each.
+                let key = scancontext::ring_key(query, p);
+                let by_key: Vec<(usize, f64, Option<f64>)> = rows
+                    .map(|r| {
+                        let e = &keys[r * p.rings..(r + 1) * p.rings];
+                        (r, key.iter().zip(e).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum(), None)
+                    })
+                    .collect();
+                let candidates = best(by_key, p.candidates.max(k));
+                let len = p.len();
+                let scored = candidates
+                    .into_iter()
+                    .map(|(r, _, _)| {
+                        let (d, shift) =
+                            scancontext::distance(query, &descriptors[r * len..(r + 1) * len], p);
+                        (r, d, Some(scancontext::yaw_degrees(shift, p)))
+                    })
+                    .collect();
+                best(scored, k)
+            }
+            Inner::Solid { params: p, descriptors } => {
+                let len = p.len();
+                let at = |r: usize| &descriptors[r * len..(r + 1) * len];
+                let scored = rows.map(|r| (r, solid::distance(query, at(r), p), None)).collect();
+                best(scored, k)
+                    .into_iter()
+                    .map(|(r, d, _)| (r, d, Some(solid::yaw_degrees(solid::yaw_shift(query, at(r), p), p))))
+                    .collect()
+            }
+            Inner::Euclidean { dim, vectors } => {
+                let scored = rows
+                    .map(|r| {
+                        let v = &vectors[r * dim..(r + 1) * dim];
+                        (r, query.iter().zip(v).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum(), None)
+                    })
+                    .collect();
+                best(scored, k).into_iter().map(|(r, d2, y)| (r, f64::sqrt(d2), y)).collect()
+            }
+        }
+    }
+}
