@@ -957,7 +957,7 @@ impl Searcher {
     }
 
     /// The searcher's bytes, its sections laid out as a cache file's body holds them
-    /// ([`layout`]).
+    /// (`layout`).
     pub fn bytes(&self) -> std::borrow::Cow<'_, [u8]> {
         let (offsets, total) = layout(self.n, &self.params);
         match &self.store {

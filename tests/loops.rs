@@ -4,11 +4,11 @@ use crate::util::{run_pipeline, sample_copy, scratch_dir, text, toporec};
 use std::path::Path;
 
 /// The sample drive (two sessions of 32 scans 0.5 s apart, with poses) indexed with
-/// ScanContext and toporec-plus.
+/// ScanContext, toporec-plus and SOLiD.
 fn sample_index(dir: &Path) -> std::path::PathBuf {
     let data = sample_copy(dir, &["2026-01-01", "2026-01-02"]);
     let body = format!(
-        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\"]\n",
+        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\", \"solid\"]\n",
         data.join("velodyne_data").display().to_string()
     );
     let pipeline = dir.join("loops.toml");
@@ -110,8 +110,8 @@ fn calibration_is_written_and_read_back() {
     let names: Vec<String> = reader.schema().fields().iter().map(|f| f.name().clone()).collect();
     assert_eq!(names.join(","), toporec::loops::CSV_HEADER);
     let n: usize = reader.build().unwrap().map(|b| b.unwrap().num_rows()).sum();
-    // 30 s by default: a 16 s session matches nothing of its own, so day 2's scans only.
-    assert_eq!(n, 2 * 32);
+    // 30 s by default: a 16 s session matches nothing of its own, so day 2's scans only, per method.
+    assert_eq!(n, 3 * 32, "three methods");
     let calibration = dir.join("cal.calibration.json");
     let cal: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&calibration).unwrap()).unwrap();
@@ -144,12 +144,64 @@ fn calibration_is_written_and_read_back() {
     ]);
     assert_eq!(o.status.code(), Some(2));
     assert!(text(&o.stderr).contains("calibrated on descriptors 0000000000000000"), "{}", text(&o.stderr));
-    // No threshold: refused, saying how to give one.
+    // No threshold: ScanContext and toporec-plus at their default settings have a documented
+    // default (docs/loops.md); SOLiD has none, and is refused, saying how to give one.
+    let defaults = run(&[], "defaults.csv");
+    let documented = run(&["--threshold", "0.5355"], "documented.csv");
+    assert_eq!(defaults, documented);
     let o = toporec(&["loops", "--index", idx, "-o", dir.join("y.csv").to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        text(&o.stderr).contains("--threshold D, --threshold-from FILE, or --calibrate"),
+        text(&o.stderr).contains("`solid` has no default threshold")
+            && text(&o.stderr).contains("--threshold D, --threshold-from FILE, or --calibrate"),
         "{}",
         text(&o.stderr)
     );
+}
+
+#[test]
+fn the_online_detector_finds_what_loops_finds() {
+    let dir = scratch_dir("loops_detector");
+    let index = sample_index(&dir);
+    let idx = index.to_str().unwrap();
+    for method in ["toporec-plus", "scancontext", "solid"] {
+        let expected = loops_rows(
+            idx,
+            &["--method", method, "--all", "--threshold", "0.3"],
+            &dir.join(format!("{method}.csv")),
+        );
+        // The sample's scans in time order (day 1, then day 2), added one at a time.
+        let m = toporec::loops::detector::method_of_index(&index, method).unwrap();
+        let exclusion = toporec::loops::Exclusion::Seconds(30.0);
+        let mut detector = toporec::loops::Detector::new(m, exclusion, 0.3).unwrap();
+        let mut ids = Vec::new();
+        let mut found = Vec::new();
+        for session in ["2026-01-01", "2026-01-02"] {
+            let folder = dir.join("town/velodyne_data").join(session).join("velodyne_sync");
+            let mut files: Vec<_> = std::fs::read_dir(&folder).unwrap().map(|e| e.unwrap().path()).collect();
+            files.sort();
+            for f in files {
+                let stem = f.file_stem().unwrap().to_str().unwrap().to_string();
+                let points = toporec::sources::read_cloud(&f, None).unwrap();
+                let hit = detector.add(&points, Some(stem.parse().unwrap()), session, None).unwrap();
+                let query = format!("{session}/{stem}");
+                if let Some(h) = hit {
+                    let (matched, matched_session): &(String, String) = &ids[h.row];
+                    found.push((
+                        method.to_string(),
+                        query.clone(),
+                        session.to_string(),
+                        matched.clone(),
+                        matched_session.clone(),
+                        h.distance,
+                        h.accepted,
+                    ));
+                }
+                ids.push((query, session.to_string()));
+            }
+        }
+        assert_eq!(detector.len(), 64);
+        assert!(!found.is_empty());
+        assert_eq!(found, expected, "{method}");
+    }
 }

@@ -508,7 +508,7 @@ impl LoopDetector {
         index: Option<PathBuf>,
         exclude_seconds: f64,
         exclude_scans: Option<usize>,
-        threshold: f64,
+        threshold: Option<f64>,
     ) -> PyResult<Self> {
         let m = match index {
             Some(index) => py
@@ -525,6 +525,15 @@ impl LoopDetector {
         let exclusion = match exclude_scans {
             Some(n) => toporec::loops::Exclusion::Scans(n),
             None => toporec::loops::Exclusion::Seconds(exclude_seconds),
+        };
+        let threshold = match threshold.or_else(|| toporec::loops::default_threshold(&m)) {
+            Some(t) => t,
+            None => {
+                return Err(value_error(format!(
+                    "threshold: `{method}` has no default threshold at its settings; give one (calibrate with \
+                     `toporec loops --calibrate`)"
+                )));
+            }
         };
         let inner = toporec::loops::Detector::new(m, exclusion, threshold).map_err(value_error)?;
         Ok(LoopDetector { inner: std::sync::Mutex::new(inner) })
@@ -560,6 +569,12 @@ impl LoopDetector {
     /// Scans added.
     fn __len__(&self) -> usize {
         self.inner.lock().expect("not poisoned").len()
+    }
+
+    /// The threshold below which a match is a loop.
+    #[getter]
+    fn threshold(&self) -> f64 {
+        self.inner.lock().expect("not poisoned").threshold()
     }
 
     /// Seconds the last `add` spent describing, and searching plus inserting.

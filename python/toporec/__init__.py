@@ -486,7 +486,8 @@ class LoopDetector:
         method: ``"toporec-plus"`` (default), ``"scancontext"``, ``"solid"`` or ``"m2dp"``.
         exclude_seconds: earlier scans of the same session closer in time are left out.
         threshold: a match below this descriptor distance is a loop; default the method's
-            documented one (toporec-plus 0.36, ScanContext 0.54), else required.
+            documented one at the default settings (toporec-plus 0.3619, ScanContext 0.5355;
+            docs/loops.md), else required.
         exclude_scans: leave out this many preceding scans of the session instead of seconds.
         index: take the method's settings from this index (so the descriptors match its own).
         **settings: the method's settings (the keys of its pipeline-file section).
@@ -503,10 +504,6 @@ class LoopDetector:
         index: Optional[PathLike] = None,
         **settings: Any,
     ) -> None:
-        if threshold is None:
-            threshold = _DEFAULT_LOOP_THRESHOLDS.get(method)
-            if threshold is None:
-                raise ValueError(f"threshold: {method} has no default; give one (calibrate with `toporec loops --calibrate`)")
         if exclude_scans is not None and int(exclude_scans) < 0:
             raise ValueError(f"exclude_scans {exclude_scans}: must be >= 0")
         self._detector = _toporec.LoopDetector(
@@ -515,10 +512,11 @@ class LoopDetector:
             None if index is None else os.fspath(index),
             float(exclude_seconds),
             None if exclude_scans is None else int(exclude_scans),
-            float(threshold),
+            None if threshold is None else float(threshold),
         )
         self.method = method
-        self.threshold = float(threshold)
+        #: The threshold below which a match is a loop.
+        self.threshold: float = self._detector.threshold
         #: The last scan's best allowed match (accepted or not), or None.
         self.last_match: Optional[Dict[str, Any]] = None
 
@@ -566,6 +564,3 @@ class LoopDetector:
         """Seconds the last ``add`` spent describing, and searching plus inserting."""
         return self._detector.last_times()
 
-
-# Thresholds calibrated to precision 0.99 on a simulated HDL-64E drive (docs/loops.md).
-_DEFAULT_LOOP_THRESHOLDS = {"toporec-plus": 0.36, "scancontext": 0.54}

@@ -38,3 +38,23 @@ class BatchDescriber:
     def describe(
         self, stream: Any, write_to: Optional[Tuple[str, str]] = None
     ) -> Tuple[ArrowStream, ArrowStream, List[Tuple[str, ArrowStream]]]: ...
+
+def read_points(path: str) -> np.ndarray: ...
+
+class LoopDetector:
+    def __init__(
+        self,
+        method: str,
+        settings: str,
+        index: Optional[str],
+        exclude_seconds: float,
+        exclude_scans: Optional[int],
+        threshold: Optional[float],
+    ) -> None: ...
+    @property
+    def threshold(self) -> float: ...
+    def add(
+        self, points: np.ndarray, time: Optional[float], session: str, pose: Optional[Tuple[float, float, float]]
+    ) -> Optional[Tuple[int, float, Optional[float], Optional[float], Optional[float], bool]]: ...
+    def __len__(self) -> int: ...
+    def last_times(self) -> Tuple[float, float]: ...

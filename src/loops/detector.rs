@@ -86,6 +86,11 @@ impl Detector {
         &self.method
     }
 
+    /// The threshold below which a match is a loop.
+    pub fn threshold(&self) -> f64 {
+        self.threshold
+    }
+
     /// Scans added.
     pub fn len(&self) -> usize {
         self.growing.len()

@@ -9,8 +9,9 @@
 //! threshold. Each row keeps the runner-up's distance (a margin for the user's own checks) and,
 //! where both scans have poses, their true distance.
 //!
-//! Thresholds: given, read from a calibration file, or calibrated on the index's own poses
-//! ([`calibrate`]: the largest threshold whose accepted matches reach a target precision).
+//! Thresholds: given, read from a calibration file, calibrated on the index's own poses
+//! ([`calibrate`]: the largest threshold whose accepted matches reach a target precision), or
+//! the method's documented default ([`default_threshold`]).
 
 pub mod detector;
 pub mod search;
@@ -339,20 +340,45 @@ impl std::fmt::Display for Summary {
     }
 }
 
+/// The default threshold of a method at its default settings: the threshold calibrated to
+/// precision 0.99 (revisits within 5 m, 30 s excluded) on the simulated HDL-64E drive of
+/// docs/loops.md. `None` for the other methods and settings (their distances differ).
+pub fn default_threshold(method: &crate::baselines::Method) -> Option<f64> {
+    use crate::baselines::MethodKind;
+    match &method.kind {
+        MethodKind::ToporecPlus(p) if *p == crate::toporec_plus::PlusParams::default() => Some(0.3619),
+        MethodKind::ScanContext(p) if *p == crate::baselines::scancontext::ScanContextParams::default() => {
+            Some(0.5355)
+        }
+        _ => None,
+    }
+}
+
 /// The threshold of one method: given, from a calibration file (which must be the method's and
-/// of its descriptors), or calibrated (`None` until then).
-fn given_threshold(a: &LoopsArgs, method: &str, id: &str) -> Result<Option<f64>> {
+/// of its descriptors), calibrated (`None` until then), or the method's default.
+fn given_threshold(a: &LoopsArgs, method: &str, engine: &Engine) -> Result<Option<f64>> {
+    let id = &engine.id;
     if let Some(t) = a.threshold {
         return Ok(Some(t));
     }
-    let Some(path) = &a.threshold_from else { return Ok(None) };
+    let Some(path) = &a.threshold_from else {
+        if a.calibrate {
+            return Ok(None);
+        }
+        return default_threshold(&engine.method).map(Some).ok_or_else(|| {
+            Error::invalid(format!(
+                "`{method}` has no default threshold at its settings: give --threshold D, --threshold-from FILE, \
+                 or --calibrate on a drive with poses"
+            ))
+        });
+    };
     let text = std::fs::read_to_string(path).at(path)?;
     let all: Vec<Calibration> = serde_json::from_str(&text)
         .map_err(|e| Error::invalid(format!("{}: not a toporec loops calibration: {e}", path.display())))?;
     let Some(c) = all.iter().find(|c| c.method == method) else {
         return Err(Error::invalid(format!("{}: no threshold for method `{method}`", path.display())));
     };
-    if c.id != id {
+    if c.id != *id {
         return Err(Error::invalid(format!(
             "{}: the threshold of `{method}` was calibrated on descriptors {}, the index holds {id}",
             path.display(),
@@ -370,12 +396,6 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
     }
     if a.threshold.is_some() as u8 + a.threshold_from.is_some() as u8 + a.calibrate as u8 > 1 {
         return Err(Error::invalid("--threshold, --threshold-from and --calibrate: give one".to_string()));
-    }
-    if !a.calibrate && a.threshold.is_none() && a.threshold_from.is_none() {
-        return Err(Error::invalid(
-            "a threshold is needed: --threshold D, --threshold-from FILE, or --calibrate on a drive with poses"
-                .to_string(),
-        ));
     }
     let methods = if a.methods.is_empty() {
         crate::query::index_methods(&a.index)?.into_iter().map(|m| m.name).collect()
@@ -395,7 +415,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         let rule = Allowed::new(&engine.scans, exclusion);
         let matches = best_matches(&engine, &queries, &rule);
         let mut rows = rows(&engine, &matches);
-        let threshold = match given_threshold(a, method, &engine.id)? {
+        let threshold = match given_threshold(a, method, &engine)? {
             Some(t) => t,
             None => {
                 let judged: Vec<(f64, bool)> = rows
