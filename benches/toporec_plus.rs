@@ -16,8 +16,7 @@
 
 mod common;
 
-use common::median_ms;
-use rayon::prelude::*;
+use common::{median_ms, simulated_scans, turned_copy};
 use std::path::Path;
 use std::time::Instant;
 use toporec::homology::{Point, alpha_persistence};
@@ -46,41 +45,6 @@ fn kitti_scans() -> Option<Vec<Vec<Point>>> {
             .map(|f| toporec::sources::read_cloud(&f, None).expect("a scan"))
             .collect(),
     )
-}
-
-/// `n` simulated HDL-64E scans (1° azimuth steps, as the evaluation's drives), in two sessions
-/// of `n / 2`, 2 m apart, the second reversed.
-fn simulated_scans(n: usize) -> Vec<Vec<Point>> {
-    use toporec::simulate::{
-        Sensor, SensorModel, SimParams,
-        scene::{Scene, TownParams},
-    };
-    let mut sensor = Sensor::new(SensorModel::Hdl64);
-    sensor.azimuth_res = 1.0;
-    let p = SimParams {
-        town: TownParams { blocks: 5, block_size: 60.0, ..TownParams::default() },
-        sensor,
-        seed: 3,
-        scans: Some(n / 2),
-        rate: 5.0,
-        reverse: true,
-        ..SimParams::default()
-    };
-    (0..2)
-        .flat_map(|session| {
-            let scene = Scene::town(&p.town, p.seed, session as u64);
-            (0..n / 2)
-                .into_par_iter()
-                .map_init(
-                    || scene.mailbox(),
-                    |mailbox, i| {
-                        let s = toporec::simulate::scan(&p, &scene, session, i, mailbox);
-                        s.points.iter().map(|q| q.map(|c| c as f64)).collect::<Vec<Point>>()
-                    },
-                )
-                .collect::<Vec<_>>()
-        })
-        .collect()
 }
 
 /// Per-scan medians of 5 runs (ms): the paper's descriptor, toporec-plus, ScanContext.
@@ -182,15 +146,7 @@ fn main() {
                 db.extend_from_slice(d);
                 continue;
             }
-            let shift = rng.below(p.sectors);
-            let scale = 0.8 + 0.4 * rng.next_f64();
-            for row in d.chunks_exact(p.sectors) {
-                for s in 0..p.sectors {
-                    let v = row[(s + shift) % p.sectors] as f64;
-                    let noise = 1.0 + 0.1 * (rng.next_f64() - 0.5);
-                    db.push(if v > 0.0 { (v * scale * noise).round().clamp(1.0, 255.0) as f32 } else { 0.0 });
-                }
-            }
+            db.extend(turned_copy(d, p.sectors, true, &mut rng));
         }
         let made = t.elapsed().as_secs_f64();
         let queries: Vec<Vec<f32>> = described.iter().step_by(described.len() / 24).take(24).cloned().collect();

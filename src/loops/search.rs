@@ -74,9 +74,17 @@ impl Growing {
     /// The `k` best rows for `query` among those `allowed` admits, by (distance, row).
     pub fn search(&self, query: &[f32], k: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<LoopHit> {
         let rows = (0..self.len()).filter(|&r| allowed(r));
+        // The k smallest by (distance, row): selected in linear time, then sorted.
         let best = |mut scored: Vec<(usize, f64, Option<f64>)>, k: usize| {
-            scored.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            scored.truncate(k);
+            let order = |a: &LoopHit, b: &LoopHit| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
+            if k == 0 {
+                return Vec::new();
+            }
+            if scored.len() > k {
+                scored.select_nth_unstable_by(k - 1, order);
+                scored.truncate(k);
+            }
+            scored.sort_by(order);
             scored
         };
         match &self.0 {
