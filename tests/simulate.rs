@@ -157,3 +157,42 @@ fn written_formats_read_back_through_the_sources() {
     );
     assert_eq!(nclt[1].ring.as_ref().unwrap(), &truth.ring.to_vec());
 }
+
+#[test]
+fn laps_alternate_direction_shift_lanes_and_move_parked_cars() {
+    let p = SimParams { laps: 3, lap_offset: 1.75, heading_noise: 0.0, sessions: 1, ..SimParams::default() };
+    let per = simulate::scans_per_session(&p) / 3;
+    assert_eq!(simulate::scans_per_session(&p), 3 * per, "one loop a lap");
+    assert_eq!(simulate::lap_of(&p, per + 2), (1, 2));
+    // A place of lap 1, and the nearest scan of each later lap: lap 2 drives it the other way,
+    // lap 3 the same way 3.5 m (two lap offsets) further right.
+    let first = simulate::pose(&p, 0, per / 3);
+    let nearest = |lap: usize| {
+        (lap * per..(lap + 1) * per)
+            .map(|i| simulate::pose(&p, 0, i))
+            .min_by(|a, b| {
+                let d = |q: &[f64; 4]| (q[0] - first[0]).hypot(q[1] - first[1]);
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap()
+    };
+    let turn = |a: f64, b: f64| (a - b).sin().atan2((a - b).cos()).abs().to_degrees();
+    let (second, third) = (nearest(1), nearest(2));
+    assert!((turn(second[3], first[3]) - 180.0).abs() < 1e-6, "lap 2 reversed");
+    assert!(turn(third[3], first[3]) < 1e-6, "lap 3 the first lap's way");
+    let right = [first[3].sin(), -first[3].cos()];
+    let lateral = (third[0] - first[0]) * right[0] + (third[1] - first[1]) * right[1];
+    assert!((lateral - 3.5).abs() < 1e-6, "lap 3 is {lateral} m right of lap 1");
+    // The parked cars of each lap's scene differ; one lap keeps the session's scene.
+    let cars = |lap: usize| {
+        Scene::town(&p.town, p.seed, simulate::scene_variant(0, lap))
+            .primitives
+            .iter()
+            .filter(|q| q.material == Material::Car)
+            .map(|q| format!("{:?}", q.shape))
+            .collect::<Vec<_>>()
+    };
+    assert_ne!(cars(0), cars(1));
+    assert_ne!(cars(1), cars(2));
+    assert_eq!(simulate::scene_variant(1, 0), 1);
+}

@@ -63,7 +63,7 @@ def test_detector_equals_toporec_loops(repo, loops_index, binary, tmp_path, meth
 
 def test_default_thresholds_and_errors():
     assert toporec.LoopDetector("toporec-plus").threshold == 0.3619
-    assert toporec.LoopDetector("scancontext").threshold == 0.5355
+    assert toporec.LoopDetector("scancontext").threshold == 0.5335
     with pytest.raises(ValueError, match="no default threshold"):
         toporec.LoopDetector("solid")
     with pytest.raises(ValueError, match="unknown method"):

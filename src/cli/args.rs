@@ -264,6 +264,10 @@ pub struct LoopsArgs {
     /// A match is true when its scans' poses are this close (m, > 0).
     #[arg(long, default_value_t = 5.0, value_parser = toporec::ranges::positive)]
     pub revisit_radius: f64,
+    /// A match farther than the revisit radius but within this (m) is neither true nor false:
+    /// left out of the scores (LoGG3D-Net's 3 m / 20 m band). Default: false beyond the radius.
+    #[arg(long, value_parser = toporec::ranges::positive)]
+    pub false_beyond: Option<f64>,
     /// Write every scan's best match, accepted or not (an `accepted` column says which).
     #[arg(long)]
     pub all: bool,
@@ -314,6 +318,13 @@ pub struct SimulateArgs {
     /// Odd sessions drive the loop in the opposite direction.
     #[arg(long)]
     pub reverse: bool,
+    /// Laps of the loop per session, [1, 1000]: even laps (2nd, 4th…) the other way, each lap
+    /// `--lap-offset` metres further right, the parked cars moved between laps.
+    #[arg(long, default_value_t = 1, value_parser = |s: &str| toporec::ranges::count_within(s, 1, 1000))]
+    pub laps: usize,
+    /// Lateral offset of each lap from the one before (m), [-20, 20].
+    #[arg(long, default_value_t = 0.0, value_parser = |s: &str| toporec::ranges::within(s, -20.0, 20.0))]
+    pub lap_offset: f64,
     /// Probability that a return is lost: [0, 1).
     #[arg(long, default_value_t = 0.08, value_parser = toporec::ranges::probability)]
     pub dropout: f64,
@@ -520,6 +531,7 @@ impl From<LoopsArgs> for toporec::loops::LoopsArgs {
             calibrate: a.calibrate,
             target_precision: a.target_precision,
             revisit_radius: a.revisit_radius,
+            false_beyond: a.false_beyond,
             all: a.all,
             out: a.out,
         }
@@ -542,6 +554,8 @@ impl From<SimulateArgs> for toporec::simulate::SimulateArgs {
             block_size: a.block_size,
             slope: a.slope,
             reverse: a.reverse,
+            laps: a.laps,
+            lap_offset: a.lap_offset,
             dropout: a.dropout,
             max_range: a.max_range,
             range_noise: a.range_noise,

@@ -151,6 +151,18 @@ pub fn loop_closure(top1_distance: &[f64], top1_within: &[bool], has_revisit: &[
     out
 }
 
+/// The area under a precision–recall curve (0–1): the precision of each point times the recall
+/// it adds over the point before (from recall 0), as average precision is computed.
+pub fn pr_auc(curve: &[PrPoint]) -> f64 {
+    let mut last_recall = 0.0;
+    let mut area = 0.0;
+    for p in curve {
+        area += (p.recall - last_recall).max(0.0) / 100.0 * p.precision / 100.0;
+        last_recall = last_recall.max(p.recall);
+    }
+    area
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -192,6 +204,9 @@ mod tests {
         assert_eq!(lc.f1_max_threshold, Some(0.4));
         assert_eq!(lc.recall_at_full_precision, 50.0);
         assert_eq!((lc.queries, lc.revisits), (5, 4));
+        // AUC: 0.25 × 1 + 0.25 × 1 + (2/3 − 1/2) × 2/3 + (1 − 2/3) × 3/4 + 0 = 0.8611…
+        let auc = 0.25 + 0.25 + (2.0 / 3.0 - 0.5) * (2.0 / 3.0) + (1.0 / 3.0) * 0.75;
+        assert!((pr_auc(&lc.curve) - auc).abs() < 1e-12, "{}", pr_auc(&lc.curve));
     }
 
     #[test]

@@ -47,6 +47,9 @@ pub struct LoopsArgs {
     pub target_precision: f64,
     /// A match is true when its scans' poses are this close (m).
     pub revisit_radius: f64,
+    /// A match between the revisit radius and this distance (m) is neither true nor false (left
+    /// out of the scores); `None`: false beyond the radius.
+    pub false_beyond: Option<f64>,
     /// Write every scan's best match, accepted or not (default: the loops only).
     pub all: bool,
     /// Output: `.parquet` or `.csv`.
@@ -300,6 +303,11 @@ pub struct MethodSummary {
     pub revisits: usize,
     /// Those whose accepted match is within the radius.
     pub revisits_found: usize,
+    /// The threshold swept over every match with poses (the loop-closure protocol of the
+    /// KITTI evaluations): F1 max, recall at 100 % precision; `None` without poses.
+    pub curve: Option<crate::eval::metrics::LoopClosure>,
+    /// The area under that precision–recall curve (0–1).
+    pub auc: Option<f64>,
 }
 
 /// What a run found, per method.
@@ -331,6 +339,15 @@ impl std::fmt::Display for Summary {
                 let recall = 100.0 * m.revisits_found as f64 / m.revisits as f64;
                 write!(f, "; {} of {} revisits found: recall {recall:.1} %", m.revisits_found, m.revisits)?;
             }
+            if let (Some(c), Some(auc)) = (&m.curve, m.auc) {
+                write!(
+                    f,
+                    "; every threshold: F1 max {:.1} %{}, recall at 100 % precision {:.1} %, AUC {auc:.3}",
+                    c.f1_max,
+                    c.f1_max_threshold.map_or_else(String::new, |t| format!(" (at {t:.6})")),
+                    c.recall_at_full_precision
+                )?;
+            }
             writeln!(f)?;
         }
         for c in &self.calibrations {
@@ -348,7 +365,7 @@ pub fn default_threshold(method: &crate::baselines::Method) -> Option<f64> {
     match &method.kind {
         MethodKind::ToporecPlus(p) if *p == crate::toporec_plus::PlusParams::default() => Some(0.3619),
         MethodKind::ScanContext(p) if *p == crate::baselines::scancontext::ScanContextParams::default() => {
-            Some(0.5355)
+            Some(0.5335)
         }
         _ => None,
     }
@@ -393,6 +410,12 @@ fn given_threshold(a: &LoopsArgs, method: &str, engine: &Engine) -> Result<Optio
 pub fn run(a: &LoopsArgs) -> Result<Summary> {
     if !(a.target_precision > 0.0 && a.target_precision <= 1.0) {
         return Err(Error::invalid(format!("--target-precision {}: must be in (0, 1]", a.target_precision)));
+    }
+    if let Some(band) = a.false_beyond.filter(|&b| b <= a.revisit_radius || b.is_nan()) {
+        return Err(Error::invalid(format!(
+            "--false-beyond {band}: must be beyond --revisit-radius {}",
+            a.revisit_radius
+        )));
     }
     if a.threshold.is_some() as u8 + a.threshold_from.is_some() as u8 + a.calibrate as u8 > 1 {
         return Err(Error::invalid("--threshold, --threshold-from and --calibrate: give one".to_string()));
@@ -453,7 +476,11 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             r.accepted = r.distance < threshold;
         }
         let is_true = |r: &LoopRow| r.true_distance_m.is_some_and(|d| d <= a.revisit_radius);
+        // Between the radius and `--false-beyond`: neither true nor false.
+        let in_band = |t: f64| t > a.revisit_radius && a.false_beyond.is_some_and(|band| t <= band);
         let with_revisit = rule.with_revisit(a.revisit_radius);
+        let (curve, auc) =
+            protocol_scores(&rows, &engine.scans, &with_revisit, a.revisit_radius, a.false_beyond);
         let found: std::collections::HashSet<&str> =
             rows.iter().filter(|r| r.accepted && is_true(r)).map(|r| r.query_scan.as_str()).collect();
         summary.methods.push(MethodSummary {
@@ -461,12 +488,17 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             threshold,
             matched: rows.len(),
             accepted: rows.iter().filter(|r| r.accepted).count(),
-            accepted_with_poses: rows.iter().filter(|r| r.accepted && r.true_distance_m.is_some()).count(),
+            accepted_with_poses: rows
+                .iter()
+                .filter(|r| r.accepted && r.true_distance_m.is_some_and(|t| !in_band(t)))
+                .count(),
             true_positives: rows.iter().filter(|r| r.accepted && is_true(r)).count(),
             revisits: with_revisit.iter().filter(|&&w| w).count(),
             revisits_found: (0..engine.scans.len())
                 .filter(|&i| with_revisit[i] && found.contains(engine.scans[i].scan_id.as_str()))
                 .count(),
+            curve,
+            auc,
         });
         all_rows.extend(rows.into_iter().filter(|r| a.all || r.accepted));
     }
@@ -478,6 +510,38 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         summary.calibrations.push(path);
     }
     Ok(summary)
+}
+
+/// The loop-closure protocol's scores of one method's rows: every match whose scans both have
+/// poses, true within `radius`, false beyond it (beyond `false_beyond` when given; matches in
+/// between are left out), a scan with an allowed revisit and a rejected match a false negative;
+/// the threshold swept over every distance ([`crate::eval::metrics::loop_closure`]) and the
+/// area under the curve ([`crate::eval::metrics::pr_auc`]).
+fn protocol_scores(
+    rows: &[LoopRow],
+    scans: &[IndexedScan],
+    with_revisit: &[bool],
+    radius: f64,
+    false_beyond: Option<f64>,
+) -> (Option<crate::eval::metrics::LoopClosure>, Option<f64>) {
+    let position: HashMap<&str, usize> =
+        scans.iter().enumerate().map(|(i, s)| (s.scan_id.as_str(), i)).collect();
+    let (mut distance, mut within, mut revisit) = (Vec::new(), Vec::new(), Vec::new());
+    for r in rows {
+        let Some(t) = r.true_distance_m else { continue };
+        if t > radius && false_beyond.is_some_and(|band| t <= band) {
+            continue;
+        }
+        distance.push(r.distance);
+        within.push(t <= radius);
+        revisit.push(position.get(r.query_scan.as_str()).is_some_and(|&i| with_revisit[i]));
+    }
+    if distance.is_empty() {
+        return (None, None);
+    }
+    let curve = crate::eval::metrics::loop_closure(&distance, &within, &revisit);
+    let auc = crate::eval::metrics::pr_auc(&curve.curve);
+    (Some(curve), Some(auc))
 }
 
 /// The descriptor of each of `engine`'s scans: its own, or read from the index when the

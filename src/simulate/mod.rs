@@ -123,6 +123,12 @@ pub struct SimParams {
     pub rate: f64,
     /// Odd sessions drive the loop the other way.
     pub reverse: bool,
+    /// Laps of the loop per session: even laps (the 2nd, 4th…) the other way, each lap
+    /// `lap_offset` further right, the scene's parked cars, pedestrians and crowns changed
+    /// between laps. With one lap, a session of more scans than a loop drives on around it.
+    pub laps: usize,
+    /// Lateral offset of each lap from the one before (m).
+    pub lap_offset: f64,
     /// Lateral lane offset between sessions (m).
     pub lane_offset: f64,
     /// Heading noise σ (degrees).
@@ -140,6 +146,8 @@ impl Default for SimParams {
             speed: 10.0,
             rate: 10.0,
             reverse: false,
+            laps: 1,
+            lap_offset: 0.0,
             lane_offset: 1.5,
             heading_noise: 1.5,
         }
@@ -175,6 +183,10 @@ pub struct SimulateArgs {
     pub slope: Vec<f64>,
     /// Odd sessions drive the loop in the opposite direction.
     pub reverse: bool,
+    /// Laps per session, [1, 1000] (see [`SimParams::laps`]).
+    pub laps: usize,
+    /// Lateral offset of each lap from the one before (m), [-20, 20].
+    pub lap_offset: f64,
     /// Probability that a return is lost: [0, 1).
     pub dropout: f64,
     /// Maximum range (m): (0, 10000].
@@ -193,6 +205,9 @@ impl SimulateArgs {
         let a = self;
         if a.slope.len() != 2 {
             return Err(Error::invalid("--slope: expected two numbers dz/dx,dz/dy"));
+        }
+        if a.laps == 0 || !(a.lap_offset.is_finite() && a.lap_offset.abs() <= 20.0) {
+            return Err(Error::invalid("simulate: need laps >= 1 and a lap offset within [-20, 20] m"));
         }
         if a.blocks == 0 || a.block_size <= 20.0 || a.rate <= 0.0 || a.speed <= 0.0 || a.azimuth_res <= 0.0 {
             return Err(Error::invalid(
@@ -219,6 +234,8 @@ impl SimulateArgs {
             speed: a.speed,
             rate: a.rate,
             reverse: a.reverse,
+            laps: a.laps,
+            lap_offset: a.lap_offset,
             ..SimParams::default()
         })
     }
@@ -277,9 +294,30 @@ pub fn route_length(t: &TownParams) -> f64 {
     (0..4).map(|i| (c[(i + 1) % 4][0] - c[i][0]).hypot(c[(i + 1) % 4][1] - c[i][1])).sum()
 }
 
-/// Scans per session (explicit or one loop).
+/// Scans in one loop of the route.
+fn scans_per_loop(p: &SimParams) -> usize {
+    (route_length(&p.town) / (p.speed / p.rate)).floor().max(1.0) as usize
+}
+
+/// Scans per session (explicit, or one loop a lap).
 pub fn scans_per_session(p: &SimParams) -> usize {
-    p.scans.unwrap_or_else(|| (route_length(&p.town) / (p.speed / p.rate)).floor().max(1.0) as usize)
+    p.scans.unwrap_or_else(|| p.laps.max(1) * scans_per_loop(p))
+}
+
+/// The lap of scan `index` (0 the first) and its position within the lap; with one lap, the
+/// session is one lap however long.
+pub fn lap_of(p: &SimParams, index: usize) -> (usize, usize) {
+    if p.laps <= 1 {
+        return (0, index);
+    }
+    let per = scans_per_loop(p);
+    (index / per, index % per)
+}
+
+/// The scene variant of a lap of a session: the session's own for the first lap (so a one-lap
+/// drive is unchanged), another for each later lap (its parked cars moved).
+pub fn scene_variant(session: usize, lap: usize) -> u64 {
+    session as u64 | (lap as u64) << 32
 }
 
 /// The pose of scan `index` of `session`.
@@ -288,9 +326,11 @@ pub fn pose(p: &SimParams, session: usize, index: usize) -> [f64; 4] {
     let lane = if session.is_multiple_of(2) { -1.0 } else { 1.0 } * p.lane_offset / 2.0 + 0.3 * rng.normal();
     let start = 0.37 * session as f64 * p.speed / p.rate;
     let mut scan_rng = SplitMix64(rng.next_u64() ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-    let s = start + index as f64 * p.speed / p.rate;
-    let reverse = p.reverse && session % 2 == 1;
-    let [x, y, yaw] = along_route(&route_corners(&p.town), s, lane, reverse);
+    let (lap, in_lap) = lap_of(p, index);
+    let s = start + in_lap as f64 * p.speed / p.rate;
+    let reverse = (p.reverse && session % 2 == 1) != (lap % 2 == 1);
+    let lateral = lane + lap as f64 * p.lap_offset;
+    let [x, y, yaw] = along_route(&route_corners(&p.town), s, lateral, reverse);
     [x, y, 0.0, yaw + (p.heading_noise * scan_rng.normal()).to_radians()]
 }
 
@@ -365,7 +405,6 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
     let per = scans_per_session(p);
     let mut total = 0;
     for session in 0..p.sessions {
-        let scene = Scene::town(&p.town, p.seed, session as u64);
         let mut writers: Vec<Box<dyn SessionWriter>> = formats
             .iter()
             .map(|f| -> Result<Box<dyn SessionWriter>> {
@@ -377,10 +416,20 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
             })
             .collect::<Result<_>>()?;
         let chunk = 4 * rayon::current_num_threads().max(1);
-        for start in (0..per).step_by(chunk) {
-            let scans: Vec<SimScan> = (start..(start + chunk).min(per))
+        let mut scene = (usize::MAX, None);
+        let mut start = 0;
+        while start < per {
+            // Chunks end where a lap does: one scene a chunk.
+            let lap = lap_of(p, start).0;
+            let lap_end = if p.laps > 1 { (lap + 1) * scans_per_loop(p) } else { per };
+            let end = (start + chunk).min(per).min(lap_end);
+            if scene.0 != lap {
+                scene = (lap, Some(Scene::town(&p.town, p.seed, scene_variant(session, lap))));
+            }
+            let scene = scene.1.as_ref().expect("built");
+            let scans: Vec<SimScan> = (start..end)
                 .into_par_iter()
-                .map_init(|| scene.mailbox(), |mb, i| scan(p, &scene, session, i, mb))
+                .map_init(|| scene.mailbox(), |mb, i| scan(p, scene, session, i, mb))
                 .collect();
             for s in &scans {
                 for w in &mut writers {
@@ -388,6 +437,7 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
                 }
             }
             total += scans.len();
+            start = end;
         }
         for w in writers {
             w.finish()?;
