@@ -295,3 +295,50 @@ fn loops_find_the_revisits_of_a_three_lap_drive() {
         text(&o.stderr)
     );
 }
+
+#[test]
+fn icp_recovers_the_relative_pose_of_two_scans_of_one_place() {
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+    use toporec::simulate::{self, SimParams, scene::Scene};
+    // Day 2 in the other lane, the same way and the other way round (its parked cars moved).
+    for reverse in [false, true] {
+        let p = SimParams { sessions: 2, reverse, ..SimParams::default() };
+        // Scan 40 of day 1 and the nearest day-2 scan 2–5 m from it.
+        let apart = |i: usize| {
+            let (x, y) = (simulate::pose(&p, 0, 40), simulate::pose(&p, 1, i));
+            (x[0] - y[0]).hypot(x[1] - y[1])
+        };
+        let b = (0..simulate::scans_per_session(&p))
+            .filter(|&i| (2.0..=5.0).contains(&apart(i)))
+            .min_by(|&i, &j| apart(i).total_cmp(&apart(j)))
+            .expect("a scan 2-5 m away");
+        let scan = |session: usize, i: usize| {
+            let scene = Scene::town(&p.town, p.seed, session as u64);
+            let s = simulate::scan(&p, &scene, session, i, &mut scene.mailbox());
+            (s.points.iter().map(|q| q.map(|c| c as f64)).collect::<Vec<_>>(), s.pose)
+        };
+        let ((target, tp), (source, sp)) = (scan(0, 40), scan(1, b));
+        let world = |q: [f64; 4]| {
+            Isometry3::from_parts(
+                Translation3::new(q[0], q[1], q[2]),
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), q[3]),
+            )
+        };
+        let truth = world(tp).inverse() * world(sp);
+        // The initial guess a descriptor gives: the yaw to its 6° sector, no translation.
+        let yaw = truth.rotation.euler_angles().2;
+        let guess = (yaw.to_degrees() / 6.0).round() * 6.0;
+        let initial = Isometry3::rotation(Vector3::z() * guess.to_radians());
+        let found = toporec::loops::icp::align(&source, &target, initial, &Default::default()).unwrap();
+        let error = truth.inverse() * found.pose;
+        let (dt, dr) = (error.translation.vector.norm(), error.rotation.angle().to_degrees());
+        eprintln!(
+            "reverse {reverse}: {:.2} m apart, guess {guess}° for {:.2}°: error {dt:.3} m, {dr:.3}°; fitness {:.2}, rmse {:.3}",
+            apart(b),
+            yaw.to_degrees(),
+            found.fitness,
+            found.rmse
+        );
+        assert!(dt < 0.1 && dr < 1.0, "reverse {reverse}: error {dt:.3} m, {dr:.3}°");
+    }
+}

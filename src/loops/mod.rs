@@ -14,6 +14,7 @@
 //! the method's documented default ([`default_threshold`]).
 
 pub mod detector;
+pub mod icp;
 pub mod search;
 
 pub use detector::{Detector, Match};
