@@ -28,7 +28,7 @@ fn rows(path: &Path) -> Vec<(String, String, String, String, String, f64, bool)>
     lines
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
-            assert_eq!(f.len(), 10, "{l}");
+            assert_eq!(f.len(), 21, "{l}");
             let s = |i: usize| f[i].to_string();
             (s(0), s(1), s(2), s(3), s(4), f[5].parse().unwrap(), f[9] == "true")
         })
@@ -287,6 +287,42 @@ fn loops_find_the_revisits_of_a_three_lap_drive() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     let (precision, _) = summary_scores(&text(&o.stderr), "toporec-plus");
     assert!(precision >= 95.0, "{}", text(&o.stderr));
+    // The geometric check: the loops below the threshold aligned by ICP, and g2o edges of the
+    // kept ones, each the query's pose in the match's frame.
+    let g2o = dir.join("loops.g2o");
+    let o = band(&["--method", "toporec-plus", "--verify", "--g2o", g2o.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("verified by ICP"), "{}", text(&o.stderr));
+    let body = std::fs::read_to_string(&out).unwrap();
+    let mut lines = body.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let kept: Vec<Vec<&str>> =
+        lines.map(|l| l.split(',').collect::<Vec<_>>()).filter(|f| f[column("verified")] == "true").collect();
+    assert!(!kept.is_empty());
+    let edges: Vec<Vec<f64>> = std::fs::read_to_string(&g2o)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let mut words = l.split(' ');
+            assert_eq!(words.next(), Some("EDGE_SE3:QUAT"), "{l}");
+            words.map(|w| w.parse::<f64>().unwrap()).collect()
+        })
+        .collect();
+    assert_eq!(edges.len(), kept.len());
+    for (e, f) in edges.iter().zip(&kept) {
+        assert_eq!(e.len(), 2 + 7 + 21);
+        assert_eq!(e[0], f[column("matched_vertex")].parse::<f64>().unwrap());
+        assert_eq!(e[1], f[column("query_vertex")].parse::<f64>().unwrap());
+        let q = (e[5] * e[5] + e[6] * e[6] + e[7] * e[7] + e[8] * e[8]).sqrt();
+        assert!((q - 1.0).abs() < 1e-9, "a unit quaternion: {q}");
+        // The aligned translation is the scans' true distance where the match is a revisit.
+        let truth: f64 = f[column("true_distance_m")].parse().unwrap();
+        let found = (e[2] * e[2] + e[3] * e[3] + e[4] * e[4]).sqrt();
+        if truth <= 5.0 {
+            assert!((found - truth).abs() < 0.2, "ICP {found:.3} m against {truth:.3} m");
+        }
+    }
     let o = band(&["--revisit-radius", "3", "--false-beyond", "2"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(

@@ -268,6 +268,19 @@ pub struct LoopsArgs {
     /// left out of the scores (LoGG3D-Net's 3 m / 20 m band). Default: false beyond the radius.
     #[arg(long, value_parser = toporec::ranges::positive)]
     pub false_beyond: Option<f64>,
+    /// Check each match below the threshold by aligning the two raw scans (point-to-plane ICP,
+    /// read again from the index's source files); keep those that pass the limits.
+    #[arg(long)]
+    pub verify: bool,
+    /// `--verify`: the least share of the query's voxels the alignment pairs, [0, 1].
+    #[arg(long, default_value_t = 0.5, value_parser = toporec::ranges::fraction, requires = "verify")]
+    pub min_fitness: f64,
+    /// `--verify`: the largest point-to-plane RMSE of the alignment (m, > 0).
+    #[arg(long, default_value_t = 0.15, value_parser = toporec::ranges::positive, requires = "verify")]
+    pub max_rmse: f64,
+    /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines (with `--verify` and one --method).
+    #[arg(long)]
+    pub g2o: Option<PathBuf>,
     /// Write every scan's best match, accepted or not (an `accepted` column says which).
     #[arg(long)]
     pub all: bool,
@@ -532,6 +545,11 @@ impl From<LoopsArgs> for toporec::loops::LoopsArgs {
             target_precision: a.target_precision,
             revisit_radius: a.revisit_radius,
             false_beyond: a.false_beyond,
+            verify: a.verify.then_some(toporec::loops::verify::Limits {
+                min_fitness: a.min_fitness,
+                max_rmse: a.max_rmse,
+            }),
+            g2o: a.g2o,
             all: a.all,
             out: a.out,
         }

@@ -77,11 +77,7 @@ pub fn align(
             let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
             let cov = pts.iter().map(|v| (v - mean) * (v - mean).transpose()).sum::<Matrix3<f64>>();
             let eig = cov.symmetric_eigen();
-            let (smallest, _) =
-                eig.eigenvalues
-                    .iter()
-                    .enumerate()
-                    .fold((0, f64::INFINITY), |best, (i, &v)| if v < best.1 { (i, v) } else { best });
+            let smallest = eig.eigenvalues.imin();
             let n = eig.eigenvectors.column(smallest).into_owned();
             n.iter().all(|c| c.is_finite()).then_some(n)
         })

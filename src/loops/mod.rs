@@ -16,6 +16,7 @@
 pub mod detector;
 pub mod icp;
 pub mod search;
+pub mod verify;
 
 pub use detector::{Detector, Match};
 
@@ -51,6 +52,11 @@ pub struct LoopsArgs {
     /// A match between the revisit radius and this distance (m) is neither true nor false (left
     /// out of the scores); `None`: false beyond the radius.
     pub false_beyond: Option<f64>,
+    /// Check each match below the threshold by aligning the two raw scans (ICP), keeping those
+    /// that pass these limits.
+    pub verify: Option<verify::Limits>,
+    /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines here.
+    pub g2o: Option<PathBuf>,
     /// Write every scan's best match, accepted or not (default: the loops only).
     pub all: bool,
     /// Output: `.parquet` or `.csv`.
@@ -78,8 +84,14 @@ pub struct LoopRow {
     pub rank2_distance: Option<f64>,
     /// The distance between the two scans' poses (m), when both have one.
     pub true_distance_m: Option<f64>,
-    /// Whether the distance is below the threshold.
+    /// Whether the distance is below the threshold (and, with `--verify`, the scans align).
     pub accepted: bool,
+    /// The query's position in the walking order (its g2o vertex).
+    pub query_vertex: usize,
+    /// The matched scan's.
+    pub matched_vertex: usize,
+    /// The geometric check (`--verify`), of the rows below the threshold.
+    pub check: Option<verify::Check>,
 }
 
 /// Which earlier scans a scan may be matched with.
@@ -229,6 +241,9 @@ pub fn rows(engine: &Engine, matches: &Matches) -> Vec<LoopRow> {
                     _ => None,
                 },
                 accepted: false,
+                query_vertex: 0,
+                matched_vertex: 0,
+                check: None,
             })
         })
         .collect()
@@ -309,6 +324,9 @@ pub struct MethodSummary {
     pub curve: Option<crate::eval::metrics::LoopClosure>,
     /// The area under that precision–recall curve (0–1).
     pub auc: Option<f64>,
+    /// With `--verify`: the matches below the threshold that were checked (`accepted` are those
+    /// kept).
+    pub verified: Option<usize>,
 }
 
 /// What a run found, per method.
@@ -318,16 +336,25 @@ pub struct Summary {
     pub methods: Vec<MethodSummary>,
     /// The calibration files written.
     pub calibrations: Vec<PathBuf>,
+    /// The g2o file written.
+    pub g2o: Option<PathBuf>,
 }
 
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         for m in &self.methods {
-            write!(
-                f,
-                "loops ({}): {} scans matched an earlier one, {} below {:.6}",
-                m.method, m.matched, m.accepted, m.threshold
-            )?;
+            match m.verified {
+                None => write!(
+                    f,
+                    "loops ({}): {} scans matched an earlier one, {} below {:.6}",
+                    m.method, m.matched, m.accepted, m.threshold
+                )?,
+                Some(checked) => write!(
+                    f,
+                    "loops ({}): {} scans matched an earlier one, {checked} below {:.6}, {} of them verified by ICP",
+                    m.method, m.matched, m.threshold, m.accepted
+                )?,
+            }
             if m.accepted_with_poses > 0 {
                 let precision = 100.0 * m.true_positives as f64 / m.accepted_with_poses as f64;
                 write!(
@@ -353,6 +380,9 @@ impl std::fmt::Display for Summary {
         }
         for c in &self.calibrations {
             writeln!(f, "calibration written: {}", c.display())?;
+        }
+        if let Some(g) = &self.g2o {
+            writeln!(f, "g2o edges written: {}", g.display())?;
         }
         Ok(())
     }
@@ -426,6 +456,11 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
     } else {
         a.methods.clone()
     };
+    if a.g2o.is_some() && (a.verify.is_none() || methods.len() != 1) {
+        return Err(Error::invalid(
+            "--g2o: needs --verify (the relative pose comes from the alignment) and one --method".to_string(),
+        ));
+    }
     let exclusion = match a.exclude_scans {
         Some(n) => Exclusion::Scans(n),
         None => Exclusion::Seconds(a.exclude_seconds),
@@ -439,6 +474,12 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         let rule = Allowed::new(&engine.scans, exclusion);
         let matches = best_matches(&engine, &queries, &rule);
         let mut rows = rows(&engine, &matches);
+        let position: HashMap<&str, usize> =
+            rule.order.iter().enumerate().map(|(at, &i)| (engine.scans[i].scan_id.as_str(), at)).collect();
+        for r in &mut rows {
+            r.query_vertex = position[r.query_scan.as_str()];
+            r.matched_vertex = position[r.matched_scan.as_str()];
+        }
         let threshold = match given_threshold(a, method, &engine)? {
             Some(t) => t,
             None => {
@@ -476,6 +517,14 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         for r in &mut rows {
             r.accepted = r.distance < threshold;
         }
+        let below_threshold = rows.iter().filter(|r| r.accepted).count();
+        if let Some(limits) = a.verify {
+            let checks = verify::check(&a.index, &rows, limits)?;
+            for (r, c) in rows.iter_mut().zip(checks) {
+                r.check = c;
+                r.accepted &= c.is_some_and(|c| c.passed);
+            }
+        }
         let is_true = |r: &LoopRow| r.true_distance_m.is_some_and(|d| d <= a.revisit_radius);
         // Between the radius and `--false-beyond`: neither true nor false.
         let in_band = |t: f64| t > a.revisit_radius && a.false_beyond.is_some_and(|band| t <= band);
@@ -500,10 +549,15 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
                 .count(),
             curve,
             auc,
+            verified: a.verify.map(|_| below_threshold),
         });
         all_rows.extend(rows.into_iter().filter(|r| a.all || r.accepted));
     }
     write_rows(&a.out, &all_rows)?;
+    if let Some(path) = &a.g2o {
+        verify::write_g2o(path, &all_rows)?;
+        summary.g2o = Some(path.clone());
+    }
     if a.calibrate {
         let path = calibration_path(&a.out);
         let text = serde_json::to_string_pretty(&calibrations).expect("plain data") + "\n";
@@ -572,7 +626,7 @@ pub fn calibration_path(out: &Path) -> PathBuf {
 }
 
 /// The CSV header of the rows (the Parquet file's columns, in order).
-pub const CSV_HEADER: &str = "method,query_scan,query_session,matched_scan,matched_session,distance,yaw_degrees,rank2_distance,true_distance_m,accepted";
+pub const CSV_HEADER: &str = "method,query_scan,query_session,matched_scan,matched_session,distance,yaw_degrees,rank2_distance,true_distance_m,accepted,query_vertex,matched_vertex,verified,icp_fitness,icp_rmse,rel_x,rel_y,rel_z,rel_roll_deg,rel_pitch_deg,rel_yaw_deg";
 
 /// Writes the rows to `path`: CSV when it ends in `.csv`, else Parquet (zstd), atomically.
 pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
@@ -582,8 +636,10 @@ pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
         let mut text = String::from(CSV_HEADER);
         text.push('\n');
         for r in rows {
+            let c = r.check;
+            let rel = |i: usize| opt(c.map(|c| c.relative[i]).filter(|v| v.is_finite()));
             text.push_str(&format!(
-                "{},{},{},{},{},{:?},{},{},{},{}\n",
+                "{},{},{},{},{},{:?},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 crate::query::csv_field(&r.method),
                 crate::query::csv_field(&r.query_scan),
                 crate::query::csv_field(&r.query_session),
@@ -593,14 +649,25 @@ pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
                 opt(r.yaw_degrees),
                 opt(r.rank2_distance),
                 opt(r.true_distance_m),
-                r.accepted
+                r.accepted,
+                r.query_vertex,
+                r.matched_vertex,
+                c.map_or_else(String::new, |c| c.passed.to_string()),
+                opt(c.map(|c| c.fitness)),
+                opt(c.map(|c| c.rmse).filter(|v| v.is_finite())),
+                rel(0),
+                rel(1),
+                rel(2),
+                rel(3),
+                rel(4),
+                rel(5)
             ));
         }
         file.write_all(text.as_bytes()).at(path)?;
         file.commit()?;
         return Ok(());
     }
-    use arrow::array::{ArrayRef, BooleanArray, Float64Array, StringArray};
+    use arrow::array::{ArrayRef, BooleanArray, Float64Array, StringArray, UInt64Array};
     let schema = loops_schema();
     let strings = |f: &dyn Fn(&LoopRow) -> &str| -> ArrayRef {
         Arc::new(StringArray::from(rows.iter().map(f).collect::<Vec<_>>()))
@@ -619,7 +686,16 @@ pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
         floats(&|r| r.rank2_distance),
         floats(&|r| r.true_distance_m),
         Arc::new(BooleanArray::from(rows.iter().map(|r| r.accepted).collect::<Vec<_>>())),
+        Arc::new(UInt64Array::from(rows.iter().map(|r| r.query_vertex as u64).collect::<Vec<_>>())),
+        Arc::new(UInt64Array::from(rows.iter().map(|r| r.matched_vertex as u64).collect::<Vec<_>>())),
+        Arc::new(BooleanArray::from(rows.iter().map(|r| r.check.map(|c| c.passed)).collect::<Vec<_>>())),
+        floats(&|r| r.check.map(|c| c.fitness)),
+        floats(&|r| r.check.map(|c| c.rmse).filter(|v| v.is_finite())),
     ];
+    let mut columns = columns;
+    for i in 0..6 {
+        columns.push(floats(&|r| r.check.map(|c| c.relative[i]).filter(|v| v.is_finite())));
+    }
     let batch = arrow::record_batch::RecordBatch::try_new(schema.clone(), columns).at(path)?;
     let mut file = crate::sinks::parquet::TableFile::with_schema(path, schema)?;
     file.write_batch(&batch)?;
@@ -643,6 +719,17 @@ pub fn loops_schema() -> Arc<arrow::datatypes::Schema> {
         f("rank2_distance", DataType::Float64, true),
         f("true_distance_m", DataType::Float64, true),
         f("accepted", DataType::Boolean, false),
+        f("query_vertex", DataType::UInt64, false),
+        f("matched_vertex", DataType::UInt64, false),
+        f("verified", DataType::Boolean, true),
+        f("icp_fitness", DataType::Float64, true),
+        f("icp_rmse", DataType::Float64, true),
+        f("rel_x", DataType::Float64, true),
+        f("rel_y", DataType::Float64, true),
+        f("rel_z", DataType::Float64, true),
+        f("rel_roll_deg", DataType::Float64, true),
+        f("rel_pitch_deg", DataType::Float64, true),
+        f("rel_yaw_deg", DataType::Float64, true),
     ]))
 }
 

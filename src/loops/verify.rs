@@ -1,0 +1,208 @@
+//! `toporec loops --verify`: each accepted match checked by aligning the two raw scans
+//! ([`super::icp`]), read again from the files the index was made from; a match is kept when
+//! the alignment's fitness and RMSE pass the limits. The relative pose goes into the rows and,
+//! on request, into g2o `EDGE_SE3:QUAT` lines for a pose-graph back end.
+
+use super::LoopRow;
+use super::icp::{self, IcpParams};
+use crate::error::{Result, ResultExt};
+use crate::types::Point;
+use nalgebra::{Isometry3, Vector3};
+use std::collections::{HashMap, HashSet};
+use std::io::Write;
+use std::path::Path;
+
+/// What a kept alignment must reach.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Limits {
+    /// The least share of the query's voxels paired with the match's.
+    pub min_fitness: f64,
+    /// The largest point-to-plane RMSE (m).
+    pub max_rmse: f64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits { min_fitness: 0.5, max_rmse: 0.15 }
+    }
+}
+
+/// The check of one row.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Check {
+    /// Whether the alignment passed the limits.
+    pub passed: bool,
+    /// Its fitness.
+    pub fitness: f64,
+    /// Its RMSE (m).
+    pub rmse: f64,
+    /// The query's pose in the match's sensor frame: x, y, z (m), roll, pitch, yaw (degrees).
+    pub relative: [f64; 6],
+}
+
+/// The raw scans `ids` of `index`, voxelized for ICP: each read from its source file (an MCAP
+/// file once for all of its messages); a scan that cannot be read maps to the reason.
+fn load(
+    index: &Path,
+    ids: &HashSet<&str>,
+    voxel: f64,
+) -> Result<HashMap<String, std::result::Result<Vec<Point>, String>>> {
+    let reader = crate::sinks::index::IndexReader::open(index)?;
+    let records = reader.scans()?;
+    let mut out = HashMap::new();
+    let mut mcap: HashMap<String, HashMap<u64, String>> = HashMap::new();
+    for r in records.iter().filter(|r| ids.contains(r.scan_id.as_str())) {
+        match r.message_index {
+            Some(m) => {
+                mcap.entry(r.source_path.clone()).or_default().insert(m, r.scan_id.clone());
+            }
+            None => {
+                let points = crate::sources::read_cloud(Path::new(&r.source_path), None)
+                    .map(|p| crate::preprocess::voxel_grid(&p, voxel))
+                    .map_err(|e| e.to_string());
+                out.insert(r.scan_id.clone(), points);
+            }
+        }
+    }
+    for (path, wanted) in mcap {
+        let spec = crate::sources::mcap::McapSpec::file(Path::new(&path));
+        match spec.open() {
+            Ok(items) => {
+                for item in items {
+                    let (index, points) = match item {
+                        Ok(scan) => {
+                            (scan.message_index, Ok(crate::preprocess::voxel_grid(&scan.points, voxel)))
+                        }
+                        Err(f) => (f.message_index, Err(f.error.to_string())),
+                    };
+                    if let Some(id) = index.and_then(|i| wanted.get(&i)) {
+                        out.insert(id.clone(), points);
+                    }
+                }
+            }
+            Err(e) => {
+                for id in wanted.values() {
+                    out.insert(id.clone(), Err(format!("{path}: {e}")));
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Checks the accepted rows of `rows` (in parallel), returning each one's check (`None` for
+/// the rows not checked); a row whose scans cannot be read or aligned fails its check, the
+/// reason logged once per kind.
+pub fn check(index: &Path, rows: &[LoopRow], limits: Limits) -> Result<Vec<Option<Check>>> {
+    use rayon::prelude::*;
+    let p = IcpParams::default();
+    let ids: HashSet<&str> = rows
+        .iter()
+        .filter(|r| r.accepted)
+        .flat_map(|r| [r.query_scan.as_str(), r.matched_scan.as_str()])
+        .collect();
+    let clouds = load(index, &ids, p.voxel)?;
+    let failures = std::sync::Mutex::new(HashSet::new());
+    let checks = rows
+        .par_iter()
+        .map(|r| {
+            if !r.accepted {
+                return None;
+            }
+            let cloud = |id: &str| match clouds.get(id) {
+                Some(Ok(c)) => Ok(c),
+                Some(Err(e)) => Err(format!("scan {id}: {e}")),
+                None => Err(format!("scan {id}: not in the index's scans table")),
+            };
+            let aligned = cloud(&r.query_scan)
+                .and_then(|q| cloud(&r.matched_scan).and_then(|m| best_alignment(q, m, r.yaw_degrees, &p)));
+            match aligned {
+                Ok(a) => Some(Check {
+                    passed: a.fitness >= limits.min_fitness && a.rmse <= limits.max_rmse,
+                    fitness: a.fitness,
+                    rmse: a.rmse,
+                    relative: relative(&a.pose),
+                }),
+                Err(e) => {
+                    let kind: String = e.chars().take_while(|c| !c.is_ascii_digit()).collect();
+                    if failures.lock().expect("not poisoned").insert(kind) {
+                        tracing::warn!("--verify: {} against {}: {e}", r.query_scan, r.matched_scan);
+                    }
+                    Some(Check { passed: false, fitness: 0.0, rmse: f64::NAN, relative: [f64::NAN; 6] })
+                }
+            }
+        })
+        .collect();
+    Ok(checks)
+}
+
+/// The better of the alignments from the descriptor's yaw taken either way round (the methods
+/// differ in its sign; at 0° and 180° both are one), by fitness, then RMSE.
+fn best_alignment(
+    query: &[Point],
+    matched: &[Point],
+    yaw_degrees: Option<f64>,
+    p: &IcpParams,
+) -> std::result::Result<icp::Alignment, String> {
+    let yaw = yaw_degrees.unwrap_or(0.0);
+    let mut guesses = vec![yaw];
+    if (yaw.rem_euclid(180.0)).abs() > 1e-9 {
+        guesses.push(-yaw);
+    }
+    let mut best: Option<icp::Alignment> = None;
+    let mut last_error = String::new();
+    for g in guesses {
+        match icp::align(query, matched, Isometry3::rotation(Vector3::z() * g.to_radians()), p) {
+            Ok(a) => {
+                if best.as_ref().is_none_or(|b| (a.fitness, -a.rmse) > (b.fitness, -b.rmse)) {
+                    best = Some(a);
+                }
+            }
+            Err(e) => last_error = e,
+        }
+    }
+    best.ok_or(last_error)
+}
+
+/// x, y, z (m), roll, pitch, yaw (degrees) of a pose.
+fn relative(pose: &Isometry3<f64>) -> [f64; 6] {
+    let t = pose.translation.vector;
+    let (roll, pitch, yaw) = pose.rotation.euler_angles();
+    [t.x, t.y, t.z, roll.to_degrees(), pitch.to_degrees(), yaw.to_degrees()]
+}
+
+/// Writes one g2o `EDGE_SE3:QUAT` line per kept, verified row: from the matched scan's vertex
+/// to the query's (their positions in the walking order), the query's pose in the match's
+/// frame as x y z qx qy qz qw, and the upper triangle of a diagonal information matrix
+/// (translation 1/σ² with σ the RMSE, at least 5 cm; rotation 1/σ² with σ = 0.5°).
+pub fn write_g2o(path: &Path, rows: &[LoopRow]) -> Result<()> {
+    let mut text = String::new();
+    for r in rows.iter().filter(|r| r.accepted) {
+        let Some(c) = r.check.filter(|c| c.passed) else { continue };
+        let (from, to) = (r.matched_vertex, r.query_vertex);
+        let [x, y, z, roll, pitch, yaw] = c.relative;
+        let q = nalgebra::UnitQuaternion::from_euler_angles(
+            roll.to_radians(),
+            pitch.to_radians(),
+            yaw.to_radians(),
+        );
+        let it = 1.0 / c.rmse.max(0.05).powi(2);
+        let ir = 1.0 / 0.5f64.to_radians().powi(2);
+        let info = [
+            it, 0.0, 0.0, 0.0, 0.0, 0.0, it, 0.0, 0.0, 0.0, 0.0, it, 0.0, 0.0, 0.0, ir, 0.0, 0.0, ir, 0.0, ir,
+        ];
+        let info: Vec<String> = info.iter().map(|v| format!("{v:?}")).collect();
+        text.push_str(&format!(
+            "EDGE_SE3:QUAT {from} {to} {x:?} {y:?} {z:?} {:?} {:?} {:?} {:?} {}\n",
+            q.i,
+            q.j,
+            q.k,
+            q.w,
+            info.join(" ")
+        ));
+    }
+    let mut file = crate::fsutil::AtomicFile::create(path)?;
+    file.write_all(text.as_bytes()).at(path)?;
+    file.commit()?;
+    Ok(())
+}
