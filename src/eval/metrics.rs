@@ -163,6 +163,14 @@ pub fn pr_auc(curve: &[PrPoint]) -> f64 {
     area
 }
 
+/// Extended precision (percent): the mean of the precision at the lowest threshold (the curve's
+/// first point, the least recall) and the recall at 100 % precision — Ferrarini, Waheed,
+/// Waheed, Ehsan, Milford and McDonald-Maier, *Exploring performance bounds of visual place
+/// recognition using extended precision*, IEEE RA-L 5(2), 2020. 0 for an empty curve.
+pub fn extended_precision(lc: &LoopClosure) -> f64 {
+    lc.curve.first().map_or(0.0, |first| (first.precision + lc.recall_at_full_precision) / 2.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -207,6 +215,8 @@ mod tests {
         // AUC: 0.25 × 1 + 0.25 × 1 + (2/3 − 1/2) × 2/3 + (1 − 2/3) × 3/4 + 0 = 0.8611…
         let auc = 0.25 + 0.25 + (2.0 / 3.0 - 0.5) * (2.0 / 3.0) + (1.0 / 3.0) * 0.75;
         assert!((pr_auc(&lc.curve) - auc).abs() < 1e-12, "{}", pr_auc(&lc.curve));
+        // EP: precision 100 at the first threshold, recall 50 at 100 % precision.
+        assert_eq!(extended_precision(&lc), 75.0);
     }
 
     #[test]

@@ -370,10 +370,11 @@ impl std::fmt::Display for Summary {
             if let (Some(c), Some(auc)) = (&m.curve, m.auc) {
                 write!(
                     f,
-                    "; every threshold: F1 max {:.1} %{}, recall at 100 % precision {:.1} %, AUC {auc:.3}",
+                    "; every threshold: F1 max {:.1} %{}, recall at 100 % precision {:.1} %, EP {:.1} %, AUC {auc:.3}",
                     c.f1_max,
                     c.f1_max_threshold.map_or_else(String::new, |t| format!(" (at {t:.6})")),
-                    c.recall_at_full_precision
+                    c.recall_at_full_precision,
+                    crate::eval::metrics::extended_precision(c)
                 )?;
             }
             writeln!(f)?;
