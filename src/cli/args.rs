@@ -281,6 +281,9 @@ pub struct LoopsArgs {
     /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines (with `--verify` and one --method).
     #[arg(long)]
     pub g2o: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub no_progress: bool,
     /// Write every scan's best match, accepted or not (an `accepted` column says which).
     #[arg(long)]
     pub all: bool,
@@ -551,6 +554,7 @@ impl From<LoopsArgs> for toporec::loops::LoopsArgs {
             }),
             g2o: a.g2o,
             all: a.all,
+            progress: !a.no_progress,
             out: a.out,
         }
     }

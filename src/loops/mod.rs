@@ -59,6 +59,8 @@ pub struct LoopsArgs {
     pub g2o: Option<PathBuf>,
     /// Write every scan's best match, accepted or not (default: the loops only).
     pub all: bool,
+    /// A progress bar on a terminal (for `verify`, the slow part).
+    pub progress: bool,
     /// Output: `.parquet` or `.csv`.
     pub out: PathBuf,
 }
@@ -520,7 +522,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         }
         let below_threshold = rows.iter().filter(|r| r.accepted).count();
         if let Some(limits) = a.verify {
-            let checks = verify::check(&a.index, &rows, limits)?;
+            let checks = verify::check(&a.index, &rows, limits, a.progress)?;
             for (r, c) in rows.iter_mut().zip(checks) {
                 r.check = c;
                 r.accepted &= c.is_some_and(|c| c.passed);

@@ -93,9 +93,21 @@ fn load(
 /// Checks the accepted rows of `rows` (in parallel), returning each one's check (`None` for
 /// the rows not checked); a row whose scans cannot be read or aligned fails its check, the
 /// reason logged once per kind.
-pub fn check(index: &Path, rows: &[LoopRow], limits: Limits) -> Result<Vec<Option<Check>>> {
+pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> Result<Vec<Option<Check>>> {
     use rayon::prelude::*;
+    use std::io::IsTerminal;
     let p = IcpParams::default();
+    // A bar on a terminal: the checks are the slow part of `toporec loops`.
+    let bar = (progress && std::io::stderr().is_terminal()).then(|| {
+        let b = indicatif::ProgressBar::new(rows.iter().filter(|r| r.accepted).count() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] {pos}/{len} matches aligned ({per_sec}, ETA {eta})",
+            )
+            .expect("template"),
+        );
+        b
+    });
     let ids: HashSet<&str> = rows
         .iter()
         .filter(|r| r.accepted)
@@ -108,6 +120,9 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits) -> Result<Vec<Optio
         .map(|r| {
             if !r.accepted {
                 return None;
+            }
+            if let Some(b) = &bar {
+                b.inc(1);
             }
             let cloud = |id: &str| match clouds.get(id) {
                 Some(Ok(c)) => Ok(c),
@@ -133,6 +148,9 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits) -> Result<Vec<Optio
             }
         })
         .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
     Ok(checks)
 }
 
