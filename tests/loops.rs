@@ -423,3 +423,40 @@ fn loops_find_the_revisits_of_two_sessions_driven_opposite_ways() {
     }
     assert!(stderr.contains(" of 32 revisits found"), "{stderr}");
 }
+
+#[test]
+fn verify_names_a_scan_it_cannot_read_again_and_keeps_going() {
+    let dir = scratch_dir("loops_verify_missing");
+    let index = sample_index(&dir);
+    // One source file gone after indexing: its matches fail the check, the run goes on.
+    let folder = dir.join("town/velodyne_data/2026-01-01/velodyne_sync");
+    let mut files: Vec<_> = std::fs::read_dir(&folder).unwrap().map(|e| e.unwrap().path()).collect();
+    files.sort();
+    std::fs::remove_file(&files[0]).unwrap();
+    let out = dir.join("v.csv");
+    let o = toporec(&[
+        "loops",
+        "--index",
+        index.to_str().unwrap(),
+        "--method",
+        "toporec-plus",
+        "--verify",
+        "--all",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let stderr = text(&o.stderr);
+    let gone = files[0].file_stem().unwrap().to_str().unwrap();
+    assert!(stderr.contains("--verify") && stderr.contains(gone), "{stderr}");
+    let body = std::fs::read_to_string(&out).unwrap();
+    let mut lines = body.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let (matched, verified) = (
+        header.iter().position(|h| *h == "matched_scan").unwrap(),
+        header.iter().position(|h| *h == "verified").unwrap(),
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert!(rows.iter().any(|r| r[matched].ends_with(gone) && r[verified] == "false"));
+    assert!(rows.iter().any(|r| r[verified] == "true"), "the other matches still checked");
+}
