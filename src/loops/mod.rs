@@ -59,7 +59,7 @@ pub struct LoopsArgs {
     pub g2o: Option<PathBuf>,
     /// Write every scan's best match, accepted or not (default: the loops only).
     pub all: bool,
-    /// A progress bar on a terminal (for `verify`, the slow part).
+    /// Progress bars on a terminal (searching, and aligning with `verify`).
     pub progress: bool,
     /// Output: `.parquet` or `.csv`.
     pub out: PathBuf,
@@ -201,6 +201,16 @@ impl<'a> Allowed<'a> {
 /// in one structure holding them in time order, each query restricted to its allowed rows: the
 /// matches a [`Detector`] given the scans in that order finds.
 pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], rule: &Allowed) -> Matches {
+    best_matches_counted(engine, queries, rule, None)
+}
+
+/// [`best_matches`], counting the scans searched on `bar`.
+fn best_matches_counted(
+    engine: &Engine,
+    queries: &[Vec<f32>],
+    rule: &Allowed,
+    bar: Option<&indicatif::ProgressBar>,
+) -> Matches {
     use rayon::prelude::*;
     let order = &rule.order;
     let mut growing = search::Growing::new(&engine.method, queries.first().map_or(0, |d| d.len()));
@@ -211,6 +221,9 @@ pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], rule: &Allowed) -> Ma
         .par_iter()
         .enumerate()
         .filter_map(|(at, &query)| {
+            if let Some(b) = bar {
+                b.inc(1);
+            }
             let allowed = |position: usize| position < at && rule.allows(query, order[position]);
             let best = growing.search(&queries[query], 2, &allowed);
             (!best.is_empty()).then(|| {
@@ -391,6 +404,18 @@ impl std::fmt::Display for Summary {
     }
 }
 
+/// A progress bar over `len` items on a terminal (when `enabled`), else none.
+pub(crate) fn progress_bar(enabled: bool, len: usize, what: &str) -> Option<indicatif::ProgressBar> {
+    use std::io::IsTerminal;
+    (enabled && std::io::stderr().is_terminal()).then(|| {
+        let b = indicatif::ProgressBar::new(len as u64);
+        let template =
+            format!("{{elapsed_precise}} [{{bar:30}}] {{pos}}/{{len}} {what} ({{per_sec}}, ETA {{eta}})");
+        b.set_style(indicatif::ProgressStyle::with_template(&template).expect("template"));
+        b
+    })
+}
+
 /// The default threshold of a method at its default settings: the threshold calibrated to
 /// precision 0.99 (revisits within 5 m, 30 s excluded) on the simulated HDL-64E drive of
 /// docs/loops.md. `None` for the other methods and settings (their distances differ).
@@ -475,7 +500,11 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         let engine = Engine::open(&a.index, &[], method)?;
         let queries = query_descriptors(&a.index, &engine)?;
         let rule = Allowed::new(&engine.scans, exclusion);
-        let matches = best_matches(&engine, &queries, &rule);
+        let bar = progress_bar(a.progress, engine.scans.len(), &format!("scans searched ({method})"));
+        let matches = best_matches_counted(&engine, &queries, &rule, bar.as_ref());
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
         let mut rows = rows(&engine, &matches);
         let position: HashMap<&str, usize> =
             rule.order.iter().enumerate().map(|(at, &i)| (engine.scans[i].scan_id.as_str(), at)).collect();

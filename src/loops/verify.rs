@@ -95,19 +95,8 @@ fn load(
 /// reason logged once per kind.
 pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> Result<Vec<Option<Check>>> {
     use rayon::prelude::*;
-    use std::io::IsTerminal;
     let p = IcpParams::default();
-    // A bar on a terminal: the checks are the slow part of `toporec loops`.
-    let bar = (progress && std::io::stderr().is_terminal()).then(|| {
-        let b = indicatif::ProgressBar::new(rows.iter().filter(|r| r.accepted).count() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{elapsed_precise} [{bar:30}] {pos}/{len} matches aligned ({per_sec}, ETA {eta})",
-            )
-            .expect("template"),
-        );
-        b
-    });
+    let bar = super::progress_bar(progress, rows.iter().filter(|r| r.accepted).count(), "matches aligned");
     let ids: HashSet<&str> = rows
         .iter()
         .filter(|r| r.accepted)
