@@ -216,46 +216,33 @@ fn summary_scores(stderr: &str, method: &str) -> (f64, f64) {
     (after("precision"), after("recall"))
 }
 
-#[test]
-fn loops_find_the_revisits_of_a_three_lap_drive() {
-    let dir = scratch_dir("loops_laps");
-    let drive = dir.join("drive");
-    // One session, three laps of a 160 m loop, 5 m a scan: the second lap the other way, the
-    // third 3.5 m right of the first, the parked cars moved between laps.
-    let o = toporec(&[
-        "simulate",
-        "-o",
-        drive.to_str().unwrap(),
-        "--sessions",
-        "1",
-        "--seed",
-        "5",
-        "--laps",
-        "3",
-        "--lap-offset",
-        "1.75",
-        "--azimuth-res",
-        "1.0",
-        "--rate",
-        "2",
-        "--blocks",
-        "3",
-        "--block-size",
-        "40",
-    ]);
+/// A simulated drive (`toporec simulate` with `drive`, on a 160 m loop, 5 m a scan, HDL-32E
+/// at 1° azimuth) indexed with ScanContext and toporec-plus under `dir`.
+fn simulated_index(dir: &Path, drive: &[&str]) -> std::path::PathBuf {
+    let data = dir.join("drive");
+    let mut args = vec!["simulate", "-o", data.to_str().unwrap(), "--seed", "5", "--azimuth-res", "1.0"];
+    args.extend_from_slice(&["--rate", "2", "--blocks", "3", "--block-size", "40"]);
+    args.extend_from_slice(drive);
+    let o = toporec(&args);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let pipeline = dir.join("laps.toml");
-    std::fs::write(
-        &pipeline,
-        format!(
-            "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\"]\n",
-            drive.join("velodyne_data").display().to_string()
-        ),
-    )
-    .unwrap();
+    let pipeline = dir.join("drive.toml");
+    let body = format!(
+        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\"]\n",
+        data.join("velodyne_data").display().to_string()
+    );
+    std::fs::write(&pipeline, body).unwrap();
     let index = dir.join("idx");
     let o = run_pipeline(&pipeline, &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
+    index
+}
+
+#[test]
+fn loops_find_the_revisits_of_a_three_lap_drive() {
+    let dir = scratch_dir("loops_laps");
+    // One session, three laps: the second lap the other way, the third 3.5 m right of the
+    // first, the parked cars moved between laps.
+    let index = simulated_index(&dir, &["--sessions", "1", "--laps", "3", "--lap-offset", "1.75"]);
     // Default thresholds; a lap takes 16 s, so 10 s leaves every earlier lap's places in.
     let out = dir.join("loops.csv");
     let o = toporec(&[
@@ -382,36 +369,8 @@ fn icp_recovers_the_relative_pose_of_two_scans_of_one_place() {
 #[test]
 fn loops_find_the_revisits_of_two_sessions_driven_opposite_ways() {
     let dir = scratch_dir("loops_reverse");
-    let drive = dir.join("drive");
-    // Two days of one 160 m loop, 5 m a scan, the second day the other way in its own lane.
-    let o = toporec(&[
-        "simulate",
-        "-o",
-        drive.to_str().unwrap(),
-        "--sessions",
-        "2",
-        "--reverse",
-        "--seed",
-        "5",
-        "--azimuth-res",
-        "1.0",
-        "--rate",
-        "2",
-        "--blocks",
-        "3",
-        "--block-size",
-        "40",
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let pipeline = dir.join("reverse.toml");
-    let body = format!(
-        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\"]\n",
-        drive.join("velodyne_data").display().to_string()
-    );
-    std::fs::write(&pipeline, body).unwrap();
-    let index = dir.join("idx");
-    let o = run_pipeline(&pipeline, &index, 2);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    // Two days of the loop, the second the other way in its own lane.
+    let index = simulated_index(&dir, &["--sessions", "2", "--reverse"]);
     let out = dir.join("loops.csv");
     let o = toporec(&["loops", "--index", index.to_str().unwrap(), "-o", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o.stderr));
