@@ -7,8 +7,8 @@
 //! benchmark). Describing is timed on 24 of them. The detector is filled to 100,000 entries
 //! (`TOPOREC_BENCH_ENTRIES`) with synthetic ones: the distinct scans' descriptors, then copies
 //! with their sectors turned by a random shift, scaled by a random factor in [0.8, 1.2] and
-//! noised by ±5 %, added in one session 0.1 s apart (the 30 s exclusion window leaves out the
-//! last 300). The 100 adds before 10,000 and before the last entry are timed.
+//! noised by ±5 %, added as a single drive, a scan every 0.1 s (the 30 s exclusion window
+//! leaves out the last 300). The 100 adds before 10,000 and before the last entry are timed.
 //!
 //! Run: `cargo bench --bench loops`.
 

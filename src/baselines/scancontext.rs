@@ -261,16 +261,28 @@ impl Searcher {
         let candidates = self.keys.search(&ring_key(query, p), wanted);
         let candidates_secs = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
-        let len = p.len();
-        let mut hits: Vec<ScHit> = candidates
-            .into_iter()
-            .map(|(row, _)| {
-                let (d, shift) = distance(query, &self.descriptors[row * len..(row + 1) * len], p);
-                (row, d, shift)
-            })
-            .collect();
-        hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        hits.truncate(k);
+        let hits = rerank(query, &self.descriptors, candidates.into_iter().map(|(row, _)| row), k, p);
         (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
     }
+}
+
+/// The `k` best of the `candidates` rows of `descriptors` (row-major) for `query` by the
+/// ScanContext distance, by (distance, row).
+pub fn rerank(
+    query: &[f32],
+    descriptors: &[f32],
+    candidates: impl Iterator<Item = usize>,
+    k: usize,
+    p: &ScanContextParams,
+) -> Vec<ScHit> {
+    let len = p.len();
+    let mut hits: Vec<ScHit> = candidates
+        .map(|row| {
+            let (d, shift) = distance(query, &descriptors[row * len..(row + 1) * len], p);
+            (row, d, shift)
+        })
+        .collect();
+    hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    hits.truncate(k);
+    hits
 }

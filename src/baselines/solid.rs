@@ -244,7 +244,7 @@ impl Searcher {
 
     /// The `k` nearest rows to `query` by the SOLiD distance, nearest first (ties by row).
     pub fn search(&self, query: &[f32], k: usize) -> Vec<SolidHit> {
-        let (len, rings) = (self.params.len(), self.params.rings);
+        let rings = self.params.rings;
         let q = unit_range(query, &self.params);
         let dots: Vec<f32> =
             self.keys.chunks_exact(rings).map(|key| key.iter().zip(&q).map(|(a, b)| a * b).sum()).collect();
@@ -255,18 +255,30 @@ impl Searcher {
         let mut order = dots.clone();
         let (_, kth, _) = order.select_nth_unstable_by(k - 1, |a, b| b.total_cmp(a));
         let cut = *kth - dot_error_bound(rings);
-        let mut hits: Vec<(usize, f64)> = (0..dots.len())
-            .filter(|&row| dots[row] >= cut)
-            .map(|row| (row, distance(query, &self.descriptors[row * len..(row + 1) * len], &self.params)))
-            .collect();
-        hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        hits.truncate(k);
-        hits.into_iter()
-            .map(|(row, d)| {
-                (row, d, yaw_shift(query, &self.descriptors[row * len..(row + 1) * len], &self.params))
-            })
-            .collect()
+        ranked(query, &self.descriptors, (0..dots.len()).filter(|&row| dots[row] >= cut), k, &self.params)
     }
+}
+
+/// The `k` nearest of the `rows` of `descriptors` (row-major) to `query` by the SOLiD distance
+/// (ties by row), each with its yaw shift.
+pub fn ranked(
+    query: &[f32],
+    descriptors: &[f32],
+    rows: impl Iterator<Item = usize>,
+    k: usize,
+    p: &SolidParams,
+) -> Vec<SolidHit> {
+    let len = p.len();
+    let at = |row: usize| &descriptors[row * len..(row + 1) * len];
+    let mut hits: Vec<(usize, f64)> = rows.map(|row| (row, distance(query, at(row), p))).collect();
+    let order = |a: &(usize, f64), b: &(usize, f64)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
+    // The k smallest selected in linear time (every allowed row, in the loop search), then sorted.
+    if k > 0 && hits.len() > k {
+        hits.select_nth_unstable_by(k - 1, order);
+    }
+    hits.truncate(k);
+    hits.sort_by(order);
+    hits.into_iter().map(|(row, d)| (row, d, yaw_shift(query, at(row), p))).collect()
 }
 
 #[cfg(test)]

@@ -154,6 +154,11 @@ impl<'a> Allowed<'a> {
         Allowed { scans, exclusion, order, position, in_session }
     }
 
+    /// The position of `row` in the time order.
+    pub fn position(&self, row: usize) -> usize {
+        self.position[row]
+    }
+
     /// Whether `row` may be matched with `query`.
     pub fn allows(&self, query: usize, row: usize) -> bool {
         let scans = self.scans;
@@ -234,8 +239,8 @@ fn best_matches_counted(
 }
 
 /// The rows of one method: each scan's best allowed match, not yet accepted (the threshold
-/// decides that).
-pub fn rows(engine: &Engine, matches: &Matches) -> Vec<LoopRow> {
+/// decides that), the scans' vertices their positions in `rule`'s time order.
+pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> {
     let scans = &engine.scans;
     matches
         .iter()
@@ -256,8 +261,8 @@ pub fn rows(engine: &Engine, matches: &Matches) -> Vec<LoopRow> {
                     _ => None,
                 },
                 accepted: false,
-                query_vertex: 0,
-                matched_vertex: 0,
+                query_vertex: rule.position(*query),
+                matched_vertex: rule.position(row),
                 check: None,
             })
         })
@@ -505,13 +510,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         if let Some(b) = bar {
             b.finish_and_clear();
         }
-        let mut rows = rows(&engine, &matches);
-        let position: HashMap<&str, usize> =
-            rule.order.iter().enumerate().map(|(at, &i)| (engine.scans[i].scan_id.as_str(), at)).collect();
-        for r in &mut rows {
-            r.query_vertex = position[r.query_scan.as_str()];
-            r.matched_vertex = position[r.matched_scan.as_str()];
-        }
+        let mut rows = rows(&engine, &matches, &rule);
         let threshold = match given_threshold(a, method, &engine)? {
             Some(t) => t,
             None => {
@@ -561,10 +560,9 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         // Between the radius and `--false-beyond`: neither true nor false.
         let in_band = |t: f64| t > a.revisit_radius && a.false_beyond.is_some_and(|band| t <= band);
         let with_revisit = rule.with_revisit(a.revisit_radius);
-        let (curve, auc) =
-            protocol_scores(&rows, &engine.scans, &with_revisit, a.revisit_radius, a.false_beyond);
-        let found: std::collections::HashSet<&str> =
-            rows.iter().filter(|r| r.accepted && is_true(r)).map(|r| r.query_scan.as_str()).collect();
+        // Whether a row's query has an allowed revisit (one row per query).
+        let has_revisit = |r: &LoopRow| with_revisit[rule.order[r.query_vertex]];
+        let (curve, auc) = protocol_scores(&rows, &has_revisit, a.revisit_radius, a.false_beyond);
         summary.methods.push(MethodSummary {
             method: method.clone(),
             threshold,
@@ -576,9 +574,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
                 .count(),
             true_positives: rows.iter().filter(|r| r.accepted && is_true(r)).count(),
             revisits: with_revisit.iter().filter(|&&w| w).count(),
-            revisits_found: (0..engine.scans.len())
-                .filter(|&i| with_revisit[i] && found.contains(engine.scans[i].scan_id.as_str()))
-                .count(),
+            revisits_found: rows.iter().filter(|r| r.accepted && is_true(r) && has_revisit(r)).count(),
             curve,
             auc,
             verified: a.verify.map(|_| below_threshold),
@@ -606,13 +602,10 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
 /// area under the curve ([`crate::eval::metrics::pr_auc`]).
 fn protocol_scores(
     rows: &[LoopRow],
-    scans: &[IndexedScan],
-    with_revisit: &[bool],
+    has_revisit: &dyn Fn(&LoopRow) -> bool,
     radius: f64,
     false_beyond: Option<f64>,
 ) -> (Option<crate::eval::metrics::LoopClosure>, Option<f64>) {
-    let position: HashMap<&str, usize> =
-        scans.iter().enumerate().map(|(i, s)| (s.scan_id.as_str(), i)).collect();
     let (mut distance, mut within, mut revisit) = (Vec::new(), Vec::new(), Vec::new());
     for r in rows {
         let Some(t) = r.true_distance_m else { continue };
@@ -621,7 +614,7 @@ fn protocol_scores(
         }
         distance.push(r.distance);
         within.push(t <= radius);
-        revisit.push(position.get(r.query_scan.as_str()).is_some_and(|&i| with_revisit[i]));
+        revisit.push(has_revisit(r));
     }
     if distance.is_empty() {
         return (None, None);

@@ -105,26 +105,15 @@ impl Growing {
                     })
                     .collect();
                 let candidates = best(by_key, p.candidates.max(k));
-                let len = p.len();
-                let scored = candidates
+                scancontext::rerank(query, descriptors, candidates.into_iter().map(|c| c.0), k, p)
                     .into_iter()
-                    .map(|(r, _, _)| {
-                        let (d, shift) =
-                            scancontext::distance(query, &descriptors[r * len..(r + 1) * len], p);
-                        (r, d, Some(scancontext::yaw_degrees(shift, p)))
-                    })
-                    .collect();
-                best(scored, k)
-            }
-            Inner::Solid { params: p, descriptors } => {
-                let len = p.len();
-                let at = |r: usize| &descriptors[r * len..(r + 1) * len];
-                let scored = rows.map(|r| (r, solid::distance(query, at(r), p), None)).collect();
-                best(scored, k)
-                    .into_iter()
-                    .map(|(r, d, _)| (r, d, Some(solid::yaw_degrees(solid::yaw_shift(query, at(r), p), p))))
+                    .map(|(r, d, shift)| (r, d, Some(scancontext::yaw_degrees(shift, p))))
                     .collect()
             }
+            Inner::Solid { params: p, descriptors } => solid::ranked(query, descriptors, rows, k, p)
+                .into_iter()
+                .map(|(r, d, shift)| (r, d, Some(solid::yaw_degrees(shift, p))))
+                .collect(),
             Inner::Euclidean { dim, vectors } => {
                 let scored = rows
                     .map(|r| {
