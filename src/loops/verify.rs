@@ -87,12 +87,20 @@ fn load(
             }
         }
     }
+    for id in ids {
+        out.entry(id.to_string()).or_insert_with(|| Err("not in the index's scans table".into()));
+    }
+    for (id, points) in &out {
+        if let Err(e) = points {
+            tracing::warn!("--verify: scan {id} cannot be read again, its matches fail the check: {e}");
+        }
+    }
     Ok(out)
 }
 
 /// Checks the accepted rows of `rows` (in parallel), returning each one's check (`None` for
-/// the rows not checked); a row whose scans cannot be read or aligned fails its check, the
-/// reason logged once per kind.
+/// the rows not checked); a row whose scans cannot be read or aligned fails its check (each
+/// unreadable scan named once, the alignments that failed counted in one warning).
 pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> Result<Vec<Option<Check>>> {
     use rayon::prelude::*;
     let p = IcpParams::default();
@@ -103,7 +111,8 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> 
         .flat_map(|r| [r.query_scan.as_str(), r.matched_scan.as_str()])
         .collect();
     let clouds = load(index, &ids, p.voxel)?;
-    let failures = std::sync::Mutex::new(HashSet::new());
+    // Alignments that failed: how many, and the first one's reason.
+    let failed = std::sync::Mutex::new((0usize, String::new()));
     let checks = rows
         .par_iter()
         .map(|r| {
@@ -113,14 +122,11 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> 
             if let Some(b) = &bar {
                 b.inc(1);
             }
-            let cloud = |id: &str| match clouds.get(id) {
-                Some(Ok(c)) => Ok(c),
-                Some(Err(e)) => Err(format!("scan {id}: {e}")),
-                None => Err(format!("scan {id}: not in the index's scans table")),
+            let failure = Check { passed: false, fitness: 0.0, rmse: f64::NAN, relative: [f64::NAN; 6] };
+            let (Some(Ok(q)), Some(Ok(m))) = (clouds.get(&r.query_scan), clouds.get(&r.matched_scan)) else {
+                return Some(failure);
             };
-            let aligned = cloud(&r.query_scan)
-                .and_then(|q| cloud(&r.matched_scan).and_then(|m| best_alignment(q, m, r.yaw_degrees, &p)));
-            match aligned {
+            match best_alignment(q, m, r.yaw_degrees, &p) {
                 Ok(a) => Some(Check {
                     passed: a.fitness >= limits.min_fitness && a.rmse <= limits.max_rmse,
                     fitness: a.fitness,
@@ -128,17 +134,22 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> 
                     relative: relative(&a.pose),
                 }),
                 Err(e) => {
-                    let kind: String = e.chars().take_while(|c| !c.is_ascii_digit()).collect();
-                    if failures.lock().expect("not poisoned").insert(kind) {
-                        tracing::warn!("--verify: {} against {}: {e}", r.query_scan, r.matched_scan);
+                    let mut f = failed.lock().expect("not poisoned");
+                    if f.0 == 0 {
+                        f.1 = format!("{} against {}: {e}", r.query_scan, r.matched_scan);
                     }
-                    Some(Check { passed: false, fitness: 0.0, rmse: f64::NAN, relative: [f64::NAN; 6] })
+                    f.0 += 1;
+                    Some(failure)
                 }
             }
         })
         .collect();
     if let Some(b) = bar {
         b.finish_and_clear();
+    }
+    let (n, first) = failed.into_inner().expect("not poisoned");
+    if n > 0 {
+        tracing::warn!("--verify: {n} matches could not be aligned, failing the check (the first: {first})");
     }
     Ok(checks)
 }
