@@ -642,19 +642,6 @@ fn ring_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
 /// The mean height (m) of the largest ring key.
 const RING_KEY_SCALE: f64 = 16.0;
 
-/// The yaw-independent keys of a descriptor: its shape key, its profile key, its ring key.
-pub fn key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
-    let mut out = shape_key(descriptor, p);
-    out.extend(profile_key(descriptor, p));
-    out.extend(ring_key(descriptor, p));
-    out
-}
-
-/// The keys' length.
-pub fn key_len(p: &PlusParams) -> usize {
-    shape_len(p) + profile_len(p) + p.rings
-}
-
 /// A hit: database row, distance, yaw of the query relative to it (degrees).
 pub type PlusHit = (usize, f64, f64);
 
@@ -1261,8 +1248,10 @@ mod tests {
         let p = PlusParams::default();
         let a = describe(&scene(), &p).unwrap();
         let b = describe(&turned(&scene(), 1), &p).unwrap();
-        let (ka, kb) = (key(&a, &p), key(&b, &p));
-        assert_eq!(ka.len(), key_len(&p));
+        // The yaw-independent keys: shape, profile, ring.
+        let key = |d: &[f32]| [shape_key(d, &p), profile_key(d, &p), ring_key(d, &p)].concat();
+        let (ka, kb) = (key(&a), key(&b));
+        assert_eq!(ka.len(), shape_len(&p) + profile_len(&p) + p.rings);
         for (x, y) in ka.iter().zip(&kb) {
             assert!((x - y).abs() < 1e-6);
         }
