@@ -61,8 +61,8 @@ fn toporec_error(e: toporec::Error) -> PyErr {
     }
 }
 
-/// The rows of a float64 `(n, 3)` array, checked: finite, at least 4 points.
-fn cloud(points: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
+/// The rows of a float64 `(n, 3)` array (any other shape is an error naming `what`).
+fn points_of(points: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
     let a = points.as_array();
     if a.ncols() != 3 {
         return Err(value_error(format!(
@@ -70,17 +70,20 @@ fn cloud(points: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<[f64; 3]>> 
             a.shape()
         )));
     }
-    if a.nrows() < 4 {
-        return Err(value_error(format!(
-            "{what}: {} points; the 3D alpha complex needs at least 4",
-            a.nrows()
-        )));
-    }
-    let rows: Vec<[f64; 3]> = match a.as_slice() {
+    Ok(match a.as_slice() {
         // C-contiguous (what the package passes): one pass over the buffer.
         Some(flat) => flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
         None => a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect(),
-    };
+    })
+}
+
+/// The rows of a float64 `(n, 3)` array, checked: finite, at least 4 points.
+fn cloud(points: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
+    let n = points.as_array().nrows();
+    let rows = points_of(points, what)?;
+    if n < 4 {
+        return Err(value_error(format!("{what}: {n} points; the 3D alpha complex needs at least 4")));
+    }
     if let Some((i, p)) = rows.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
         return Err(value_error(format!("{what}: point {i} is not finite: {p:?}")));
     }
@@ -551,11 +554,7 @@ impl LoopDetector {
         session: &str,
         pose: Option<[f64; 3]>,
     ) -> PyResult<Option<(usize, f64, Option<f64>, Option<f64>, Option<f64>, bool)>> {
-        let a = points.as_array();
-        if a.ncols() != 3 {
-            return Err(value_error(format!("points: expected an (n, 3) array, got shape {:?}", a.shape())));
-        }
-        let pts: Vec<[f64; 3]> = a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+        let pts = points_of(&points, "points")?;
         if let Some(t) = time.filter(|t| !t.is_finite()) {
             return Err(value_error(format!("time {t}: must be finite")));
         }
@@ -615,14 +614,8 @@ impl QueryEngine {
             .iter()
             .zip(ids)
             .map(|(c, id)| {
-                let a = c.as_array();
-                if a.ncols() != 3 {
-                    return Err(value_error(format!(
-                        "{id}: expected an (n, 3) array, got shape {:?}",
-                        a.shape()
-                    )));
-                }
-                Ok((id, a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect()))
+                let points = points_of(c, &id)?;
+                Ok((id, points))
             })
             .collect::<PyResult<_>>()?;
         let engine = self.engine.clone();

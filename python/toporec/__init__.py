@@ -537,9 +537,7 @@ class LoopDetector:
             ValueError: the points are not an ``(n, 3)`` array, or the method cannot describe
                 the scan (it is then not added).
         """
-        a = np.ascontiguousarray(points, dtype=np.float64)
-        if a.ndim != 2 or a.shape[1] != 3:
-            raise ValueError(f"points: expected an (n, 3) array, got shape {a.shape}")
+        a = _points(points)
         p = None if pose is None else tuple(float(v) for v in list(pose)[:3])
         found = self._detector.add(a, None if time is None else float(time), session, p)
         if found is None:
