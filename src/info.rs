@@ -40,7 +40,8 @@ pub struct IndexInfo {
 /// One descriptor method of an index.
 #[derive(Clone, Debug, Serialize)]
 pub struct MethodInfo {
-    /// `toporec`, `scancontext`, `m2dp`, `solid`, `toporec-plus` or `imported`.
+    /// `toporec`, `scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`,
+    /// `toporec-plus` or `imported`.
     pub kind: String,
     /// Descriptor length.
     pub length: usize,

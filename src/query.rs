@@ -59,6 +59,7 @@ enum Search {
     Vectors(Database),
     ScanContext(Searcher),
     Solid(crate::baselines::solid::Searcher),
+    ScanContextPp(crate::baselines::scancontext_pp::Searcher),
     Plus(crate::toporec_plus::Searcher),
 }
 
@@ -71,6 +72,10 @@ impl Search {
             MethodKind::Solid(p) => Search::Solid(crate::baselines::solid::Searcher::new(vectors, p.clone())),
             MethodKind::ToporecPlus(p) => {
                 Search::Plus(crate::toporec_plus::Searcher::new(vectors, p.clone()))
+            }
+            MethodKind::ScanContextPp(_) | MethodKind::ScanContextPpCart(_) => {
+                let variant = method.scancontext_pp_variant().expect("a Scan Context++ method");
+                Search::ScanContextPp(crate::baselines::scancontext_pp::Searcher::new(vectors, variant))
             }
             _ => Search::Vectors(Database::new(vectors, length)),
         }
@@ -134,6 +139,18 @@ impl SearchBudget {
             }
             (MethodKind::ToporecPlus(p), SearchBudget::Exhaustive) => {
                 (p.candidates, p.search_ratio) = (entries.max(1), 1.0)
+            }
+            (MethodKind::ScanContextPp(p), SearchBudget::Exhaustive) => {
+                (p.candidates, p.search_ratio) = (entries.max(1), 1.0)
+            }
+            (MethodKind::ScanContextPpCart(p), SearchBudget::Exhaustive) => {
+                (p.candidates, p.search_ratio) = (entries.max(1), 1.0)
+            }
+            (MethodKind::ScanContextPp(p), SearchBudget::Matched(n)) => {
+                (p.candidates, p.search_ratio) = (n, ratio(MATCHED_SHIFTS, p.sectors))
+            }
+            (MethodKind::ScanContextPpCart(p), SearchBudget::Matched(n)) => {
+                (p.candidates, p.search_ratio) = (n, ratio(MATCHED_SHIFTS, p.columns()))
             }
             (MethodKind::ScanContext(p), SearchBudget::Matched(n)) => {
                 (p.candidates, p.search_ratio) = (n, ratio(MATCHED_SHIFTS, p.sectors))
@@ -200,7 +217,10 @@ impl StepTimes {
             MethodKind::ScanContext(_) | MethodKind::ToporecPlus(_) => {
                 vec![("describe", self.describe), ("candidates", self.search), ("rerank", self.rerank)]
             }
-            MethodKind::M2dp(_) | MethodKind::Solid(_) => {
+            MethodKind::M2dp(_)
+            | MethodKind::Solid(_)
+            | MethodKind::ScanContextPp(_)
+            | MethodKind::ScanContextPpCart(_) => {
                 vec![("describe", self.describe), ("search", self.search)]
             }
             MethodKind::Imported { .. } => vec![("search", self.search)],
@@ -485,6 +505,20 @@ impl Engine {
                         row,
                         distance,
                         yaw_degrees: Some(crate::baselines::solid::yaw_degrees(shift, solid.params())),
+                    });
+                    (found.collect(), StepTimes { search, ..Default::default() })
+                })
+                .collect(),
+            Search::ScanContextPp(pp) => queries
+                .par_chunks(pp.variant().len())
+                .map(|q| {
+                    let t = Instant::now();
+                    let hits = pp.search(q, k);
+                    let search = t.elapsed().as_secs_f64();
+                    let found = hits.into_iter().map(|(row, distance, yaw)| Found {
+                        row,
+                        distance,
+                        yaw_degrees: Some(yaw),
                     });
                     (found.collect(), StepTimes { search, ..Default::default() })
                 })

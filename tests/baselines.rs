@@ -5,6 +5,7 @@
 use crate::util::{self, eval_days, python_with, read_json, root, shared_data};
 use toporec::baselines::m2dp;
 use toporec::baselines::scancontext::{self, ScanContextParams};
+use toporec::baselines::scancontext_pp::{self, CartParams, PolarParams, Variant};
 use toporec::baselines::solid::{self, SolidParams};
 use toporec::homology::Point;
 
@@ -279,6 +280,140 @@ fn solid_matches_the_reference_transcription_on_real_scans() {
     assert_eq!(checked, 2 * scans.len());
 }
 
+/// Scan Context++ worked by hand on a few points.
+#[test]
+fn scancontext_pp_by_hand() {
+    let p = PolarParams { voxel: 0.0, min_points: 2, ..PolarParams::default() };
+    // Five points at (11, 11) and two at (−31, 0.5), z = 0.1 + 0.1 i; the lidar height adds
+    // 1.9 m. From the sensor: r = 15.56 m, ring ⌊15.56 / 4⌋ = 3, azimuth 45°, sector
+    // ⌈45 / 6⌉ = 8 → bin (3, 7), top z 0.5 + 1.9 = 2.4; r = 31.00 m, ring 7, azimuth 179.08°,
+    // sector ⌈29.85⌉ = 30 → bin (7, 29), 0.7 + 1.9 = 2.6. A lone point at (51, 0.5) has too
+    // few (1 < 2): its bin stays 0.
+    let mut cloud: Vec<Point> = (1..=5).map(|i| [11.0, 11.0, 0.1 * i as f64]).collect();
+    cloud.extend([[-31.0, 0.5, 0.6], [-31.0, 0.5, 0.7], [51.0, 0.5, 9.0]]);
+    let d = scancontext_pp::describe_polar(&cloud, &p);
+    assert_eq!(d.len(), 3 * 1200);
+    let own = &d[..1200];
+    assert!((own[3 * 60 + 7] - 2.4).abs() < 1e-6 && (own[7 * 60 + 29] - 2.6).abs() < 1e-6);
+    assert_eq!(own.iter().filter(|&&v| v != 0.0).count(), 2);
+    // The second copy's origin is at (0, −2): the first group is at (11, 13), r = 17.03 m
+    // (ring 4), azimuth 49.76° (sector ⌈8.29⌉ = 9).
+    let moved = &d[1200..2400];
+    assert!((moved[4 * 60 + 8] - 2.4).abs() < 1e-6);
+    // A scan is at distance 0 from itself, and a copy matches the scan seen from 2 m aside (a
+    // sensor at (0, −2) sees every point 2 m further along y).
+    let v = Variant::Polar(p.clone());
+    assert_eq!(scancontext_pp::compare(&d, &d, &v).distance, 0.0);
+    let aside: Vec<Point> = cloud.iter().map(|q| [q[0], q[1] + 2.0, q[2]]).collect();
+    let query = scancontext_pp::describe_polar(&aside, &p);
+    let m = scancontext_pp::compare(&query, &d, &v);
+    assert!(m.distance < 1e-12 && m.shift == 0, "{m:?}");
+    // Turned by 90° (15 sectors): the yaw is 90°.
+    let q = scancontext_pp::describe_polar(&turned(&cloud, 90.0), &p);
+    let m = scancontext_pp::compare(&q, &d, &v);
+    assert_eq!((m.distance < 1e-12, m.yaw_degrees(&v)), (true, 90.0));
+
+    // The Cartesian context: (11, 11) is row ⌊111 / 5⌋ = 22, column ⌊51 / 2⌋ = 25; (−31, 0.5)
+    // row ⌊69 / 5⌋ = 13, column ⌊40.5 / 2⌋ = 20; (51, 0.5) row 30, column 20 (no minimum count
+    // here). No point lies on a bin edge, so turning by 180° reverses the bins exactly.
+    let c = CartParams { voxel: 0.0, ..CartParams::default() };
+    let cc = scancontext_pp::describe_cart(&cloud, &c);
+    assert_eq!((c.rows(), c.columns(), cc.len()), (40, 40, 1600));
+    let at = |row: usize, col: usize| cc[row * 40 + col];
+    assert!((at(22, 25) - 2.4).abs() < 1e-6 && (at(13, 20) - 2.6).abs() < 1e-6);
+    assert!((at(30, 20) - 10.9).abs() < 1e-6);
+    assert_eq!(cc.iter().filter(|&&v| v != 0.0).count(), 3);
+    // Driven the other way: the scan turned by 180° (its bins reversed) matches, reversed.
+    let v = Variant::Cart(c.clone());
+    let back = scancontext_pp::describe_cart(&turned(&cloud, 180.0), &c);
+    let m = scancontext_pp::compare(&back, &cc, &v);
+    assert!(m.distance < 1e-12 && m.reversed, "{m:?}");
+    assert_eq!(m.yaw_degrees(&v), 180.0);
+    let no_reverse = Variant::Cart(CartParams { reverse: false, ..c.clone() });
+    assert!(scancontext_pp::compare(&back, &cc, &no_reverse).distance > 0.1);
+    // Moved 2 m to the right (y − 2, one column down): the candidate's column 25 lines up with
+    // the query's 24, a shift of −1 ≡ 39.
+    let left: Vec<Point> = cloud.iter().map(|q| [q[0], q[1] - 2.0, q[2]]).collect();
+    let m = scancontext_pp::compare(&scancontext_pp::describe_cart(&left, &c), &cc, &v);
+    assert!(m.distance < 1e-12 && !m.reversed && m.shift == 39, "{m:?}");
+}
+
+/// Scan Context++ equals the numpy transcription of the reference code
+/// (`scripts/scancontext_pp_reference.py`) on real KITTI and NCLT scans: contexts within 1e-6
+/// relative, distances within 1e-9, the same shifts.
+#[test]
+fn scancontext_pp_matches_the_reference_transcription_on_real_scans() {
+    let test = "scancontext_pp_matches_the_reference_transcription_on_real_scans";
+    let Some(data) = shared_data(test) else { return };
+    if !python_with(test, &["numpy"]) {
+        return;
+    }
+    let scans = [
+        data.join("kitti/sequences/00/velodyne/000000.bin"),
+        data.join("kitti/sequences/08/velodyne/000006.bin"),
+        data.join("kitti/sequences/05/velodyne/000003.bin"),
+        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
+    ];
+    let (csvs, clouds, text) =
+        reference_output("scancontext_pp_reference", "scancontext_pp_reference.py", &scans);
+    let polar = PolarParams { voxel: 0.0, ..PolarParams::default() };
+    let cart = CartParams { voxel: 0.0, ..CartParams::default() };
+    let close = |ours: &[f32], theirs: &[f64], name: &str, what: &str| {
+        assert_eq!(ours.len(), theirs.len(), "{name} {what}");
+        assert!(ours.iter().filter(|&&v| v != 0.0).count() > 100, "{name} {what}: nearly empty");
+        let worst = ours
+            .iter()
+            .zip(theirs)
+            .map(|(&a, b)| (a as f64 - b).abs() / b.abs().max(1.0))
+            .fold(0.0, f64::max);
+        assert!(worst <= 1e-6, "{name} {what}: max relative difference {worst:e}");
+        println!("{name} {what}: {} values, max relative difference {worst:e}", ours.len());
+    };
+    let mut checked = 0;
+    for line in text.lines() {
+        let fields: Vec<&str> = line.split(',').collect();
+        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
+        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
+        let name = scans[i].display().to_string();
+        match fields[1] {
+            "pp-polar" => close(&scancontext_pp::describe_polar(&clouds[i], &polar), &values, &name, "polar"),
+            "pp-cart" => close(&scancontext_pp::describe_cart(&clouds[i], &cart), &values, &name, "cart"),
+            "pp-polardist" => {
+                let q = scancontext_pp::describe_polar(&turned(&clouds[i], 42.0), &polar);
+                let c = scancontext_pp::describe_polar(&clouds[i], &polar);
+                let m = scancontext_pp::compare(&q, &c, &Variant::Polar(polar.clone()));
+                assert!(
+                    (m.distance - values[0]).abs() <= 1e-9,
+                    "{name}: {} against {}",
+                    m.distance,
+                    values[0]
+                );
+                assert_eq!((m.shift as f64, m.shift), (values[1], 7), "{name}: a 42° turn is 7 sectors");
+                println!("{name} polar distance {:e}, shift {}", m.distance, m.shift);
+            }
+            "pp-cartdist" => {
+                let q = scancontext_pp::describe_cart(&turned(&clouds[i], 180.0), &cart);
+                let c = scancontext_pp::describe_cart(&clouds[i], &cart);
+                let m = scancontext_pp::compare(&q, &c, &Variant::Cart(cart.clone()));
+                assert!(
+                    (m.distance - values[0]).abs() <= 1e-9,
+                    "{name}: {} against {}",
+                    m.distance,
+                    values[0]
+                );
+                assert_eq!((m.shift as f64, m.reversed as u8 as f64), (values[1], values[2]), "{name}");
+                println!(
+                    "{name} cartesian distance {:e}, shift {}, reversed {}",
+                    m.distance, m.shift, m.reversed
+                );
+            }
+            other => panic!("unknown line kind {other}"),
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, 4 * scans.len());
+}
+
 /// The committed sample indexed with every method (pipelines/compare.toml asks for TopoRec,
 /// toporec-plus, ScanContext and M2DP): the index layout, `verify`, `query --method` (with ScanContext's yaw),
 /// `eval places` side by side, and a methods change refused.
@@ -290,14 +425,25 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let o = run_pipeline(&root().join("pipelines/compare.toml"), &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let said = text(&o.stdout) + &text(&o.stderr);
-    assert!(said.contains("scancontext (length 1200), m2dp (length 192), solid (length 100)"), "{said}");
+    assert!(
+        said.contains(
+            "scancontext (length 1200), scancontext-pp (length 3600), scancontext-pp-cart (length 1600), \
+             m2dp (length 192), solid (length 100)"
+        ),
+        "{said}"
+    );
     let manifest: serde_json::Value = read_json(&index.join("manifest.json"));
     let methods = manifest["methods"].as_object().unwrap();
-    assert_eq!(methods.keys().collect::<Vec<_>>(), ["m2dp", "scancontext", "solid", "toporec-plus"]);
+    assert_eq!(
+        methods.keys().collect::<Vec<_>>(),
+        ["m2dp", "scancontext", "scancontext-pp", "scancontext-pp-cart", "solid", "toporec-plus"]
+    );
     assert_eq!(methods["scancontext"]["length"], 1200);
     assert_eq!(methods["m2dp"]["length"], 192);
     assert_eq!(methods["solid"]["params"]["fov_up"], 10.67);
-    for m in ["toporec", "toporec-plus", "scancontext", "m2dp", "solid"] {
+    for m in
+        ["toporec", "toporec-plus", "scancontext", "scancontext-pp", "scancontext-pp-cart", "m2dp", "solid"]
+    {
         for s in ["2026-01-01", "2026-01-02"] {
             assert!(index.join(format!("descriptors/method={m}/session={s}")).is_dir(), "{m} {s}");
         }
@@ -344,6 +490,15 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let out = text(&o.stdout);
     let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
     assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
+    // Scan Context++: the polar context gives the yaw; the Cartesian one finds the scan itself.
+    let o = q("scancontext-pp", &csv);
+    let out = text(&o.stdout);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
+    let o = q("scancontext-pp-cart", scan);
+    let out = text(&o.stdout);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!((row[2], row[4], row[8]), (id.as_str(), "0.0", "0.0"), "{out}");
     // M2DP of the file itself: the very scan, at distance 0 (one scan, one descriptor).
     let o = q("m2dp", scan);
     let out = text(&o.stdout);
@@ -353,7 +508,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(o.status.code(), Some(2));
     assert!(
         text(&o.stderr)
-            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext, solid, toporec-plus)"),
+            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext, scancontext-pp, scancontext-pp-cart, solid, toporec-plus)"),
         "{}",
         text(&o.stderr)
     );
@@ -373,14 +528,19 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     };
     let names: Vec<&str> =
         report["methods"].as_array().unwrap().iter().map(|m| m["method"].as_str().unwrap()).collect();
-    assert_eq!(names, ["toporec", "m2dp", "scancontext", "solid", "toporec-plus"]);
+    assert_eq!(
+        names,
+        ["toporec", "m2dp", "scancontext", "scancontext-pp", "scancontext-pp-cart", "solid", "toporec-plus"]
+    );
     // Regression values (toporec's own output on the committed sample): R@1 at 5, 10, 20,
     // 50 m, in 32nds of the queries.
     assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
     assert_eq!(r1(1), [24.0, 24.0, 26.0, 29.0], "M2DP");
     assert_eq!(r1(2), [32.0, 32.0, 32.0, 32.0], "ScanContext");
-    assert_eq!(r1(3), [11.0, 13.0, 15.0, 32.0], "SOLiD");
-    assert_eq!(r1(4), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
+    assert_eq!(r1(3), [32.0, 32.0, 32.0, 32.0], "Scan Context++, polar");
+    assert_eq!(r1(4), [31.0, 31.0, 31.0, 32.0], "Scan Context++, Cartesian");
+    assert_eq!(r1(5), [11.0, 13.0, 15.0, 32.0], "SOLiD");
+    assert_eq!(r1(6), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
     for f in
         ["recall_at_n.png", "trajectory_toporec.png", "trajectory_m2dp.png", "trajectory_scancontext.png"]
     {
@@ -400,7 +560,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let base = root().join("pipelines").display().to_string();
     let edited = text_of
         .replace(
-            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"m2dp\", \"solid\"]",
+            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"scancontext-pp\", \"scancontext-pp-cart\", \"m2dp\", \"solid\"]",
             "methods = [\"toporec\", \"m2dp\"]",
         )
         .replace("\"../", &format!("\"{base}/../"));

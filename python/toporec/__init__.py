@@ -483,7 +483,8 @@ class LoopDetector:
     finds what ``toporec loops`` finds (docs/loops.md).
 
     Args:
-        method: ``"toporec-plus"`` (default), ``"scancontext"``, ``"solid"`` or ``"m2dp"``.
+        method: ``"toporec-plus"`` (default), ``"scancontext"``, ``"scancontext-pp"``,
+            ``"scancontext-pp-cart"``, ``"solid"`` or ``"m2dp"``.
         exclude_seconds: earlier scans of the same session closer in time are left out.
         threshold: a match below this descriptor distance is a loop; default the method's
             documented one at the default settings (toporec-plus 0.3619, ScanContext 0.5335;

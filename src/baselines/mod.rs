@@ -1,7 +1,7 @@
 //! The descriptors place recognition is usually compared against, beside the TopoRec one:
-//! [`scancontext`] (Kim & Kim 2018), [`m2dp`] (He et al. 2016) and [`solid`] (Kim, Choi, Kim
-//! 2024), each computed from the raw
-//! scan in the sensor frame with its own preprocessing; and descriptors made elsewhere
+//! [`scancontext`] (Kim & Kim 2018), [`scancontext_pp`] (Scan Context++, Kim, Choi, Kim 2021:
+//! its polar and its Cartesian context), [`m2dp`] (He et al. 2016) and [`solid`] (Kim, Choi,
+//! Kim 2024), each computed from the raw scan in the sensor frame with its own preprocessing; and descriptors made elsewhere
 //! (PointNetVLAD, PCAN, MinkLoc3D, …), imported into an index with `toporec import`.
 //!
 //! A [`Method`] names one of them with its parameters; an index stores each method's
@@ -10,18 +10,24 @@
 
 pub mod m2dp;
 pub mod scancontext;
+pub mod scancontext_pp;
 pub mod solid;
 
 use crate::preprocess::voxel_grid;
 use crate::toporec_plus::PlusParams;
 use crate::types::Point;
 use scancontext::ScanContextParams;
+use scancontext_pp::{CartParams, PolarParams};
 use solid::SolidParams;
 
 /// The name of the TopoRec paper's descriptor (alpha persistence + ATOL).
 pub const TOPOREC: &str = "toporec";
 /// The name of ScanContext.
 pub const SCANCONTEXT: &str = "scancontext";
+/// The name of Scan Context++'s polar context.
+pub const SCANCONTEXT_PP: &str = "scancontext-pp";
+/// The name of Scan Context++'s Cartesian context.
+pub const SCANCONTEXT_PP_CART: &str = "scancontext-pp-cart";
 /// The name of M2DP.
 pub const M2DP: &str = "m2dp";
 /// The name of SOLiD.
@@ -61,6 +67,10 @@ pub enum MethodKind {
     Toporec,
     /// ScanContext.
     ScanContext(ScanContextParams),
+    /// Scan Context++, its polar context.
+    ScanContextPp(PolarParams),
+    /// Scan Context++, its Cartesian context.
+    ScanContextPpCart(CartParams),
     /// M2DP.
     M2dp(M2dpParams),
     /// SOLiD.
@@ -94,6 +104,16 @@ impl Method {
         Method { name: SCANCONTEXT.into(), kind: MethodKind::ScanContext(p) }
     }
 
+    /// Scan Context++'s polar context with these parameters.
+    pub fn scancontext_pp(p: PolarParams) -> Self {
+        Method { name: SCANCONTEXT_PP.into(), kind: MethodKind::ScanContextPp(p) }
+    }
+
+    /// Scan Context++'s Cartesian context with these parameters.
+    pub fn scancontext_pp_cart(p: CartParams) -> Self {
+        Method { name: SCANCONTEXT_PP_CART.into(), kind: MethodKind::ScanContextPpCart(p) }
+    }
+
     /// M2DP with these parameters.
     pub fn m2dp(p: M2dpParams) -> Self {
         Method { name: M2DP.into(), kind: MethodKind::M2dp(p) }
@@ -109,8 +129,8 @@ impl Method {
         Method { name: TOPOREC_PLUS.into(), kind: MethodKind::ToporecPlus(p) }
     }
 
-    /// A method computed from raw scans by its name (`toporec-plus`, `scancontext`, `solid`,
-    /// `m2dp`) and its settings (the keys of its pipeline-file section, as JSON; `null` or `{}`
+    /// A method computed from raw scans by its name (`toporec-plus`, `scancontext`,
+    /// `scancontext-pp`, `scancontext-pp-cart`, `solid`, `m2dp`) and its settings (the keys of its pipeline-file section, as JSON; `null` or `{}`
     /// for the defaults); an error naming each problem.
     pub fn from_settings(name: &str, settings: &serde_json::Value) -> Result<Method, String> {
         fn parse<T: serde::de::DeserializeOwned + Default>(
@@ -125,28 +145,35 @@ impl Method {
         let method = match name {
             TOPOREC_PLUS => Method::toporec_plus(parse(name, settings)?),
             SCANCONTEXT => Method::scancontext(parse(name, settings)?),
+            SCANCONTEXT_PP => Method::scancontext_pp(parse(name, settings)?),
+            SCANCONTEXT_PP_CART => Method::scancontext_pp_cart(parse(name, settings)?),
             SOLID => Method::solid(parse(name, settings)?),
             M2DP => Method::m2dp(parse(name, settings)?),
             _ => {
                 return Err(format!(
-                    "unknown method `{name}` (computed from raw scans: toporec-plus, scancontext, solid, m2dp)"
+                    "unknown method `{name}` (computed from raw scans: toporec-plus, scancontext, scancontext-pp, scancontext-pp-cart, solid, m2dp)"
                 ));
             }
         };
         let problems = match &method.kind {
             MethodKind::ToporecPlus(p) => p.problems(),
             MethodKind::ScanContext(p) => p.problems(),
+            MethodKind::ScanContextPp(p) => p.problems(),
+            MethodKind::ScanContextPpCart(p) => p.problems(),
             MethodKind::Solid(p) => p.problems(),
             _ => Vec::new(),
         };
         if problems.is_empty() { Ok(method) } else { Err(problems.join("; ")) }
     }
 
-    /// The kind's name (`scancontext`, `m2dp`, `solid`, `toporec-plus`, `imported`, `toporec`).
+    /// The kind's name (`scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`,
+    /// `toporec-plus`, `imported`, `toporec`).
     pub fn kind_name(&self) -> &'static str {
         match self.kind {
             MethodKind::Toporec => TOPOREC,
             MethodKind::ScanContext(_) => SCANCONTEXT,
+            MethodKind::ScanContextPp(_) => SCANCONTEXT_PP,
+            MethodKind::ScanContextPpCart(_) => SCANCONTEXT_PP_CART,
             MethodKind::M2dp(_) => M2DP,
             MethodKind::Solid(_) => SOLID,
             MethodKind::ToporecPlus(_) => TOPOREC_PLUS,
@@ -159,6 +186,8 @@ impl Method {
         match &self.kind {
             MethodKind::Toporec => serde_json::json!({}),
             MethodKind::ScanContext(p) => serde_json::to_value(p).expect("plain data"),
+            MethodKind::ScanContextPp(p) => serde_json::to_value(p).expect("plain data"),
+            MethodKind::ScanContextPpCart(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::M2dp(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::Solid(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::ToporecPlus(p) => serde_json::to_value(p).expect("plain data"),
@@ -171,6 +200,8 @@ impl Method {
         match &self.kind {
             MethodKind::Toporec => 0,
             MethodKind::ScanContext(p) => p.len(),
+            MethodKind::ScanContextPp(p) => p.len(),
+            MethodKind::ScanContextPpCart(p) => p.len(),
             MethodKind::M2dp(_) => m2dp::LEN,
             MethodKind::Solid(p) => p.len(),
             MethodKind::ToporecPlus(p) => p.len(),
@@ -190,11 +221,14 @@ impl Method {
         crate::fingerprint::hex(crate::fingerprint::of_bytes(text.as_bytes()))
     }
 
-    /// Whether the method is computed from raw scans (ScanContext, M2DP, SOLiD, toporec-plus).
+    /// Whether the method is computed from raw scans (ScanContext, Scan Context++, M2DP, SOLiD,
+    /// toporec-plus).
     pub fn is_computed(&self) -> bool {
         matches!(
             self.kind,
             MethodKind::ScanContext(_)
+                | MethodKind::ScanContextPp(_)
+                | MethodKind::ScanContextPpCart(_)
                 | MethodKind::M2dp(_)
                 | MethodKind::Solid(_)
                 | MethodKind::ToporecPlus(_)
@@ -202,16 +236,29 @@ impl Method {
     }
 
     /// The descriptor of a raw scan (sensor frame, metres) for the methods computed from it
-    /// (ScanContext, M2DP, SOLiD, toporec-plus), after the method's own preprocessing (its voxel
+    /// (ScanContext, Scan Context++, M2DP, SOLiD, toporec-plus), after the method's own preprocessing (its voxel
     /// grid); `None` for the others. An error, with the reason, when the method could not
     /// describe the scan (toporec-plus: no return within its radius).
     pub fn describe_raw(&self, points: &[Point]) -> Option<Result<Vec<f32>, String>> {
         let grid = |voxel: f64| if voxel > 0.0 { voxel_grid(points, voxel) } else { points.to_vec() };
         match &self.kind {
             MethodKind::ScanContext(p) => Some(Ok(scancontext::describe(&grid(p.voxel), p))),
+            MethodKind::ScanContextPp(p) => Some(Ok(scancontext_pp::describe_polar(points, p))),
+            MethodKind::ScanContextPpCart(p) => Some(Ok(scancontext_pp::describe_cart(points, p))),
             MethodKind::M2dp(p) => Some(Ok(m2dp::describe(&grid(p.voxel)))),
             MethodKind::Solid(p) => Some(Ok(solid::describe(&solid::preprocess(points, p), p))),
             MethodKind::ToporecPlus(p) => Some(crate::toporec_plus::describe(points, p)),
+            _ => None,
+        }
+    }
+}
+
+impl Method {
+    /// Scan Context++'s settings, for its two methods.
+    pub fn scancontext_pp_variant(&self) -> Option<scancontext_pp::Variant> {
+        match &self.kind {
+            MethodKind::ScanContextPp(p) => Some(scancontext_pp::Variant::Polar(p.clone())),
+            MethodKind::ScanContextPpCart(p) => Some(scancontext_pp::Variant::Cart(p.clone())),
             _ => None,
         }
     }

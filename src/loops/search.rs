@@ -9,7 +9,7 @@
 //! exact distance to every allowed row, the others (TopoRec, M2DP, imported vectors) by exact
 //! Euclidean distance. Ties go to the lower row.
 
-use crate::baselines::{Method, MethodKind, scancontext, solid};
+use crate::baselines::{Method, MethodKind, scancontext, scancontext_pp, solid};
 use crate::toporec_plus;
 
 /// A hit: row, distance, and the yaw of the query relative to the row (degrees), for the
@@ -24,6 +24,8 @@ enum Inner {
     Plus(toporec_plus::Searcher),
     /// ScanContext: descriptors and ring keys.
     ScanContext { params: scancontext::ScanContextParams, descriptors: Vec<f32>, keys: Vec<f32> },
+    /// Scan Context++'s own searcher.
+    ScanContextPp(scancontext_pp::Searcher),
     /// SOLiD: descriptors.
     Solid { params: solid::SolidParams, descriptors: Vec<f32> },
     /// Exact Euclidean search over vectors of `dim` values.
@@ -39,6 +41,12 @@ impl Growing {
                 Inner::ScanContext { params: p.clone(), descriptors: Vec::new(), keys: Vec::new() }
             }
             MethodKind::Solid(p) => Inner::Solid { params: p.clone(), descriptors: Vec::new() },
+            MethodKind::ScanContextPp(_) | MethodKind::ScanContextPpCart(_) => {
+                Inner::ScanContextPp(scancontext_pp::Searcher::new(
+                    Vec::new(),
+                    method.scancontext_pp_variant().expect("Scan Context++"),
+                ))
+            }
             _ => Inner::Euclidean { dim: length.max(1), vectors: Vec::new() },
         })
     }
@@ -49,6 +57,7 @@ impl Growing {
             Inner::Plus(s) => s.len(),
             Inner::ScanContext { params, descriptors, .. } => descriptors.len() / params.len(),
             Inner::Solid { params, descriptors } => descriptors.len() / params.len(),
+            Inner::ScanContextPp(s) => s.len(),
             Inner::Euclidean { dim, vectors } => vectors.len() / dim,
         }
     }
@@ -67,6 +76,7 @@ impl Growing {
                 keys.extend(scancontext::ring_key(descriptor, params));
             }
             Inner::Solid { descriptors, .. } => descriptors.extend_from_slice(descriptor),
+            Inner::ScanContextPp(s) => s.push(descriptor),
             Inner::Euclidean { vectors, .. } => vectors.extend_from_slice(descriptor),
         }
     }
@@ -109,6 +119,9 @@ impl Growing {
                     .into_iter()
                     .map(|(r, d, shift)| (r, d, Some(scancontext::yaw_degrees(shift, p))))
                     .collect()
+            }
+            Inner::ScanContextPp(s) => {
+                s.search_where(query, k, allowed).into_iter().map(|(r, d, yaw)| (r, d, Some(yaw))).collect()
             }
             Inner::Solid { params: p, descriptors } => solid::ranked(query, descriptors, rows, k, p)
                 .into_iter()

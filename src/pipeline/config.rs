@@ -25,13 +25,18 @@
 //! [descriptors]
 //! methods = ["toporec", "scancontext", "m2dp", "solid"]   # default ["toporec"]
 //! [scancontext]                      # optional: its parameters (see baselines::scancontext)
+//! [scancontext-pp]                   # optional: its parameters (see baselines::scancontext_pp)
+//! [scancontext-pp-cart]              # optional: its parameters (see baselines::scancontext_pp)
 //! [m2dp]                             # optional: its parameters
 //! [solid]                            # optional: its parameters (see baselines::solid)
 //! ```
 
 use crate::baselines::{
-    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, SOLID, TOPOREC, TOPOREC_PLUS,
-    scancontext::ScanContextParams, solid::SolidParams,
+    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, SOLID, TOPOREC,
+    TOPOREC_PLUS,
+    scancontext::ScanContextParams,
+    scancontext_pp::{CartParams, PolarParams},
+    solid::SolidParams,
 };
 pub use crate::error::ConfigErrors;
 use crate::preprocess::Preprocess;
@@ -268,6 +273,8 @@ impl Pipeline {
                 crate::baselines::MethodKind::ScanContext(p) => Value::try_from(p),
                 crate::baselines::MethodKind::M2dp(p) => Value::try_from(p),
                 crate::baselines::MethodKind::Solid(p) => Value::try_from(p),
+                crate::baselines::MethodKind::ScanContextPp(p) => Value::try_from(p),
+                crate::baselines::MethodKind::ScanContextPpCart(p) => Value::try_from(p),
                 crate::baselines::MethodKind::ToporecPlus(p) => Value::try_from(p),
                 _ => continue,
             };
@@ -421,10 +428,11 @@ impl Parser {
         let m2dp: M2dpParams = self.method_section(root, M2DP);
         let plus: PlusParams = self.method_section(root, TOPOREC_PLUS);
         let solid: SolidParams = self.method_section(root, SOLID);
+        let pp: PolarParams = self.method_section(root, SCANCONTEXT_PP);
+        let pp_cart: CartParams = self.method_section(root, SCANCONTEXT_PP_CART);
         let mut methods = Methods { toporec: false, computed: Vec::new() };
         if names.is_empty() {
-            self.errors
-                .push("descriptors.methods: empty (toporec, toporec-plus, scancontext, m2dp, solid)".into());
+            self.errors.push(format!("descriptors.methods: empty ({})", Self::METHOD_NAMES));
         }
         for (i, name) in names.iter().enumerate() {
             if names[..i].contains(name) {
@@ -436,6 +444,14 @@ impl Parser {
                 SCANCONTEXT => {
                     self.errors.extend(sc.problems());
                     methods.computed.push(Method::scancontext(sc.clone()));
+                }
+                SCANCONTEXT_PP => {
+                    self.errors.extend(pp.problems());
+                    methods.computed.push(Method::scancontext_pp(pp.clone()));
+                }
+                SCANCONTEXT_PP_CART => {
+                    self.errors.extend(pp_cart.problems());
+                    methods.computed.push(Method::scancontext_pp_cart(pp_cart.clone()));
                 }
                 M2DP => {
                     self.errors.extend(m2dp.problems());
@@ -450,15 +466,21 @@ impl Parser {
                     methods.computed.push(Method::toporec_plus(plus.clone()));
                 }
                 other => self.errors.push(format!(
-                    "descriptors.methods: unknown method `{other}` (toporec, toporec-plus, scancontext, m2dp, solid; \
-                     vectors made elsewhere come in with `toporec import`)"
+                    "descriptors.methods: unknown method `{other}` ({}; vectors made elsewhere come in with \
+                     `toporec import`)",
+                    Self::METHOD_NAMES
                 )),
             }
         }
         methods
     }
 
-    /// A method's section (`[scancontext]`, `[m2dp]`, `[solid]`, `[toporec-plus]`), defaults filled in.
+    /// The methods a pipeline can compute, for its messages.
+    const METHOD_NAMES: &'static str =
+        "toporec, toporec-plus, scancontext, scancontext-pp, scancontext-pp-cart, m2dp, solid";
+
+    /// A method's section (`[scancontext]`, `[m2dp]`, `[solid]`, `[toporec-plus]`, …), defaults
+    /// filled in.
     fn method_section<T: DeserializeOwned + Default>(&mut self, root: &mut Section, key: &'static str) -> T {
         root.seen.push(key);
         match root.table.get(key) {

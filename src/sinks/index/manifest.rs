@@ -5,7 +5,10 @@
 //! leaves such files behind, and the next writer deletes them. The format is documented as a
 //! JSON Schema in `schemas/manifest.json`.
 
-use crate::baselines::{IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT, SOLID, TOPOREC_PLUS};
+use crate::baselines::{
+    IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, SOLID,
+    TOPOREC_PLUS,
+};
 use crate::error::{Error, Result, ResultExt};
 use crate::vectorize::codebook::Codebook;
 use serde::{Deserialize, Serialize};
@@ -56,6 +59,10 @@ impl MethodEntry {
             SCANCONTEXT => MethodKind::ScanContext(serde_json::from_value(self.params.clone()).ok()?),
             M2DP => MethodKind::M2dp(serde_json::from_value(self.params.clone()).ok()?),
             SOLID => MethodKind::Solid(serde_json::from_value(self.params.clone()).ok()?),
+            SCANCONTEXT_PP => MethodKind::ScanContextPp(serde_json::from_value(self.params.clone()).ok()?),
+            SCANCONTEXT_PP_CART => {
+                MethodKind::ScanContextPpCart(serde_json::from_value(self.params.clone()).ok()?)
+            }
             TOPOREC_PLUS => MethodKind::ToporecPlus(serde_json::from_value(self.params.clone()).ok()?),
             IMPORTED => MethodKind::Imported {
                 length: self.length,
