@@ -865,7 +865,8 @@ fn count(c: &mut Counts, status: Status, delta: i64) {
 }
 
 /// Takes the writer's lock, or explains who holds it. A reader completing a commit holds it
-/// for milliseconds: it is waited for.
+/// for milliseconds: it is waited for; so is a holder whose name is not yet written (between
+/// taking the lock and writing it, the lock file is empty).
 fn take_lock(root: &Path, wait: bool) -> Result<std::fs::File> {
     use std::io::{Read, Seek, Write};
     let path = root.join(LOCK_FILE);
@@ -886,7 +887,8 @@ fn take_lock(root: &Path, wait: bool) -> Result<std::fs::File> {
                 let _ = file.rewind();
                 let _ = file.read_to_string(&mut holder);
                 let holder = holder.trim();
-                if holder.ends_with(RECOVERING) && patience.elapsed() < Duration::from_secs(10) {
+                let transient = holder.is_empty() || holder.ends_with(RECOVERING);
+                if transient && patience.elapsed() < Duration::from_secs(10) {
                     std::thread::sleep(Duration::from_millis(10));
                     continue;
                 }
@@ -975,4 +977,35 @@ fn rewrite_without(
     }
     let (file, rows) = out.finish()?;
     Ok((rows > 0).then_some((file, rows)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_holder_that_has_not_written_its_name_yet_is_waited_for() {
+        let dir = std::env::temp_dir().join(format!("toporec-lock-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(crate::sinks::index::LOCK_FILE);
+        let held = std::fs::File::create(&path).unwrap();
+        held.try_lock().unwrap();
+        // The lock is held with an empty file, as in the moment before its holder writes its
+        // name, then released.
+        let release = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(200));
+            drop(held);
+        });
+        let taken = take_lock(&dir, false);
+        release.join().unwrap();
+        assert!(taken.is_ok(), "{:?}", taken.err());
+        drop(taken);
+        // A named holder is refused at once, with its name.
+        let mut named = std::fs::OpenOptions::new().read(true).write(true).open(&path).unwrap();
+        named.try_lock().unwrap();
+        write_holder(&mut named, "").unwrap();
+        let refused = take_lock(&dir, false).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(refused.contains(&format!("pid {}", std::process::id())), "{refused}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
