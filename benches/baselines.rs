@@ -155,8 +155,8 @@ fn main() {
         // Scan Context++: polar entries of three ScanContexts each; Cartesian entries moved
         // sideways and noised.
         let len = p.len();
-        let polar_db: Vec<f32> =
-            (0..n).flat_map(|i| (0..3).flat_map(move |c| db[(i + c) % n * len..((i + c) % n + 1) * len].to_vec())).collect();
+        let entry = |row: usize| &db[row % n * len..(row % n + 1) * len];
+        let polar_db: Vec<f32> = (0..n).flat_map(|i| (0..3).flat_map(move |c| entry(i + c).to_vec())).collect();
         drop(db);
         let cart_base: Vec<Vec<f32>> = clouds.iter().map(|c| scancontext_pp::describe_cart(c, &ppc)).collect();
         let columns = ppc.columns();
