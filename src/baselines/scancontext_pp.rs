@@ -418,12 +418,26 @@ pub fn compare(query: &[f32], candidate: &[f32], v: &Variant) -> Match {
     best
 }
 
+/// The squared Euclidean distance of two keys in float32, summed in eight lanes (so that it
+/// vectorizes).
+fn squared_distance(a: &[f32], b: &[f32]) -> f32 {
+    let mut lanes = [0.0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca.remainder().iter().zip(cb.remainder()).map(|(&x, &y)| (x - y) * (x - y)).sum();
+    for (x, y) in ca.zip(cb) {
+        for i in 0..8 {
+            lanes[i] += (x[i] - y[i]) * (x[i] - y[i]);
+        }
+    }
+    lanes.iter().sum::<f32>() + tail
+}
+
 /// A hit of a search: row, distance, yaw of the query relative to the row (degrees).
 pub type PpHit = (usize, f64, f64);
 
 /// Scan Context++ descriptors searched as the reference does: the rows whose keys lie
-/// nearest the query's (Euclidean; the nearest of a row's copies, or of the query's probes)
-/// are the candidates, re-ranked by [`compare`]. It grows by [`Searcher::push`].
+/// nearest the query's (Euclidean, in float32; the nearest of a row's copies, or of the
+/// query's probes) are the candidates, re-ranked by [`compare`]. It grows by [`Searcher::push`].
 pub struct Searcher {
     variant: Variant,
     descriptors: Vec<f32>,
@@ -476,21 +490,21 @@ impl Searcher {
         let per_row = self.variant.stored(&vec![0.0; self.variant.len()]).count() * rows;
         let probe_keys: Vec<Vec<f32>> =
             self.variant.probes(query).iter().map(|(c, _)| row_key(c, columns)).collect();
-        let mut by_key: Vec<(usize, f64)> = (0..self.len())
-            .filter(|&r| allowed(r))
-            .map(|r| {
-                let keys = &self.keys[r * per_row..(r + 1) * per_row];
-                let d = keys
-                    .chunks_exact(rows)
-                    .flat_map(|key| {
-                        probe_keys.iter().map(move |pk| {
-                            pk.iter().zip(key).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum::<f64>()
-                        })
-                    })
-                    .fold(f64::INFINITY, f64::min);
-                (r, d)
-            })
-            .collect();
+        // Squared key distances in float32, each row's nearest copy against the nearest probe:
+        // a tight loop the compiler vectorizes (candidates only; the re-rank is in float64).
+        let mut by_key: Vec<(usize, f64)> = Vec::with_capacity(self.len());
+        for (r, keys) in self.keys.chunks_exact(per_row).enumerate() {
+            if !allowed(r) {
+                continue;
+            }
+            let mut d = f32::INFINITY;
+            for key in keys.chunks_exact(rows) {
+                for pk in &probe_keys {
+                    d = d.min(squared_distance(pk, key));
+                }
+            }
+            by_key.push((r, d as f64));
+        }
         let order = |a: &(usize, f64), b: &(usize, f64)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
         let wanted = self.variant.candidates().max(k);
         if wanted == 0 || k == 0 {
