@@ -8,7 +8,7 @@ use std::path::Path;
 fn sample_index(dir: &Path) -> std::path::PathBuf {
     let data = sample_copy(dir, &["2026-01-01", "2026-01-02"]);
     let body = format!(
-        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\", \"solid\"]\n",
+        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\", \"solid\", \"scancontext-pp\", \"scancontext-pp-cart\"]\n",
         data.join("velodyne_data").display().to_string()
     );
     let pipeline = dir.join("loops.toml");
@@ -111,7 +111,7 @@ fn calibration_is_written_and_read_back() {
     assert_eq!(names.join(","), toporec::loops::CSV_HEADER);
     let n: usize = reader.build().unwrap().map(|b| b.unwrap().num_rows()).sum();
     // 30 s by default: a 16 s session matches nothing of its own, so day 2's scans only, per method.
-    assert_eq!(n, 3 * 32, "three methods");
+    assert_eq!(n, 5 * 32, "five methods");
     let calibration = dir.join("cal.calibration.json");
     let cal: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&calibration).unwrap()).unwrap();
@@ -152,7 +152,7 @@ fn calibration_is_written_and_read_back() {
     let o = toporec(&["loops", "--index", idx, "-o", dir.join("y.csv").to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        text(&o.stderr).contains("`solid` has no default threshold")
+        text(&o.stderr).contains("`scancontext-pp` has no default threshold")
             && text(&o.stderr).contains("--threshold D, --threshold-from FILE, or --calibrate"),
         "{}",
         text(&o.stderr)
@@ -164,7 +164,7 @@ fn the_online_detector_finds_what_loops_finds() {
     let dir = scratch_dir("loops_detector");
     let index = sample_index(&dir);
     let idx = index.to_str().unwrap();
-    for method in ["toporec-plus", "scancontext", "solid"] {
+    for method in ["toporec-plus", "scancontext", "scancontext-pp", "scancontext-pp-cart", "solid"] {
         let expected = loops_rows(
             idx,
             &["--method", method, "--all", "--threshold", "0.3"],
