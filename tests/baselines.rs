@@ -229,6 +229,17 @@ fn solid_by_hand() {
     assert_eq!(solid::distance(&empty, &full, &p), 1.0);
 }
 
+/// The real scans the cross-checks of SOLiD and Scan Context++ run on: three KITTI scans and an
+/// NCLT one.
+fn cross_check_scans(data: &std::path::Path) -> [std::path::PathBuf; 4] {
+    [
+        data.join("kitti/sequences/00/velodyne/000000.bin"),
+        data.join("kitti/sequences/08/velodyne/000006.bin"),
+        data.join("kitti/sequences/05/velodyne/000003.bin"),
+        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
+    ]
+}
+
 /// SOLiD equals the numpy transcription of the reference code (`scripts/solid_reference.py`)
 /// on real KITTI and NCLT scans, within 1e-6 relative (values) and 1e-9 (distances), and both
 /// find a turn by 42° at the same shift.
@@ -239,12 +250,7 @@ fn solid_matches_the_reference_transcription_on_real_scans() {
     if !python_with(test, &["numpy"]) {
         return;
     }
-    let scans = [
-        data.join("kitti/sequences/00/velodyne/000000.bin"),
-        data.join("kitti/sequences/08/velodyne/000006.bin"),
-        data.join("kitti/sequences/05/velodyne/000003.bin"),
-        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
-    ];
+    let scans = cross_check_scans(&data);
     let (csvs, clouds, text) = reference_output("solid_reference", "solid_reference.py", &scans);
     // No voxel grid: the reference's (PCL, Open3D) and toporec's place their cells differently.
     let p = SolidParams { voxel: 0.0, ..SolidParams::default() };
@@ -333,8 +339,8 @@ fn scancontext_pp_by_hand() {
     assert!(scancontext_pp::compare(&back, &cc, &no_reverse).distance > 0.1);
     // Moved 2 m to the right (y − 2, one column down): the candidate's column 25 lines up with
     // the query's 24, a shift of −1 ≡ 39.
-    let left: Vec<Point> = cloud.iter().map(|q| [q[0], q[1] - 2.0, q[2]]).collect();
-    let m = scancontext_pp::compare(&scancontext_pp::describe_cart(&left, &c), &cc, &v);
+    let right: Vec<Point> = cloud.iter().map(|q| [q[0], q[1] - 2.0, q[2]]).collect();
+    let m = scancontext_pp::compare(&scancontext_pp::describe_cart(&right, &c), &cc, &v);
     assert!(m.distance < 1e-12 && !m.reversed && m.shift == 39, "{m:?}");
 }
 
@@ -348,12 +354,7 @@ fn scancontext_pp_matches_the_reference_transcription_on_real_scans() {
     if !python_with(test, &["numpy"]) {
         return;
     }
-    let scans = [
-        data.join("kitti/sequences/00/velodyne/000000.bin"),
-        data.join("kitti/sequences/08/velodyne/000006.bin"),
-        data.join("kitti/sequences/05/velodyne/000003.bin"),
-        data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
-    ];
+    let scans = cross_check_scans(&data);
     let (csvs, clouds, text) =
         reference_output("scancontext_pp_reference", "scancontext_pp_reference.py", &scans);
     let polar = PolarParams { voxel: 0.0, ..PolarParams::default() };
