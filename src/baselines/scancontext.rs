@@ -147,23 +147,40 @@ pub fn sector_key(sc: &[f32], p: &ScanContextParams) -> Vec<f64> {
         .collect()
 }
 
+/// Each column's sum of squares (its squared norm), summed over the rings in order.
+fn column_norms2(sc: &[f32], p: &ScanContextParams) -> Vec<f64> {
+    let mut out = vec![0.0f64; p.sectors];
+    for row in sc.chunks_exact(p.sectors) {
+        for (n, &v) in out.iter_mut().zip(row) {
+            *n += v as f64 * v as f64;
+        }
+    }
+    out
+}
+
 /// `1 −` the mean cosine similarity of the columns both descriptors fill, with `b`'s column
 /// `c` compared to `a`'s column `(c + shift) mod sectors` (`b` shifted by `shift`); `None` when
-/// no column is filled in both.
-fn direct_distance(a: &[f32], b: &[f32], shift: usize, p: &ScanContextParams) -> Option<f64> {
+/// no column is filled in both. `na` and `nb` are the columns' squared norms
+/// ([`column_norms2`]).
+fn direct_distance(
+    a: &[f32],
+    b: &[f32],
+    na: &[f64],
+    nb: &[f64],
+    shift: usize,
+    p: &ScanContextParams,
+) -> Option<f64> {
     let (rings, sectors) = (p.rings, p.sectors);
     let (mut sum, mut count) = (0.0, 0usize);
     for c in 0..sectors {
         let ca = (c + shift) % sectors;
-        let (mut dot, mut na, mut nb) = (0.0f64, 0.0f64, 0.0f64);
-        for r in 0..rings {
-            let (x, y) = (a[r * sectors + ca] as f64, b[r * sectors + c] as f64);
-            dot += x * y;
-            na += x * x;
-            nb += y * y;
-        }
+        let (na, nb) = (na[ca], nb[c]);
         if na == 0.0 || nb == 0.0 {
             continue;
+        }
+        let mut dot = 0.0f64;
+        for r in 0..rings {
+            dot += a[r * sectors + ca] as f64 * b[r * sectors + c] as f64;
         }
         sum += dot / (na.sqrt() * nb.sqrt());
         count += 1;
@@ -192,9 +209,10 @@ pub fn distance(query: &[f32], candidate: &[f32], p: &ScanContextParams) -> (f64
         (0..=2 * radius).map(|i| (coarse.1 + sectors + i % sectors - radius % sectors) % sectors).collect();
     shifts.sort_unstable();
     shifts.dedup();
+    let (nq, nc) = (column_norms2(query, p), column_norms2(candidate, p));
     let mut best = (f64::INFINITY, coarse.1);
     for s in shifts {
-        let d = direct_distance(query, candidate, s, p).unwrap_or(1.0);
+        let d = direct_distance(query, candidate, &nq, &nc, s, p).unwrap_or(1.0);
         if d < best.0 {
             best = (d, s);
         }
