@@ -12,10 +12,7 @@
 //! other row; anything else is an error naming the file and the row, and nothing is written.
 //! Importing a method again replaces its descriptors in one commit.
 
-use crate::baselines::{
-    IMPORTED, M2DP, Method, MethodKind, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, SOLID, TOPOREC,
-    TOPOREC_PLUS,
-};
+use crate::baselines::{COMPUTED, IMPORTED, Method, MethodKind, TOPOREC};
 use crate::error::{Error, Result, ResultExt};
 use crate::sinks::index::IndexWriter;
 use crate::sinks::parquet::{DescriptorRow, Status};
@@ -131,8 +128,7 @@ pub fn import(args: &ImportArgs) -> Result<Imported> {
 
 /// A method name: letters, digits, `_` and `-` (it names a folder), not a computed method's.
 fn check_name(name: &str) -> Result<()> {
-    if [TOPOREC, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, M2DP, SOLID, TOPOREC_PLUS].contains(&name)
-    {
+    if name == TOPOREC || COMPUTED.contains(&name) {
         return Err(Error::invalid(format!(
             "--method {name}: the name of a computed method; choose another"
         )));

@@ -34,6 +34,8 @@ pub const M2DP: &str = "m2dp";
 pub const SOLID: &str = "solid";
 /// The name of the topological scan context ([`crate::toporec_plus`]).
 pub const TOPOREC_PLUS: &str = crate::toporec_plus::NAME;
+/// The methods computed from raw scans, by name, in the order messages list them.
+pub const COMPUTED: [&str; 6] = [TOPOREC_PLUS, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, M2DP, SOLID];
 
 /// M2DP settings (`[m2dp]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -129,32 +131,11 @@ impl Method {
         Method { name: TOPOREC_PLUS.into(), kind: MethodKind::ToporecPlus(p) }
     }
 
-    /// A method computed from raw scans by its name (`toporec-plus`, `scancontext`,
-    /// `scancontext-pp`, `scancontext-pp-cart`, `solid`, `m2dp`) and its settings (the keys of its pipeline-file section, as JSON; `null` or `{}`
-    /// for the defaults); an error naming each problem.
+    /// A method computed from raw scans by its name (one of [`COMPUTED`]) and its settings (the
+    /// keys of its pipeline-file section, as JSON; `null` or `{}` for the defaults); an error
+    /// naming each problem.
     pub fn from_settings(name: &str, settings: &serde_json::Value) -> Result<Method, String> {
-        fn parse<T: serde::de::DeserializeOwned + Default>(
-            name: &str,
-            v: &serde_json::Value,
-        ) -> Result<T, String> {
-            if v.is_null() {
-                return Ok(T::default());
-            }
-            serde_json::from_value(v.clone()).map_err(|e| format!("{name}: {e}"))
-        }
-        let method = match name {
-            TOPOREC_PLUS => Method::toporec_plus(parse(name, settings)?),
-            SCANCONTEXT => Method::scancontext(parse(name, settings)?),
-            SCANCONTEXT_PP => Method::scancontext_pp(parse(name, settings)?),
-            SCANCONTEXT_PP_CART => Method::scancontext_pp_cart(parse(name, settings)?),
-            SOLID => Method::solid(parse(name, settings)?),
-            M2DP => Method::m2dp(parse(name, settings)?),
-            _ => {
-                return Err(format!(
-                    "unknown method `{name}` (computed from raw scans: toporec-plus, scancontext, scancontext-pp, scancontext-pp-cart, solid, m2dp)"
-                ));
-            }
-        };
+        let method = Self::with_settings(name, settings)?;
         let problems = match &method.kind {
             MethodKind::ToporecPlus(p) => p.problems(),
             MethodKind::ScanContext(p) => p.problems(),
@@ -164,6 +145,34 @@ impl Method {
             _ => Vec::new(),
         };
         if problems.is_empty() { Ok(method) } else { Err(problems.join("; ")) }
+    }
+
+    /// [`Method::from_settings`] without checking the values: an error only for an unknown name
+    /// or settings that do not parse (an index's manifest records settings checked when written).
+    pub fn with_settings(name: &str, settings: &serde_json::Value) -> Result<Method, String> {
+        fn parse<T: serde::de::DeserializeOwned + Default>(
+            name: &str,
+            v: &serde_json::Value,
+        ) -> Result<T, String> {
+            if v.is_null() {
+                return Ok(T::default());
+            }
+            serde_json::from_value(v.clone()).map_err(|e| format!("{name}: {e}"))
+        }
+        Ok(match name {
+            TOPOREC_PLUS => Method::toporec_plus(parse(name, settings)?),
+            SCANCONTEXT => Method::scancontext(parse(name, settings)?),
+            SCANCONTEXT_PP => Method::scancontext_pp(parse(name, settings)?),
+            SCANCONTEXT_PP_CART => Method::scancontext_pp_cart(parse(name, settings)?),
+            SOLID => Method::solid(parse(name, settings)?),
+            M2DP => Method::m2dp(parse(name, settings)?),
+            _ => {
+                return Err(format!(
+                    "unknown method `{name}` (computed from raw scans: {})",
+                    COMPUTED.join(", ")
+                ));
+            }
+        })
     }
 
     /// The kind's name (`scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`,

@@ -59,8 +59,9 @@ impl Detector {
     pub fn new(method: Method, exclusion: Exclusion, threshold: f64) -> Result<Self, String> {
         if matches!(method.kind, MethodKind::Toporec | MethodKind::Imported { .. }) {
             return Err(format!(
-                "{}: the loop detector takes the methods computed from raw scans (toporec-plus, scancontext, solid, m2dp)",
-                method.name
+                "{}: the loop detector takes the methods computed from raw scans ({})",
+                method.name,
+                crate::baselines::COMPUTED.join(", ")
             ));
         }
         if !threshold.is_finite() {

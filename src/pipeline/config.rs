@@ -432,7 +432,7 @@ impl Parser {
         let pp_cart: CartParams = self.method_section(root, SCANCONTEXT_PP_CART);
         let mut methods = Methods { toporec: false, computed: Vec::new() };
         if names.is_empty() {
-            self.errors.push(format!("descriptors.methods: empty ({})", Self::METHOD_NAMES));
+            self.errors.push(format!("descriptors.methods: empty ({})", Self::method_names()));
         }
         for (i, name) in names.iter().enumerate() {
             if names[..i].contains(name) {
@@ -468,7 +468,7 @@ impl Parser {
                 other => self.errors.push(format!(
                     "descriptors.methods: unknown method `{other}` ({}; vectors made elsewhere come in with \
                      `toporec import`)",
-                    Self::METHOD_NAMES
+                    Self::method_names()
                 )),
             }
         }
@@ -476,8 +476,9 @@ impl Parser {
     }
 
     /// The methods a pipeline can compute, for its messages.
-    const METHOD_NAMES: &'static str =
-        "toporec, toporec-plus, scancontext, scancontext-pp, scancontext-pp-cart, m2dp, solid";
+    fn method_names() -> String {
+        format!("{TOPOREC}, {}", crate::baselines::COMPUTED.join(", "))
+    }
 
     /// A method's section (`[scancontext]`, `[m2dp]`, `[solid]`, `[toporec-plus]`, …), defaults
     /// filled in.

@@ -5,10 +5,7 @@
 //! leaves such files behind, and the next writer deletes them. The format is documented as a
 //! JSON Schema in `schemas/manifest.json`.
 
-use crate::baselines::{
-    IMPORTED, M2DP, Method, MethodKind, Methods, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, SOLID,
-    TOPOREC_PLUS,
-};
+use crate::baselines::{COMPUTED, IMPORTED, Method, MethodKind, Methods};
 use crate::error::{Error, Result, ResultExt};
 use crate::vectorize::codebook::Codebook;
 use serde::{Deserialize, Serialize};
@@ -56,14 +53,7 @@ impl MethodEntry {
     /// know.
     pub fn method(&self, name: &str) -> Option<Method> {
         let kind = match self.kind.as_str() {
-            SCANCONTEXT => MethodKind::ScanContext(serde_json::from_value(self.params.clone()).ok()?),
-            M2DP => MethodKind::M2dp(serde_json::from_value(self.params.clone()).ok()?),
-            SOLID => MethodKind::Solid(serde_json::from_value(self.params.clone()).ok()?),
-            SCANCONTEXT_PP => MethodKind::ScanContextPp(serde_json::from_value(self.params.clone()).ok()?),
-            SCANCONTEXT_PP_CART => {
-                MethodKind::ScanContextPpCart(serde_json::from_value(self.params.clone()).ok()?)
-            }
-            TOPOREC_PLUS => MethodKind::ToporecPlus(serde_json::from_value(self.params.clone()).ok()?),
+            kind if COMPUTED.contains(&kind) => Method::with_settings(kind, &self.params).ok()?.kind,
             IMPORTED => MethodKind::Imported {
                 length: self.length,
                 source: self.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),
