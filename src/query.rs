@@ -228,6 +228,26 @@ impl StepTimes {
     }
 }
 
+/// Each query of `queries` (`len` values each, in parallel) searched by `search`, whose hits
+/// are (row, distance, yaw in degrees), timed as one search step.
+fn timed_each(
+    queries: &[f32],
+    len: usize,
+    search: impl Fn(&[f32]) -> Vec<(usize, f64, f64)> + Sync,
+) -> Vec<(Vec<Found>, StepTimes)> {
+    queries
+        .par_chunks(len)
+        .map(|q| {
+            let t = Instant::now();
+            let hits = search(q);
+            let search = t.elapsed().as_secs_f64();
+            let found =
+                hits.into_iter().map(|(row, distance, yaw)| Found { row, distance, yaw_degrees: Some(yaw) });
+            (found.collect(), StepTimes { search, ..Default::default() })
+        })
+        .collect()
+}
+
 /// A search result: database row, distance, and for ScanContext the yaw of the query
 /// relative to the hit (degrees, [0, 360)).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -495,34 +515,15 @@ impl Engine {
                     )
                 })
                 .collect(),
-            Search::Solid(solid) => queries
-                .par_chunks(solid.params().len())
-                .map(|q| {
-                    let t = Instant::now();
-                    let hits = solid.search(q, k);
-                    let search = t.elapsed().as_secs_f64();
-                    let found = hits.into_iter().map(|(row, distance, shift)| Found {
-                        row,
-                        distance,
-                        yaw_degrees: Some(crate::baselines::solid::yaw_degrees(shift, solid.params())),
-                    });
-                    (found.collect(), StepTimes { search, ..Default::default() })
-                })
-                .collect(),
-            Search::ScanContextPp(pp) => queries
-                .par_chunks(pp.variant().len())
-                .map(|q| {
-                    let t = Instant::now();
-                    let hits = pp.search(q, k);
-                    let search = t.elapsed().as_secs_f64();
-                    let found = hits.into_iter().map(|(row, distance, yaw)| Found {
-                        row,
-                        distance,
-                        yaw_degrees: Some(yaw),
-                    });
-                    (found.collect(), StepTimes { search, ..Default::default() })
-                })
-                .collect(),
+            Search::Solid(solid) => timed_each(queries, solid.params().len(), |q| {
+                let yaw = |shift| crate::baselines::solid::yaw_degrees(shift, solid.params());
+                solid
+                    .search(q, k)
+                    .into_iter()
+                    .map(|(row, distance, shift)| (row, distance, yaw(shift)))
+                    .collect()
+            }),
+            Search::ScanContextPp(pp) => timed_each(queries, pp.variant().len(), |q| pp.search(q, k)),
             Search::Plus(plus) => queries
                 .par_chunks(plus.params().len())
                 .map(|q| {

@@ -335,6 +335,14 @@ impl Variant {
         }
     }
 
+    /// Contexts stored a scan.
+    fn copies(&self) -> usize {
+        match self {
+            Variant::Polar(p) => p.copies,
+            Variant::Cart(_) => 1,
+        }
+    }
+
     /// Rows and columns of one context.
     fn grid(&self) -> (usize, usize) {
         match self {
@@ -385,13 +393,8 @@ impl Match {
     pub fn yaw_degrees(&self, v: &Variant) -> f64 {
         match v {
             Variant::Polar(p) => self.shift as f64 * 360.0 / p.sectors as f64,
-            Variant::Cart(_) => {
-                if self.reversed {
-                    180.0
-                } else {
-                    0.0
-                }
-            }
+            Variant::Cart(_) if self.reversed => 180.0,
+            Variant::Cart(_) => 0.0,
         }
     }
 }
@@ -400,6 +403,12 @@ impl Match {
 /// query's probes and the stored contexts, of ScanContext's distance around the sector-key
 /// alignment (ties to the first probe, then the first copy, then the lowest shift).
 pub fn compare(query: &[f32], candidate: &[f32], v: &Variant) -> Match {
+    compare_probes(&v.probes(query), candidate, v)
+}
+
+/// [`compare`] with the query's probes made once ([`Variant::probes`]), for a search that
+/// compares one query with many candidates.
+fn compare_probes(probes: &[(Vec<f32>, bool)], candidate: &[f32], v: &Variant) -> Match {
     let (rows, columns) = v.grid();
     let ratio = match v {
         Variant::Polar(p) => p.search_ratio,
@@ -407,11 +416,11 @@ pub fn compare(query: &[f32], candidate: &[f32], v: &Variant) -> Match {
     };
     let sc = shape(rows, columns, ratio);
     let mut best = Match { distance: f64::INFINITY, shift: 0, reversed: false };
-    for (probe, reversed) in v.probes(query) {
+    for (probe, reversed) in probes {
         for context in v.stored(candidate) {
-            let (distance, shift) = scancontext::distance(&probe, context, &sc);
+            let (distance, shift) = scancontext::distance(probe, context, &sc);
             if distance < best.distance {
-                best = Match { distance, shift, reversed };
+                best = Match { distance, shift, reversed: *reversed };
             }
         }
     }
@@ -486,10 +495,14 @@ impl Searcher {
 
     /// The `k` best rows for `query` among those `allowed` admits, by (distance, row).
     pub fn search_where(&self, query: &[f32], k: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<PpHit> {
+        let wanted = self.variant.candidates().max(k);
+        if k == 0 {
+            return Vec::new();
+        }
         let (rows, columns) = self.variant.grid();
-        let per_row = self.variant.stored(&vec![0.0; self.variant.len()]).count() * rows;
-        let probe_keys: Vec<Vec<f32>> =
-            self.variant.probes(query).iter().map(|(c, _)| row_key(c, columns)).collect();
+        let per_row = self.variant.copies() * rows;
+        let probes = self.variant.probes(query);
+        let probe_keys: Vec<Vec<f32>> = probes.iter().map(|(c, _)| row_key(c, columns)).collect();
         // Squared key distances in float32, each row's nearest copy against the nearest probe:
         // a tight loop the compiler vectorizes (candidates only; the re-rank is in float64).
         let mut by_key: Vec<(usize, f64)> = Vec::with_capacity(self.len());
@@ -506,10 +519,6 @@ impl Searcher {
             by_key.push((r, d as f64));
         }
         let order = |a: &(usize, f64), b: &(usize, f64)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
-        let wanted = self.variant.candidates().max(k);
-        if wanted == 0 || k == 0 {
-            return Vec::new();
-        }
         if by_key.len() > wanted {
             by_key.select_nth_unstable_by(wanted - 1, order);
             by_key.truncate(wanted);
@@ -517,7 +526,9 @@ impl Searcher {
         let len = self.variant.len();
         let mut hits: Vec<(usize, Match)> = by_key
             .into_iter()
-            .map(|(r, _)| (r, compare(query, &self.descriptors[r * len..(r + 1) * len], &self.variant)))
+            .map(|(r, _)| {
+                (r, compare_probes(&probes, &self.descriptors[r * len..(r + 1) * len], &self.variant))
+            })
             .collect();
         hits.sort_by(|a, b| a.1.distance.total_cmp(&b.1.distance).then(a.0.cmp(&b.0)));
         hits.truncate(k);
