@@ -51,6 +51,21 @@ fn subsample(points: &[Point], n: usize, seed: u64) -> Vec<Point> {
     p
 }
 
+/// Milliseconds of each search of each query, every query searched ten times; each search must
+/// give 25 hits.
+fn query_ms(queries: &[Vec<f32>], search: impl Fn(&[f32]) -> usize) -> Vec<f64> {
+    let mut total = Vec::new();
+    for _ in 0..10 {
+        for q in queries {
+            let t = Instant::now();
+            let hits = search(q);
+            total.push(t.elapsed().as_secs_f64() * 1e3);
+            assert_eq!(hits, 25);
+        }
+    }
+    total
+}
+
 fn main() {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     pool.install(|| {
@@ -183,15 +198,7 @@ fn main() {
             let t = Instant::now();
             let s = scancontext_pp::Searcher::new(db, variant.clone());
             let build = t.elapsed().as_secs_f64();
-            let mut total = Vec::new();
-            for _ in 0..10 {
-                for q in &queries {
-                    let t = Instant::now();
-                    let hits = s.search(q, 25);
-                    total.push(t.elapsed().as_secs_f64() * 1e3);
-                    assert_eq!(hits.len(), 25);
-                }
-            }
+            let total = query_ms(&queries, |q| s.search(q, 25).len());
             println!(
                 "{label} search, {n} entries (keys made in {build:.2} s), k = 25 ({} candidates): {:.3} ms per query (the keys' nearest, then the re-rank), mean of {} queries",
                 variant.candidates().max(25),
@@ -203,15 +210,7 @@ fn main() {
         let searcher = solid::Searcher::new(solid_db, sp.clone());
         let build = t.elapsed().as_secs_f64();
         let queries = solid_base;
-        let mut total = Vec::new();
-        for _ in 0..10 {
-            for q in &queries {
-                let s = Instant::now();
-                let hits = searcher.search(q, 25);
-                total.push(s.elapsed().as_secs_f64() * 1e3);
-                assert_eq!(hits.len(), 25);
-            }
-        }
+        let total = query_ms(&queries, |q| searcher.search(q, 25).len());
         println!(
             "SOLiD search, {n} entries (unit range parts made in {build:.2} s), k = 25: {:.3} ms per query (every cosine, then the exact distances and yaws of the best), mean of {} queries",
             mean(&total),
