@@ -447,7 +447,7 @@ fn inverse_norms(columns: &[i16], p: &PlusParams, reach: usize) -> Vec<f64> {
 /// covers the sectors). Per channel, `1 −` the mean cosine of the columns filled in both over
 /// the first `reach` rings, candidate column `b` against query column `(b + shift) mod
 /// sectors` (1 for a channel with none filled in both); the channels averaged. The dot
-/// products are exact integers; with AVX2 they run sixteen lanes wide, to the same sums.
+/// products are exact integers: the AVX2 build computes the same sums.
 fn distance_to(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -475,26 +475,17 @@ fn distance_to_portable(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
     let inverse_c = inverse_norms(&candidate, p, reach);
     let inverse_q: Vec<Vec<f64>> =
         (0..p.turns).map(|t| inverse_norms(&q.turned[t * block..(t + 1) * block], p, reach)).collect();
-    // 1 − the mean cosine per channel, averaged over `channels`.
-    let shifted = |t: usize, shift: usize, channels: usize| -> f64 {
-        let turned = &q.turned[t * block..(t + 1) * block];
-        let iq = &inverse_q[t];
-        let mut total = 0.0;
-        for ch in 0..channels {
-            let (mut sum, mut count) = (0.0f64, 0usize);
-            for b in 0..sectors {
-                let a = (b + shift) % sectors;
-                let (x, y) = (iq[a * CHANNELS + ch], inverse_c[b * CHANNELS + ch]);
-                if x > 0.0 && y > 0.0 {
-                    let qa = &turned[a * height + ch * rings..a * height + ch * rings + reach];
-                    let cb = &candidate[b * height + ch * rings..b * height + ch * rings + reach];
-                    sum += dot(qa, cb) as f64 * x * y;
-                    count += 1;
-                }
-            }
-            total += if count > 0 { 1.0 - sum / count as f64 } else { 1.0 };
-        }
-        total / channels as f64
+    // Per channel, the candidate's filled sectors: the only ones a sum can take.
+    let filled: [Vec<usize>; CHANNELS] =
+        std::array::from_fn(|ch| (0..sectors).filter(|&b| inverse_c[b * CHANNELS + ch] > 0.0).collect());
+    // The sums are a function's, not a closure's: a closure is compiled on its own, without
+    // `distance_to_avx2`'s features.
+    let sides = |t: usize| Sides {
+        query: &q.turned[t * block..(t + 1) * block],
+        query_inverse: &inverse_q[t],
+        candidate: &candidate,
+        candidate_inverse: &inverse_c,
+        filled: &filled,
     };
     let radius = (0.5 * p.search_ratio * sectors as f64).round() as usize;
     let shifts: Vec<usize> = if 2 * radius + 1 >= sectors {
@@ -502,7 +493,7 @@ fn distance_to_portable(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
     } else {
         let mut coarse = (f64::INFINITY, 0usize);
         for shift in 0..sectors {
-            let d = shifted(0, shift, 1);
+            let d = mean_cosine_distance(sides(0), p, reach, shift, 1);
             if d < coarse.0 {
                 coarse = (d, shift);
             }
@@ -516,7 +507,7 @@ fn distance_to_portable(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
     let mut best = (f64::INFINITY, 0.0);
     for t in 0..p.turns {
         for &shift in &shifts {
-            let d = shifted(t, shift, CHANNELS);
+            let d = mean_cosine_distance(sides(t), p, reach, shift, CHANNELS);
             if d < best.0 {
                 let yaw = ((shift as f64 + t as f64 / p.turns as f64) * p.sector_degrees()).rem_euclid(360.0);
                 best = (d, yaw);
@@ -524,6 +515,49 @@ fn distance_to_portable(q: &Query, c: Entry<'_>, p: &PlusParams) -> (f64, f64) {
         }
     }
     (best.0.clamp(0.0, 1.0), best.1)
+}
+
+/// One query turn's columns and one candidate's, with their inverse norms
+/// ([`inverse_norms`]) and the candidate's filled sectors per channel.
+struct Sides<'a> {
+    query: &'a [i16],
+    query_inverse: &'a [f64],
+    candidate: &'a [i16],
+    candidate_inverse: &'a [f64],
+    filled: &'a [Vec<usize>; CHANNELS],
+}
+
+/// `1 −` the mean cosine per channel of the query's columns turned by `shift` sectors
+/// against the candidate's, over the first `reach` rings, averaged over the first
+/// `channels`: candidate column `b` against query column `(b + shift) mod sectors`, in the
+/// order of `b`, where both are filled. A function, not a closure, so that it is compiled
+/// inside [`distance_to_avx2`] with its features.
+#[inline(always)]
+fn mean_cosine_distance(
+    sides: Sides<'_>,
+    p: &PlusParams,
+    reach: usize,
+    shift: usize,
+    channels: usize,
+) -> f64 {
+    let (rings, sectors, height) = (p.rings, p.sectors, p.height());
+    let mut total = 0.0;
+    for ch in 0..channels {
+        let (mut sum, mut count) = (0.0f64, 0usize);
+        for &b in &sides.filled[ch] {
+            let a = if b + shift >= sectors { b + shift - sectors } else { b + shift };
+            let x = sides.query_inverse[a * CHANNELS + ch];
+            if x > 0.0 {
+                let y = sides.candidate_inverse[b * CHANNELS + ch];
+                let qa = &sides.query[a * height + ch * rings..a * height + ch * rings + reach];
+                let cb = &sides.candidate[b * height + ch * rings..b * height + ch * rings + reach];
+                sum += dot(qa, cb) as f64 * x * y;
+                count += 1;
+            }
+        }
+        total += if count > 0 { 1.0 - sum / count as f64 } else { 1.0 };
+    }
+    total / channels as f64
 }
 
 /// The distance of `query` to `candidate` (both descriptors), in [0, 1] (1 when no column is
@@ -706,11 +740,19 @@ impl Section {
             Section::Profiles => profile_len(p),
         }
     }
+
+    /// Bytes for `n` entries: the first pass's keys in whole blocks ([`BLOCK`]).
+    fn bytes_for(self, n: usize, p: &PlusParams) -> usize {
+        match self {
+            Section::Firsts => n.div_ceil(BLOCK) * BLOCK * self.entry_bytes(p),
+            _ => n * self.entry_bytes(p),
+        }
+    }
 }
 
 /// The layout of a searcher's bytes ([`Searcher::bytes`]), as a cache file names it: a cache of
 /// another layout is rebuilt.
-pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-2";
+pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-3";
 
 /// Sections start on 64-byte boundaries.
 const SECTION_ALIGN: usize = 64;
@@ -721,7 +763,7 @@ fn layout(n: usize, p: &PlusParams) -> ([usize; SECTIONS], usize) {
     let mut at = 0;
     for (o, section) in offsets.iter_mut().zip(ALL_SECTIONS) {
         *o = at;
-        at = (at + n * section.entry_bytes(p)).next_multiple_of(SECTION_ALIGN);
+        at = (at + section.bytes_for(n, p)).next_multiple_of(SECTION_ALIGN);
     }
     (offsets, at)
 }
@@ -749,12 +791,40 @@ fn quantized(values: &[f32]) -> Vec<u8> {
     values.iter().map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect()
 }
 
-/// For each of the [`FIRSTS`] keys of `rows` (row-major, `FIRSTS × width` bytes a row, key `i`
-/// at bytes `i · width..`, `width` a multiple of 8), the `m[i]` rows nearest the query's by
-/// the L1 distance (the sum of absolute differences), ties to the lower row, in that order: one
-/// pass over the rows.
+/// Rows of a block of the first pass's keys. A block holds each key's 8-byte groups
+/// group by group, the block's rows side by side (`[key][group][row][8 bytes]`), so that one
+/// 32-byte load reads one group of four rows and one sum of absolute differences (`psadbw`)
+/// gives their four partial distances.
+const BLOCK: usize = 4;
+
+/// Where byte `t` of a row's keys (`width` bytes a key, a multiple of 8) lies in its block.
+#[inline(always)]
+fn first_offset(t: usize, row_in_block: usize) -> usize {
+    (t / 8) * 8 * BLOCK + row_in_block * 8 + t % 8
+}
+
+/// Writes `first` (the [`FIRSTS`] keys of one row, in a row) as row `row` of the blocked
+/// section `blocks`.
+fn put_first(blocks: &mut [u8], row: usize, first: &[u8]) {
+    let block = &mut blocks[row / BLOCK * BLOCK * first.len()..][..BLOCK * first.len()];
+    for (t, &byte) in first.iter().enumerate() {
+        block[first_offset(t, row % BLOCK)] = byte;
+    }
+}
+
+/// Row `row`'s keys (`row_bytes` bytes) from the blocked section `blocks`.
+fn get_first(blocks: &[u8], row: usize, row_bytes: usize) -> Vec<u8> {
+    let block = &blocks[row / BLOCK * BLOCK * row_bytes..][..BLOCK * row_bytes];
+    (0..row_bytes).map(|t| block[first_offset(t, row % BLOCK)]).collect()
+}
+
+/// For each of the [`FIRSTS`] keys of the `n` rows of `blocks` (blocked, [`BLOCK`]; `width`
+/// bytes a key, a multiple of 8), the `m[i]` rows nearest the query's (`FIRSTS × width` bytes,
+/// in a row) by the L1 distance (the sum of absolute differences), ties to the lower row, in
+/// that order: one pass over the rows.
 fn nearest_rows_3(
-    rows: &[u8],
+    blocks: &[u8],
+    n: usize,
     query: &[u8],
     width: usize,
     m: [usize; FIRSTS],
@@ -763,116 +833,93 @@ fn nearest_rows_3(
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
-        return unsafe { nearest_rows_3_avx2(rows, query, width, m, allowed) };
+        return unsafe { nearest_rows_3_avx2(blocks, n, query, width, m, allowed) };
     }
-    nearest_rows_3_portable(rows, query, width, m, allowed)
+    nearest_rows_3_portable(blocks, n, query, width, m, allowed)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn nearest_rows_3_avx2(
-    rows: &[u8],
+    blocks: &[u8],
+    n: usize,
     query: &[u8],
     width: usize,
     m: [usize; FIRSTS],
     allowed: &dyn Fn(usize) -> bool,
 ) -> [Vec<usize>; FIRSTS] {
     use std::arch::x86_64::*;
-    if width != 24 {
-        return nearest_rows_3_portable(rows, query, width, m, allowed);
-    }
-    // 72 bytes a row: sums of absolute differences of 8-byte groups (psadbw), three groups a
-    // key — the same integers as the portable loop.
+    let groups = width / 8;
+    let row_bytes = FIRSTS * width;
+    // Each query group repeated for the four rows of a block.
+    let q: Vec<__m256i> = query
+        .chunks_exact(8)
+        .map(|g| _mm256_set1_epi64x(i64::from_le_bytes(g.try_into().expect("8 bytes"))))
+        .collect();
     let mut best = Nearest::new(m, allowed);
-    let q = query.as_ptr();
-    // SAFETY: every load reads within `query` (72 bytes) or within one 72-byte row of `rows`
-    // (chunks_exact), unaligned loads.
-    unsafe {
-        let (qa, qb, qc) = (
-            _mm256_loadu_si256(q as *const __m256i),
-            _mm256_loadu_si256(q.add(32) as *const __m256i),
-            _mm_loadl_epi64(q.add(64) as *const __m128i),
-        );
-        for (i, r) in rows.chunks_exact(72).enumerate() {
-            let r = r.as_ptr();
-            let a = _mm256_sad_epu8(_mm256_loadu_si256(r as *const __m256i), qa);
-            let b = _mm256_sad_epu8(_mm256_loadu_si256(r.add(32) as *const __m256i), qb);
-            let c = _mm_sad_epu8(_mm_loadl_epi64(r.add(64) as *const __m128i), qc);
-            let (a0, a1, a2, a3) = (
-                _mm256_extract_epi64::<0>(a),
-                _mm256_extract_epi64::<1>(a),
-                _mm256_extract_epi64::<2>(a),
-                _mm256_extract_epi64::<3>(a),
-            );
-            let (b0, b1, b2, b3) = (
-                _mm256_extract_epi64::<0>(b),
-                _mm256_extract_epi64::<1>(b),
-                _mm256_extract_epi64::<2>(b),
-                _mm256_extract_epi64::<3>(b),
-            );
-            let c0 = _mm_cvtsi128_si64(c);
-            best.offer(i, [(a0 + a1 + a2) as u32, (a3 + b0 + b1) as u32, (b2 + b3 + c0) as u32]);
+    let mut bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
+    for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
+        let mut sums = [_mm256_setzero_si256(); FIRSTS];
+        let mut near = 0;
+        for (k, sum) in sums.iter_mut().enumerate() {
+            for g in k * groups..(k + 1) * groups {
+                let bytes = &block[g * 8 * BLOCK..(g + 1) * 8 * BLOCK];
+                // SAFETY: `bytes` is 32 bytes long; an unaligned load.
+                let v = unsafe { _mm256_loadu_si256(bytes.as_ptr() as *const __m256i) };
+                *sum = _mm256_add_epi64(*sum, _mm256_sad_epu8(v, q[g]));
+            }
+            near |= _mm256_movemask_pd(_mm256_castsi256_pd(_mm256_cmpgt_epi64(bounds[k], *sum)));
+        }
+        // Most blocks hold no row nearer than a list's farthest.
+        if near != 0 {
+            let sums = sums.map(|s| {
+                let mut out = [0u64; BLOCK];
+                // SAFETY: `out` holds 32 bytes; an unaligned store.
+                unsafe { _mm256_storeu_si256(out.as_mut_ptr() as *mut __m256i, s) };
+                out
+            });
+            for (i, row) in (b * BLOCK..n.min((b + 1) * BLOCK)).enumerate() {
+                best.offer(row, std::array::from_fn(|k| sums[k][i] as u32));
+            }
+            bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
         }
     }
     best.rows()
 }
 
-#[inline(always)]
 fn nearest_rows_3_portable(
-    rows: &[u8],
+    blocks: &[u8],
+    n: usize,
     query: &[u8],
     width: usize,
     m: [usize; FIRSTS],
     allowed: &dyn Fn(usize) -> bool,
 ) -> [Vec<usize>; FIRSTS] {
-    // The default 20 rings (24 bytes a key) as fixed-size arrays: each distance one unrolled
-    // sum of absolute differences (psadbw); other widths through slices.
-    if width == 24 {
-        return nearest_rows_3_fixed::<24>(rows, query, m, allowed);
-    }
-    let l1 = |a: &[u8], b: &[u8]| -> u32 { a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y) as u32).sum() };
+    let row_bytes = FIRSTS * width;
     let mut best = Nearest::new(m, allowed);
-    for (i, r) in rows.chunks_exact(FIRSTS * width).enumerate() {
-        let d =
-            std::array::from_fn(|k| l1(&r[k * width..(k + 1) * width], &query[k * width..(k + 1) * width]));
-        best.offer(i, d);
-    }
-    best.rows()
-}
-
-#[inline(always)]
-fn nearest_rows_3_fixed<const W: usize>(
-    rows: &[u8],
-    query: &[u8],
-    m: [usize; FIRSTS],
-    allowed: &dyn Fn(usize) -> bool,
-) -> [Vec<usize>; FIRSTS] {
-    #[inline(always)]
-    fn l1<const W: usize>(a: &[u8; W], b: &[u8; W]) -> u32 {
-        let mut sum = 0u32;
-        for j in 0..W {
-            sum += a[j].abs_diff(b[j]) as u32;
+    for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
+        for i in 0..BLOCK.min(n - b * BLOCK) {
+            let distance = |k: usize| -> u32 {
+                (k * width..(k + 1) * width)
+                    .map(|t| block[first_offset(t, i)].abs_diff(query[t]) as u32)
+                    .sum()
+            };
+            best.offer(b * BLOCK + i, std::array::from_fn(distance));
         }
-        sum
-    }
-    let q: [&[u8; W]; FIRSTS] =
-        std::array::from_fn(|k| query[k * W..(k + 1) * W].try_into().expect("W bytes"));
-    let mut best = Nearest::new(m, allowed);
-    for (i, r) in rows.chunks_exact(FIRSTS * W).enumerate() {
-        let d = std::array::from_fn(|k| l1::<W>(r[k * W..(k + 1) * W].try_into().expect("W bytes"), q[k]));
-        best.offer(i, d);
     }
     best.rows()
 }
 
 /// The `m[k]` smallest (distance, row) for each of the [`FIRSTS`] keys among the rows
-/// `allowed` admits (asked only of a row that would be kept), ties to the lower row.
+/// `allowed` admits (asked only of a row that would be kept), ties to the lower row. Each list
+/// gathers up to `2 m` keys below its bound, then keeps its `m` smallest (a selection, not a
+/// heap: a constant cost per key kept).
 struct Nearest<'a> {
     allowed: &'a dyn Fn(usize) -> bool,
     m: [usize; FIRSTS],
-    heaps: [std::collections::BinaryHeap<u64>; FIRSTS],
-    /// The largest kept key per heap once full (u64::MAX before): most rows are refused by one
-    /// comparison with it.
+    kept: [Vec<u64>; FIRSTS],
+    /// The largest of the `m` smallest keys so far once a list has held `m` (u64::MAX before,
+    /// 0 when `m` is 0): most rows are refused by one comparison with it.
     bound: [u64; FIRSTS],
 }
 
@@ -881,33 +928,50 @@ impl<'a> Nearest<'a> {
         Nearest {
             allowed,
             m,
-            heaps: m.map(|m| std::collections::BinaryHeap::with_capacity(m + 1)),
+            kept: m.map(|m| Vec::with_capacity(2 * m)),
             bound: m.map(|m| if m == 0 { 0 } else { u64::MAX }),
         }
     }
 
     #[inline(always)]
     fn offer(&mut self, row: usize, distances: [u32; FIRSTS]) {
-        // Whether the row is allowed: asked once, and only of a row some heap would keep.
+        // Whether the row is allowed: asked once, and only of a row some list would keep.
         let mut admitted: Option<bool> = None;
         for (k, &distance) in distances.iter().enumerate() {
             let key = ((distance as u64) << 32) | row as u64;
             if key < self.bound[k] && *admitted.get_or_insert_with(|| (self.allowed)(row)) {
-                let heap = &mut self.heaps[k];
-                heap.push(key);
-                if heap.len() > self.m[k] {
-                    heap.pop();
-                }
-                if heap.len() == self.m[k] {
-                    self.bound[k] = *heap.peek().expect("m > 0");
+                self.kept[k].push(key);
+                if self.kept[k].len() == 2 * self.m[k] {
+                    self.shrink(k);
                 }
             }
         }
     }
 
+    /// Keeps list `k`'s `m` smallest keys; the largest of them bounds what it takes next.
+    #[cold]
+    fn shrink(&mut self, k: usize) {
+        let (kept, m) = (&mut self.kept[k], self.m[k]);
+        kept.select_nth_unstable(m - 1);
+        kept.truncate(m);
+        self.bound[k] = kept[m - 1];
+    }
+
+    /// Per list, the distance a row must be below to be kept: rows come in order, so one at the
+    /// farthest kept distance comes after the kept row and loses the tie.
+    fn distance_bounds(&self) -> [u32; FIRSTS] {
+        self.bound.map(|b| (b >> 32) as u32)
+    }
+
     fn rows(self) -> [Vec<usize>; FIRSTS] {
-        self.heaps
-            .map(|heap| heap.into_sorted_vec().into_iter().map(|v| (v & 0xffff_ffff) as usize).collect())
+        let m = self.m;
+        let mut k = 0;
+        self.kept.map(|mut kept| {
+            kept.sort_unstable();
+            kept.truncate(m[k]);
+            k += 1;
+            kept.into_iter().map(|v| (v & 0xffff_ffff) as usize).collect()
+        })
     }
 }
 
@@ -920,10 +984,14 @@ impl Searcher {
             descriptors.par_chunks_exact(p.len()).map(|d| entry(d, p)).collect();
         drop(descriptors);
         let mut sections: [Vec<u8>; SECTIONS] =
-            ALL_SECTIONS.map(|section| Vec::with_capacity(parts.len() * section.entry_bytes(p)));
-        for part in &parts {
-            for (to, from) in sections.iter_mut().zip(part) {
-                to.extend_from_slice(from);
+            ALL_SECTIONS.map(|section| Vec::with_capacity(section.bytes_for(parts.len(), p)));
+        sections[Section::Firsts as usize].resize(Section::Firsts.bytes_for(parts.len(), p), 0);
+        for (row, part) in parts.iter().enumerate() {
+            for ((to, from), section) in sections.iter_mut().zip(part).zip(ALL_SECTIONS) {
+                match section {
+                    Section::Firsts => put_first(to, row, from),
+                    _ => to.extend_from_slice(from),
+                }
             }
         }
         Searcher { n: parts.len(), params, store: Store::Owned(sections) }
@@ -935,9 +1003,16 @@ impl Searcher {
             *self = self.subset(&(0..self.n).collect::<Vec<_>>());
         }
         let parts = entry(descriptor, &self.params);
+        let (row, firsts_len) = (self.n, Section::Firsts.bytes_for(self.n + 1, &self.params));
         if let Store::Owned(sections) = &mut self.store {
-            for (to, from) in sections.iter_mut().zip(&parts) {
-                to.extend_from_slice(from);
+            for ((to, from), section) in sections.iter_mut().zip(&parts).zip(ALL_SECTIONS) {
+                match section {
+                    Section::Firsts => {
+                        to.resize(firsts_len, 0);
+                        put_first(to, row, from);
+                    }
+                    _ => to.extend_from_slice(from),
+                }
             }
         }
         self.n += 1;
@@ -979,6 +1054,13 @@ impl Searcher {
         let sections = ALL_SECTIONS.map(|section| {
             let per = section.entry_bytes(p);
             let from = self.section(section);
+            if section == Section::Firsts {
+                let mut out = vec![0u8; section.bytes_for(rows.len(), p)];
+                for (to, &row) in rows.iter().enumerate() {
+                    put_first(&mut out, to, &get_first(from, row, per));
+                }
+                return out;
+            }
             let mut out = Vec::with_capacity(rows.len() * per);
             for &row in rows {
                 out.extend_from_slice(&from[row * per..(row + 1) * per]);
@@ -999,7 +1081,7 @@ impl Searcher {
     /// One section of every entry.
     fn section(&self, section: Section) -> &[u8] {
         let i = section as usize;
-        let len = self.n * section.entry_bytes(&self.params);
+        let len = section.bytes_for(self.n, &self.params);
         match &self.store {
             Store::Owned(sections) => &sections[i][..len],
             Store::Mapped { map, body, offsets } => &map[body + offsets[i]..body + offsets[i] + len],
@@ -1047,20 +1129,26 @@ impl Searcher {
         let first = firsts(&shape, &profile, &quantized(&ring_key(query, p)), p);
         let [by_ring, coarse_shape, coarse_profile] = nearest_rows_3(
             self.section(Section::Firsts),
+            self.n,
             &first,
             first_width(p),
             [long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long],
             allowed,
         );
-        let refined = |section: Section, key: &[u8], coarse: Vec<usize>| -> Vec<usize> {
+        let refined = |section: Section, key: &[u8], mut coarse: Vec<usize>| -> Vec<usize> {
             let all = self.section(section);
-            let mut scored: Vec<(u32, usize)> = coarse
-                .into_iter()
-                .map(|row| {
-                    let e = &all[row * key.len()..(row + 1) * key.len()];
-                    (key.iter().zip(e).map(|(&a, &b)| (a as i32 - b as i32).pow(2) as u32).sum(), row)
-                })
-                .collect();
+            let entry = |row: usize| &all[row * key.len()..(row + 1) * key.len()];
+            // The rows lie anywhere in the section: each one's bytes are asked for a few rows
+            // ahead of their use, in the section's order.
+            coarse.sort_unstable();
+            let mut scored: Vec<(u32, usize)> = Vec::with_capacity(coarse.len());
+            for (i, &row) in coarse.iter().enumerate() {
+                if let Some(&ahead) = coarse.get(i + PREFETCH_ROWS) {
+                    prefetch(entry(ahead));
+                }
+                let d = key.iter().zip(entry(row)).map(|(&a, &b)| (a as i32 - b as i32).pow(2) as u32).sum();
+                scored.push((d, row));
+            }
             scored.sort_unstable();
             scored.into_iter().take(long).map(|(_, row)| row).collect()
         };
@@ -1123,6 +1211,22 @@ fn entry(d: &[f32], p: &PlusParams) -> [Vec<u8>; SECTIONS] {
     let (shape, profile) = (quantized(&shape_key(d, p)), quantized(&profile_key(d, p)));
     let first = firsts(&shape, &profile, &quantized(&ring_key(d, p)), p);
     [columns, vec![reach(d, p) as u8], first, shape, profile]
+}
+
+/// Rows ahead whose bytes a scan of scattered rows asks for.
+const PREFETCH_ROWS: usize = 8;
+
+/// Asks for `bytes` to be brought into the cache; a hint, with no effect on results.
+#[inline(always)]
+fn prefetch(bytes: &[u8]) {
+    #[cfg(target_arch = "x86_64")]
+    for line in bytes.chunks(64) {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: prefetching reads nothing and cannot fault; the address is within `bytes`.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(line.as_ptr() as *const i8) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = bytes;
 }
 
 /// Keys of the first pass, each `rings` bytes.
@@ -1295,33 +1399,36 @@ mod tests {
 
     #[test]
     fn the_first_pass_is_the_same_on_every_route() {
-        // Rows of three 24-byte keys (20 codes and 4 zero bytes each), many of them at equal
-        // distances: the vector route and the portable loop keep the same rows in the same order.
-        let mut rng = crate::rng::SplitMix64(3);
-        let rows: Vec<u8> =
-            (0..5000 * 72).map(|i| if i % 24 < 20 { (rng.next_u64() % 8) as u8 } else { 0 }).collect();
-        let query = rows[72 * 17..72 * 18].to_vec();
-        let m = [30, 300, 7];
-        let fast = nearest_rows_3(&rows, &query, 24, m, &|_| true);
-        let plain = nearest_rows_3_portable(&rows, &query, 24, m, &|_| true);
-        assert_eq!(fast, plain);
-        assert_eq!(fast[0][0], 17);
-        // Rows left out are never kept, on either route.
-        let odd = |row: usize| row % 2 == 1;
-        let (fast, plain) =
-            (nearest_rows_3(&rows, &query, 24, m, &odd), nearest_rows_3_portable(&rows, &query, 24, m, &odd));
-        assert_eq!(fast, plain);
-        assert!(fast.iter().flatten().all(|&row| odd(row)));
-        let fast = nearest_rows_3(&rows, &query, 24, m, &|_| true);
-        let l1 = |r: usize, k: usize| -> u32 {
-            (0..24).map(|j| rows[r * 72 + k * 24 + j].abs_diff(query[k * 24 + j]) as u32).sum()
-        };
-        for k in 0..3 {
-            assert_eq!(fast[k].len(), m[k]);
-            assert!(
-                fast[k].windows(2).all(|w| (l1(w[0], k), w[0]) < (l1(w[1], k), w[1])),
-                "key {k} in order"
-            );
+        // Rows of three keys of `width` codes, many of them at equal distances, in blocks (a
+        // partial last block too): the vector route and the portable loop keep the rows that
+        // sorting every row by (distance, row) puts first, in that order.
+        for (width, n) in [(24usize, 5000usize), (8, 1001), (264, 70)] {
+            let mut rng = crate::rng::SplitMix64(3);
+            let rows: Vec<Vec<u8>> =
+                (0..n).map(|_| (0..FIRSTS * width).map(|_| (rng.next_u64() % 8) as u8).collect()).collect();
+            let mut blocks = vec![0u8; n.div_ceil(BLOCK) * BLOCK * FIRSTS * width];
+            for (row, first) in rows.iter().enumerate() {
+                put_first(&mut blocks, row, first);
+                assert_eq!(&get_first(&blocks, row, FIRSTS * width), first);
+            }
+            let query = rows[17].clone();
+            let l1 = |r: usize, k: usize| -> u32 {
+                (k * width..(k + 1) * width).map(|t| rows[r][t].abs_diff(query[t]) as u32).sum()
+            };
+            let m = [30, 300, 7];
+            for allowed in [&(|_| true) as &dyn Fn(usize) -> bool, &|row: usize| row % 2 == 1] {
+                let fast = nearest_rows_3(&blocks, n, &query, width, m, allowed);
+                let plain = nearest_rows_3_portable(&blocks, n, &query, width, m, allowed);
+                assert_eq!(fast, plain, "width {width}");
+                for k in 0..FIRSTS {
+                    let mut sorted: Vec<(u32, usize)> =
+                        (0..n).filter(|&r| allowed(r)).map(|r| (l1(r, k), r)).collect();
+                    sorted.sort_unstable();
+                    let want: Vec<usize> = sorted.into_iter().take(m[k]).map(|(_, r)| r).collect();
+                    assert_eq!(fast[k], want, "width {width}, key {k}");
+                }
+            }
+            assert_eq!(nearest_rows_3(&blocks, n, &query, width, m, &|_| true)[0][0], 17);
         }
     }
 

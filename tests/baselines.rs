@@ -700,3 +700,18 @@ fn imported_vectors_are_one_more_method() {
     let m: serde_json::Value = read_json(&index.join("manifest.json"));
     assert!(m["methods"].get("bad").is_none(), "nothing of a refused import is committed");
 }
+
+#[test]
+fn every_computed_method_refuses_its_bad_settings_by_key() {
+    use toporec::baselines::Method;
+    let bad = [
+        ("m2dp", serde_json::json!({ "voxel": -1.0 }), "m2dp.voxel"),
+        ("scancontext", serde_json::json!({ "rings": 0 }), "scancontext"),
+        ("toporec-plus", serde_json::json!({ "turns": 0 }), "toporec-plus.turns"),
+    ];
+    for (name, settings, key) in bad {
+        let err = Method::from_settings(name, &settings).expect_err(name);
+        assert!(err.contains(key), "{name}: {err}");
+    }
+    assert!(Method::from_settings("m2dp", &serde_json::json!({ "voxel": 0.5 })).is_ok());
+}

@@ -142,7 +142,8 @@ impl Method {
             MethodKind::ScanContextPp(p) => p.problems(),
             MethodKind::ScanContextPpCart(p) => p.problems(),
             MethodKind::Solid(p) => p.problems(),
-            _ => Vec::new(),
+            MethodKind::M2dp(p) => p.problems(),
+            MethodKind::Toporec | MethodKind::Imported { .. } => Vec::new(),
         };
         if problems.is_empty() { Ok(method) } else { Err(problems.join("; ")) }
     }
