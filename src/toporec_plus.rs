@@ -918,8 +918,8 @@ struct Nearest<'a> {
     allowed: &'a dyn Fn(usize) -> bool,
     m: [usize; FIRSTS],
     kept: [Vec<u64>; FIRSTS],
-    /// The largest of the `m` smallest keys so far once a list has held `m` (u64::MAX before,
-    /// 0 when `m` is 0): most rows are refused by one comparison with it.
+    /// The largest of the `m` smallest keys so far once a list has been cut to `m` (u64::MAX
+    /// before, 0 when `m` is 0): most rows are refused by one comparison with it.
     bound: [u64; FIRSTS],
 }
 
