@@ -748,6 +748,27 @@ impl Section {
             _ => n * self.entry_bytes(p),
         }
     }
+
+    /// Puts `bytes` (one entry's) as entry `row` of this section's `to`, which holds the
+    /// entries before it.
+    fn append(self, to: &mut Vec<u8>, row: usize, bytes: &[u8], p: &PlusParams) {
+        match self {
+            Section::Firsts => {
+                to.resize(self.bytes_for(row + 1, p), 0);
+                put_first(to, row, bytes);
+            }
+            _ => to.extend_from_slice(bytes),
+        }
+    }
+
+    /// Entry `row`'s bytes in `all` (this section of every entry).
+    fn entry_of<'a>(self, all: &'a [u8], row: usize, p: &PlusParams) -> std::borrow::Cow<'a, [u8]> {
+        let per = self.entry_bytes(p);
+        match self {
+            Section::Firsts => std::borrow::Cow::Owned(get_first(all, row, per)),
+            _ => std::borrow::Cow::Borrowed(&all[row * per..(row + 1) * per]),
+        }
+    }
 }
 
 /// The layout of a searcher's bytes ([`Searcher::bytes`]), as a cache file names it: a cache of
@@ -964,13 +985,11 @@ impl<'a> Nearest<'a> {
     }
 
     fn rows(self) -> [Vec<usize>; FIRSTS] {
-        let m = self.m;
-        let mut k = 0;
-        self.kept.map(|mut kept| {
-            kept.sort_unstable();
-            kept.truncate(m[k]);
-            k += 1;
-            kept.into_iter().map(|v| (v & 0xffff_ffff) as usize).collect()
+        let mut kept = self.kept;
+        std::array::from_fn(|k| {
+            let list = &mut kept[k];
+            list.sort_unstable();
+            list.iter().take(self.m[k]).map(|&v| (v & 0xffff_ffff) as usize).collect()
         })
     }
 }
@@ -985,13 +1004,9 @@ impl Searcher {
         drop(descriptors);
         let mut sections: [Vec<u8>; SECTIONS] =
             ALL_SECTIONS.map(|section| Vec::with_capacity(section.bytes_for(parts.len(), p)));
-        sections[Section::Firsts as usize].resize(Section::Firsts.bytes_for(parts.len(), p), 0);
         for (row, part) in parts.iter().enumerate() {
             for ((to, from), section) in sections.iter_mut().zip(part).zip(ALL_SECTIONS) {
-                match section {
-                    Section::Firsts => put_first(to, row, from),
-                    _ => to.extend_from_slice(from),
-                }
+                section.append(to, row, from, p);
             }
         }
         Searcher { n: parts.len(), params, store: Store::Owned(sections) }
@@ -1003,16 +1018,9 @@ impl Searcher {
             *self = self.subset(&(0..self.n).collect::<Vec<_>>());
         }
         let parts = entry(descriptor, &self.params);
-        let (row, firsts_len) = (self.n, Section::Firsts.bytes_for(self.n + 1, &self.params));
         if let Store::Owned(sections) = &mut self.store {
             for ((to, from), section) in sections.iter_mut().zip(&parts).zip(ALL_SECTIONS) {
-                match section {
-                    Section::Firsts => {
-                        to.resize(firsts_len, 0);
-                        put_first(to, row, from);
-                    }
-                    _ => to.extend_from_slice(from),
-                }
+                section.append(to, self.n, from, &self.params);
             }
         }
         self.n += 1;
@@ -1052,18 +1060,10 @@ impl Searcher {
     pub fn subset(&self, rows: &[usize]) -> Self {
         let p = &self.params;
         let sections = ALL_SECTIONS.map(|section| {
-            let per = section.entry_bytes(p);
             let from = self.section(section);
-            if section == Section::Firsts {
-                let mut out = vec![0u8; section.bytes_for(rows.len(), p)];
-                for (to, &row) in rows.iter().enumerate() {
-                    put_first(&mut out, to, &get_first(from, row, per));
-                }
-                return out;
-            }
-            let mut out = Vec::with_capacity(rows.len() * per);
-            for &row in rows {
-                out.extend_from_slice(&from[row * per..(row + 1) * per]);
+            let mut out = Vec::with_capacity(section.bytes_for(rows.len(), p));
+            for (to, &row) in rows.iter().enumerate() {
+                section.append(&mut out, to, &section.entry_of(from, row, p), p);
             }
             out
         });

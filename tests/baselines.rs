@@ -707,6 +707,9 @@ fn every_computed_method_refuses_its_bad_settings_by_key() {
     let bad = [
         ("m2dp", serde_json::json!({ "voxel": -1.0 }), "m2dp.voxel"),
         ("scancontext", serde_json::json!({ "rings": 0 }), "scancontext"),
+        ("scancontext-pp", serde_json::json!({ "copies": 2 }), "scancontext-pp.copies"),
+        ("scancontext-pp-cart", serde_json::json!({ "voxel": -1.0 }), "scancontext-pp-cart.voxel"),
+        ("solid", serde_json::json!({ "rings": 0 }), "solid.rings"),
         ("toporec-plus", serde_json::json!({ "turns": 0 }), "toporec-plus.turns"),
     ];
     for (name, settings, key) in bad {
