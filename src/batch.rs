@@ -455,9 +455,10 @@ impl BatchDescriber {
         }
         let mut descriptors = Vec::new();
         for (name, length, id, rows, row_sessions) in per_method {
-            let columns = descriptor_columns(&rows, length, &id);
-            descriptors
-                .push((name, with_session(schema::descriptors(length), columns, sessions(row_sessions))?));
+            let bytes = crate::baselines::stores_bytes(&name);
+            let columns = descriptor_columns(&rows, length, &id, bytes);
+            let table = schema::descriptors_for(&name, length);
+            descriptors.push((name, with_session(table, columns, sessions(row_sessions))?));
         }
         Ok(BatchOutput { scans, diagrams, descriptors })
     }

@@ -60,6 +60,7 @@ enum Search {
     ScanContext(Searcher),
     Solid(crate::baselines::solid::Searcher),
     ScanContextPp(crate::baselines::scancontext_pp::Searcher),
+    LidarIris(crate::baselines::lidar_iris::Searcher),
     Plus(crate::toporec_plus::Searcher),
 }
 
@@ -72,6 +73,9 @@ impl Search {
             MethodKind::Solid(p) => Search::Solid(crate::baselines::solid::Searcher::new(vectors, p.clone())),
             MethodKind::ToporecPlus(p) => {
                 Search::Plus(crate::toporec_plus::Searcher::new(vectors, p.clone()))
+            }
+            MethodKind::LidarIris(p) => {
+                Search::LidarIris(crate::baselines::lidar_iris::Searcher::new(vectors, p.clone()))
             }
             MethodKind::ScanContextPp(_) | MethodKind::ScanContextPpCart(_) => {
                 let variant = method.scancontext_pp_variant().expect("a Scan Context++ method");
@@ -146,6 +150,9 @@ impl SearchBudget {
             (MethodKind::ScanContextPpCart(p), SearchBudget::Exhaustive) => {
                 (p.candidates, p.search_ratio) = (entries.max(1), 1.0)
             }
+            (MethodKind::LidarIris(p), SearchBudget::Exhaustive) => p.candidates = entries.max(1),
+            // Its shifts are always the five around the phase correlation's peak.
+            (MethodKind::LidarIris(p), SearchBudget::Matched(n)) => p.candidates = n,
             (MethodKind::ScanContextPp(p), SearchBudget::Matched(n)) => {
                 (p.candidates, p.search_ratio) = (n, ratio(MATCHED_SHIFTS, p.sectors))
             }
@@ -219,6 +226,7 @@ impl StepTimes {
             }
             MethodKind::M2dp(_)
             | MethodKind::Solid(_)
+            | MethodKind::LidarIris(_)
             | MethodKind::ScanContextPp(_)
             | MethodKind::ScanContextPpCart(_) => {
                 vec![("describe", self.describe), ("search", self.search)]
@@ -524,6 +532,7 @@ impl Engine {
                     .collect()
             }),
             Search::ScanContextPp(pp) => timed_each(queries, pp.variant().len(), |q| pp.search(q, k)),
+            Search::LidarIris(iris) => timed_each(queries, iris.params().len(), |q| iris.search(q, k)),
             Search::Plus(plus) => queries
                 .par_chunks(plus.params().len())
                 .map(|q| {

@@ -429,7 +429,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert!(
         said.contains(
             "scancontext (length 1200), scancontext-pp (length 3600), scancontext-pp-cart (length 1600), \
-             m2dp (length 192), solid (length 100)"
+             m2dp (length 192), solid (length 100), lidar-iris (length 72000)"
         ),
         "{said}"
     );
@@ -437,14 +437,30 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let methods = manifest["methods"].as_object().unwrap();
     assert_eq!(
         methods.keys().collect::<Vec<_>>(),
-        ["m2dp", "scancontext", "scancontext-pp", "scancontext-pp-cart", "solid", "toporec-plus"]
+        [
+            "lidar-iris",
+            "m2dp",
+            "scancontext",
+            "scancontext-pp",
+            "scancontext-pp-cart",
+            "solid",
+            "toporec-plus"
+        ]
     );
     assert_eq!(methods["scancontext"]["length"], 1200);
+    assert_eq!(methods["lidar-iris"]["length"], 72000);
     assert_eq!(methods["m2dp"]["length"], 192);
     assert_eq!(methods["solid"]["params"]["fov_up"], 10.67);
-    for m in
-        ["toporec", "toporec-plus", "scancontext", "scancontext-pp", "scancontext-pp-cart", "m2dp", "solid"]
-    {
+    for m in [
+        "toporec",
+        "toporec-plus",
+        "scancontext",
+        "scancontext-pp",
+        "scancontext-pp-cart",
+        "m2dp",
+        "solid",
+        "lidar-iris",
+    ] {
         for s in ["2026-01-01", "2026-01-02"] {
             assert!(index.join(format!("descriptors/method={m}/session={s}")).is_dir(), "{m} {s}");
         }
@@ -491,6 +507,12 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let out = text(&o.stdout);
     let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
     assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
+    // LiDAR-Iris: the phase correlation gives the yaw.
+    let o = q("lidar-iris", &csv);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
     // Scan Context++: the polar context gives the yaw; the Cartesian one finds the scan itself.
     let o = q("scancontext-pp", &csv);
     let out = text(&o.stdout);
@@ -509,7 +531,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(o.status.code(), Some(2));
     assert!(
         text(&o.stderr)
-            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, m2dp, scancontext, scancontext-pp, scancontext-pp-cart, solid, toporec-plus)"),
+            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, lidar-iris, m2dp, scancontext, scancontext-pp, scancontext-pp-cart, solid, toporec-plus)"),
         "{}",
         text(&o.stderr)
     );
@@ -531,23 +553,33 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
         report["methods"].as_array().unwrap().iter().map(|m| m["method"].as_str().unwrap()).collect();
     assert_eq!(
         names,
-        ["toporec", "m2dp", "scancontext", "scancontext-pp", "scancontext-pp-cart", "solid", "toporec-plus"]
+        [
+            "toporec",
+            "lidar-iris",
+            "m2dp",
+            "scancontext",
+            "scancontext-pp",
+            "scancontext-pp-cart",
+            "solid",
+            "toporec-plus"
+        ]
     );
     // Regression values (toporec's own output on the committed sample): R@1 at 5, 10, 20,
     // 50 m, in 32nds of the queries.
     assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
-    assert_eq!(r1(1), [24.0, 24.0, 26.0, 29.0], "M2DP");
-    assert_eq!(r1(2), [32.0, 32.0, 32.0, 32.0], "ScanContext");
-    assert_eq!(r1(3), [32.0, 32.0, 32.0, 32.0], "Scan Context++, polar");
-    assert_eq!(r1(4), [31.0, 31.0, 31.0, 32.0], "Scan Context++, Cartesian");
-    assert_eq!(r1(5), [11.0, 13.0, 15.0, 32.0], "SOLiD");
-    assert_eq!(r1(6), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
+    assert_eq!(r1(1), [30.0, 30.0, 30.0, 32.0], "LiDAR-Iris");
+    assert_eq!(r1(2), [24.0, 24.0, 26.0, 29.0], "M2DP");
+    assert_eq!(r1(3), [32.0, 32.0, 32.0, 32.0], "ScanContext");
+    assert_eq!(r1(4), [32.0, 32.0, 32.0, 32.0], "Scan Context++, polar");
+    assert_eq!(r1(5), [31.0, 31.0, 31.0, 32.0], "Scan Context++, Cartesian");
+    assert_eq!(r1(6), [11.0, 13.0, 15.0, 32.0], "SOLiD");
+    assert_eq!(r1(7), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
     for f in
         ["recall_at_n.png", "trajectory_toporec.png", "trajectory_m2dp.png", "trajectory_scancontext.png"]
     {
         assert!(eval.join(f).is_file(), "{f}");
     }
-    assert!(report["methods"][2]["timing_ms"]["rerank"]["mean"].as_f64().unwrap() > 0.0);
+    assert!(report["methods"][3]["timing_ms"]["rerank"]["mean"].as_f64().unwrap() > 0.0);
     let one = dir.join("eval-m2dp");
     let o = eval_days(&index, &one, &["--method", "m2dp"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
@@ -561,14 +593,14 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let base = root().join("pipelines").display().to_string();
     let edited = text_of
         .replace(
-            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"scancontext-pp\", \"scancontext-pp-cart\", \"m2dp\", \"solid\"]",
+            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"scancontext-pp\", \"scancontext-pp-cart\", \"m2dp\", \"solid\", \"lidar-iris\"]",
             "methods = [\"toporec\", \"m2dp\"]",
         )
         .replace("\"../", &format!("\"{base}/../"));
     std::fs::write(&toporec_only, edited).unwrap();
     let o = run_pipeline(&toporec_only, &index, 2);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
-    assert!(text(&o.stderr).contains("holds the descriptor methods [toporec, m2dp"), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("holds the descriptor methods [toporec, lidar-iris"), "{}", text(&o.stderr));
 }
 
 /// `toporec import`: vectors made elsewhere (here, copies of the index's own TopoRec
@@ -710,6 +742,7 @@ fn every_computed_method_refuses_its_bad_settings_by_key() {
         ("scancontext-pp", serde_json::json!({ "copies": 2 }), "scancontext-pp.copies"),
         ("scancontext-pp-cart", serde_json::json!({ "voxel": -1.0 }), "scancontext-pp-cart.voxel"),
         ("solid", serde_json::json!({ "rings": 0 }), "solid.rings"),
+        ("lidar-iris", serde_json::json!({ "sigma_on_f": 1.0 }), "lidar-iris.sigma_on_f"),
         ("toporec-plus", serde_json::json!({ "turns": 0 }), "toporec-plus.turns"),
     ];
     for (name, settings, key) in bad {
@@ -717,4 +750,136 @@ fn every_computed_method_refuses_its_bad_settings_by_key() {
         assert!(err.contains(key), "{name}: {err}");
     }
     assert!(Method::from_settings("m2dp", &serde_json::json!({ "voxel": 0.5 })).is_ok());
+}
+
+/// LiDAR-Iris worked by hand on a few points (default settings: rows of 1 m, columns of 1°,
+/// bit ⌈z + 5⌉).
+#[test]
+fn lidar_iris_by_hand() {
+    use toporec::baselines::lidar_iris::{self, COLUMNS, IrisParams, ROWS};
+    let p = IrisParams::default();
+    let at = |r: f64, degrees: f64, z: f64| {
+        let (s, c) = degrees.to_radians().sin_cos();
+        [r * c, r * s, z]
+    };
+    // 10.5 m at 10.2°: row 10, column ⌊10.2 + 180.5⌋ = 190, bit ⌈−1.2 + 5⌉ = 4 (16); a second
+    // point in that pixel at z 0.3 sets bit ⌈5.3⌉ = 6 (64). 20.2 m at −99.8°: row 20, column
+    // ⌊80.7⌋ = 80, bit ⌈5.5⌉ = 6. 30.7 m at 150.3°: row 30, column 330, z 2.7 → bit ⌈7.7⌉ = 8,
+    // clamped to 7 (128). 100 m at −60°: the last row (79), column 120, z −6 → bit −1, clamped
+    // to 0 (1).
+    let cloud = vec![
+        at(10.5, 10.2, -1.2),
+        at(10.6, 10.3, 0.3),
+        at(20.2, -99.8, 0.5),
+        at(30.7, 150.3, 2.7),
+        at(100.0, -60.0, -6.0),
+    ];
+    let d = lidar_iris::describe(&cloud, &p);
+    assert_eq!(d.len(), ROWS * COLUMNS + 3 * 4 * ROWS * COLUMNS / 8);
+    assert_eq!(d.len(), p.len());
+    let pixel = |r: usize, c: usize| d[r * COLUMNS + c];
+    assert_eq!([pixel(10, 190), pixel(20, 80), pixel(30, 330), pixel(79, 120)], [80.0, 64.0, 128.0, 1.0]);
+    assert_eq!(d[..ROWS * COLUMNS].iter().filter(|&&v| v != 0.0).count(), 4);
+    // The row key counts the height bits of each row: two in row 10, one in rows 20, 30, 79.
+    let key = lidar_iris::row_key(&d);
+    assert_eq!((key[10], key[20], key[30], key[79], key.iter().sum::<f32>()), (2.0, 1.0, 1.0, 1.0, 5.0));
+    // Template and mask, bit (plane, row, column), packed 45 bytes a row, first column highest.
+    let plane = ROWS * COLUMNS / 8;
+    let bit = |start: usize, plane_no: usize, r: usize, c: usize| {
+        d[start + plane_no * plane + r * COLUMNS / 8 + c / 8] as u8 & (0x80 >> (c % 8)) != 0
+    };
+    let (template, mask) = (ROWS * COLUMNS, ROWS * COLUMNS + 8 * plane);
+    // An empty row: every mask bit set, no template bit (its filter output is exactly 0).
+    assert!((0..COLUMNS).all(|c| bit(mask, 0, 5, c) && !bit(template, 0, 5, c) && !bit(template, 4, 5, c)));
+    // A lone pixel of value v at column c filters to v · h(n − c), h the inverse DFT of the real
+    // one-sided filter: h(0) = Σ H(k) > 0 and real. So at the pixel, the real bit of every scale
+    // is set, the mask is not, and the imaginary part is exactly 0: no bit (the reference reads
+    // the sign of its rounding noise there).
+    for s in 0..4 {
+        assert!(
+            bit(template, s, 20, 80) && !bit(template, 4 + s, 20, 80) && !bit(mask, s, 20, 80),
+            "scale {s}"
+        );
+    }
+    // A scan against itself: distance 0, yaw 0. Turned by 90° (every point 90 columns over, none
+    // crossing the ±180° seam): distance 0, yaw 90°, with and without the reverse check.
+    let m = lidar_iris::compare(&d, &d, &p);
+    assert_eq!((m.distance, m.yaw_degrees), (0.0, 0.0));
+    let q = lidar_iris::describe(&turned(&cloud, 90.0), &p);
+    assert_eq!(&q[..ROWS * COLUMNS][20 * COLUMNS + 170], &64.0);
+    for reverse in [true, false] {
+        let m = lidar_iris::compare(&q, &d, &IrisParams { reverse, ..p.clone() });
+        assert_eq!((m.distance, m.yaw_degrees), (0.0, 90.0), "reverse {reverse}");
+    }
+    // An empty scan has no comparable bit with any scan: distance 1.
+    let empty = lidar_iris::describe(&[], &p);
+    assert_eq!(lidar_iris::compare(&empty, &d, &p).distance, 1.0);
+    assert_eq!(lidar_iris::compare(&d, &empty, &p).distance, 1.0);
+}
+
+/// LiDAR-Iris equals the numpy transcription of the reference code
+/// (`scripts/lidar_iris_reference.py`) on real KITTI and NCLT scans: the image, template and
+/// mask bit for bit, the distances (exact fractions of bit counts) within 1e-12, the yaws and
+/// the direction found equal.
+#[test]
+fn lidar_iris_matches_the_reference_transcription_on_real_scans() {
+    use toporec::baselines::lidar_iris::{self, IrisParams};
+    let test = "lidar_iris_matches_the_reference_transcription_on_real_scans";
+    let Some(data) = shared_data(test) else { return };
+    if !python_with(test, &["numpy"]) {
+        return;
+    }
+    let scans = cross_check_scans(&data);
+    let (csvs, clouds, text) = reference_output("lidar_iris_reference", "lidar_iris_reference.py", &scans);
+    let p = IrisParams::default();
+    let described: Vec<Vec<f32>> = clouds.iter().map(|c| lidar_iris::describe(c, &p)).collect();
+    let mut checked = 0;
+    for line in text.lines() {
+        let fields: Vec<&str> = line.split(',').collect();
+        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
+        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
+        let name = scans[i].display();
+        let check = |m: lidar_iris::Match, what: &str| {
+            assert!(
+                (m.distance - values[0]).abs() <= 1e-12,
+                "{name} {what}: distance {} against {}",
+                m.distance,
+                values[0]
+            );
+            assert_eq!(
+                (m.yaw_degrees, m.reversed as u8 as f64),
+                (values[1], values[2]),
+                "{name} {what}: yaw, reversed"
+            );
+            println!(
+                "{name} {what}: distance {:.6}, yaw {}°, reversed {}",
+                m.distance, m.yaw_degrees, m.reversed
+            );
+        };
+        match fields[1] {
+            "iris" => {
+                let ours: Vec<f64> = described[i].iter().map(|&v| v as f64).collect();
+                assert_eq!(ours.len(), values.len(), "{name}");
+                let differ = ours.iter().zip(&values).filter(|(a, b)| a != b).count();
+                assert_eq!(differ, 0, "{name}: {differ} of {} bytes differ", ours.len());
+                let set: u32 = described[i].iter().map(|&v| (v as u8).count_ones()).sum();
+                assert!(set > 10_000, "{name}: {set} bits set");
+                println!("{name} iris: {} bytes equal, {set} bits set", ours.len());
+            }
+            "irisdist" => {
+                let q = lidar_iris::describe(&turned(&clouds[i], 42.0), &p);
+                let m = lidar_iris::compare(&q, &described[i], &p);
+                assert!(m.distance < 0.2, "{name}: a turned scan at {}", m.distance);
+                assert!((m.yaw_degrees - 42.0).abs() <= 1.0, "{name}: yaw {}", m.yaw_degrees);
+                check(m, "turned by 42°");
+            }
+            "irispair" => {
+                let j = (i + 1) % clouds.len();
+                check(lidar_iris::compare(&described[j], &described[i], &p), "the next scan against it");
+            }
+            other => panic!("unknown line kind {other}"),
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, 3 * scans.len());
 }

@@ -149,7 +149,16 @@ fn eval_places_reports_conditions_nearest_and_loop_closure_for_every_method() {
     let names: Vec<&str> = methods.iter().map(|m| m["method"].as_str().unwrap()).collect();
     assert_eq!(
         names,
-        ["toporec", "m2dp", "scancontext", "scancontext-pp", "scancontext-pp-cart", "solid", "toporec-plus"]
+        [
+            "toporec",
+            "lidar-iris",
+            "m2dp",
+            "scancontext",
+            "scancontext-pp",
+            "scancontext-pp-cart",
+            "solid",
+            "toporec-plus"
+        ]
     );
     for m in methods {
         let conditions = m["conditions"].as_array().unwrap();
@@ -168,7 +177,7 @@ fn eval_places_reports_conditions_nearest_and_loop_closure_for_every_method() {
     }
     // The sample's simulated HDL-32E has ring ids: 16 beams apply; an occluded query lacks a
     // quarter of the view, which toporec-plus leaves out of its comparison.
-    let plus = &methods[6]["conditions"];
+    let plus = &methods[7]["conditions"];
     assert!(plus[2]["not_applicable"].is_null());
     let r1 = |c: &serde_json::Value| c["results"][0]["with_match"]["at_n"][0].as_f64().unwrap();
     assert!(r1(&plus[1]) >= 50.0, "toporec-plus under occlusion: {}", r1(&plus[1]));

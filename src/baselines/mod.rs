@@ -1,13 +1,14 @@
 //! The descriptors place recognition is usually compared against, beside the TopoRec one:
 //! [`scancontext`] (Kim & Kim 2018), [`scancontext_pp`] (Scan Context++, Kim, Choi, Kim 2021:
 //! its polar and its Cartesian context), [`m2dp`] (He et al. 2016) and [`solid`] (Kim, Choi,
-//! Kim 2024), each computed from the raw scan in the sensor frame with its own preprocessing; and descriptors made elsewhere
+//! Kim 2024) and [`lidar_iris`] (Wang et al. 2020), each computed from the raw scan in the sensor frame with its own preprocessing; and descriptors made elsewhere
 //! (PointNetVLAD, PCAN, MinkLoc3D, …), imported into an index with `toporec import`.
 //!
 //! A [`Method`] names one of them with its parameters; an index stores each method's
 //! descriptors apart (`descriptors/method=<name>/session=<s>/`), and `query` and `eval` take
 //! `--method`.
 
+pub mod lidar_iris;
 pub mod m2dp;
 pub mod scancontext;
 pub mod scancontext_pp;
@@ -16,6 +17,7 @@ pub mod solid;
 use crate::preprocess::voxel_grid;
 use crate::toporec_plus::PlusParams;
 use crate::types::Point;
+use lidar_iris::IrisParams;
 use scancontext::ScanContextParams;
 use scancontext_pp::{CartParams, PolarParams};
 use solid::SolidParams;
@@ -32,10 +34,20 @@ pub const SCANCONTEXT_PP_CART: &str = "scancontext-pp-cart";
 pub const M2DP: &str = "m2dp";
 /// The name of SOLiD.
 pub const SOLID: &str = "solid";
+/// The name of LiDAR-Iris.
+pub const LIDAR_IRIS: &str = "lidar-iris";
 /// The name of the topological scan context ([`crate::toporec_plus`]).
 pub const TOPOREC_PLUS: &str = crate::toporec_plus::NAME;
 /// The methods computed from raw scans, by name, in the order messages list them.
-pub const COMPUTED: [&str; 6] = [TOPOREC_PLUS, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, M2DP, SOLID];
+pub const COMPUTED: [&str; 7] =
+    [TOPOREC_PLUS, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, M2DP, SOLID, LIDAR_IRIS];
+
+/// Whether the descriptors of the method named `name` are bytes, stored as `uint8` rather than
+/// `float32`: LiDAR-Iris's image and its bit-packed template and mask (a name an imported
+/// method cannot take).
+pub fn stores_bytes(name: &str) -> bool {
+    name == LIDAR_IRIS
+}
 
 /// M2DP settings (`[m2dp]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -77,6 +89,8 @@ pub enum MethodKind {
     M2dp(M2dpParams),
     /// SOLiD.
     Solid(SolidParams),
+    /// LiDAR-Iris.
+    LidarIris(IrisParams),
     /// toporec-plus, the topological scan context.
     ToporecPlus(PlusParams),
     /// Vectors made elsewhere, imported (`toporec import`): stored, never computed.
@@ -126,6 +140,11 @@ impl Method {
         Method { name: SOLID.into(), kind: MethodKind::Solid(p) }
     }
 
+    /// LiDAR-Iris with these parameters.
+    pub fn lidar_iris(p: IrisParams) -> Self {
+        Method { name: LIDAR_IRIS.into(), kind: MethodKind::LidarIris(p) }
+    }
+
     /// toporec-plus with these parameters.
     pub fn toporec_plus(p: PlusParams) -> Self {
         Method { name: TOPOREC_PLUS.into(), kind: MethodKind::ToporecPlus(p) }
@@ -142,6 +161,7 @@ impl Method {
             MethodKind::ScanContextPp(p) => p.problems(),
             MethodKind::ScanContextPpCart(p) => p.problems(),
             MethodKind::Solid(p) => p.problems(),
+            MethodKind::LidarIris(p) => p.problems(),
             MethodKind::M2dp(p) => p.problems(),
             MethodKind::Toporec | MethodKind::Imported { .. } => Vec::new(),
         };
@@ -166,6 +186,7 @@ impl Method {
             SCANCONTEXT_PP => Method::scancontext_pp(parse(name, settings)?),
             SCANCONTEXT_PP_CART => Method::scancontext_pp_cart(parse(name, settings)?),
             SOLID => Method::solid(parse(name, settings)?),
+            LIDAR_IRIS => Method::lidar_iris(parse(name, settings)?),
             M2DP => Method::m2dp(parse(name, settings)?),
             _ => {
                 return Err(format!(
@@ -177,7 +198,7 @@ impl Method {
     }
 
     /// The kind's name (`scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`,
-    /// `toporec-plus`, `imported`, `toporec`).
+    /// `lidar-iris`, `toporec-plus`, `imported`, `toporec`).
     pub fn kind_name(&self) -> &'static str {
         match self.kind {
             MethodKind::Toporec => TOPOREC,
@@ -186,6 +207,7 @@ impl Method {
             MethodKind::ScanContextPpCart(_) => SCANCONTEXT_PP_CART,
             MethodKind::M2dp(_) => M2DP,
             MethodKind::Solid(_) => SOLID,
+            MethodKind::LidarIris(_) => LIDAR_IRIS,
             MethodKind::ToporecPlus(_) => TOPOREC_PLUS,
             MethodKind::Imported { .. } => IMPORTED,
         }
@@ -200,6 +222,7 @@ impl Method {
             MethodKind::ScanContextPpCart(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::M2dp(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::Solid(p) => serde_json::to_value(p).expect("plain data"),
+            MethodKind::LidarIris(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::ToporecPlus(p) => serde_json::to_value(p).expect("plain data"),
             MethodKind::Imported { source, .. } => serde_json::json!({ "source": source }),
         }
@@ -214,6 +237,7 @@ impl Method {
             MethodKind::ScanContextPpCart(p) => p.len(),
             MethodKind::M2dp(_) => m2dp::LEN,
             MethodKind::Solid(p) => p.len(),
+            MethodKind::LidarIris(p) => p.len(),
             MethodKind::ToporecPlus(p) => p.len(),
             MethodKind::Imported { length, .. } => *length,
         }
@@ -232,7 +256,7 @@ impl Method {
     }
 
     /// Whether the method is computed from raw scans (ScanContext, Scan Context++, M2DP, SOLiD,
-    /// toporec-plus).
+    /// LiDAR-Iris, toporec-plus).
     pub fn is_computed(&self) -> bool {
         matches!(
             self.kind,
@@ -241,12 +265,18 @@ impl Method {
                 | MethodKind::ScanContextPpCart(_)
                 | MethodKind::M2dp(_)
                 | MethodKind::Solid(_)
+                | MethodKind::LidarIris(_)
                 | MethodKind::ToporecPlus(_)
         )
     }
 
+    /// Whether the method's descriptor values are bytes ([`stores_bytes`]).
+    pub fn stores_bytes(&self) -> bool {
+        matches!(self.kind, MethodKind::LidarIris(_))
+    }
+
     /// The descriptor of a raw scan (sensor frame, metres) for the methods computed from it
-    /// (ScanContext, Scan Context++, M2DP, SOLiD, toporec-plus), after the method's own preprocessing (its voxel
+    /// (ScanContext, Scan Context++, M2DP, SOLiD, LiDAR-Iris, toporec-plus), after the method's own preprocessing (its voxel
     /// grid); `None` for the others. An error, with the reason, when the method could not
     /// describe the scan (toporec-plus: no return within its radius).
     pub fn describe_raw(&self, points: &[Point]) -> Option<Result<Vec<f32>, String>> {
@@ -257,6 +287,7 @@ impl Method {
             MethodKind::ScanContextPpCart(p) => Some(Ok(scancontext_pp::describe_cart(points, p))),
             MethodKind::M2dp(p) => Some(Ok(m2dp::describe(&grid(p.voxel)))),
             MethodKind::Solid(p) => Some(Ok(solid::describe(&solid::preprocess(points, p), p))),
+            MethodKind::LidarIris(p) => Some(Ok(lidar_iris::describe(points, p))),
             MethodKind::ToporecPlus(p) => Some(crate::toporec_plus::describe(points, p)),
             _ => None,
         }

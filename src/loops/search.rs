@@ -6,10 +6,11 @@
 //! Each method searches as its own searcher does at its default budget, restricted to the
 //! allowed rows: toporec-plus by its keys and its distance ([`crate::toporec_plus::Searcher`]),
 //! ScanContext by its ring keys' nearest allowed rows re-ranked by its distance, SOLiD by its
-//! exact distance to every allowed row, the others (TopoRec, M2DP, imported vectors) by exact
+//! exact distance to every allowed row, Scan Context++ and LiDAR-Iris by their keys' nearest
+//! allowed rows re-ranked by their distances, the others (TopoRec, M2DP, imported vectors) by exact
 //! Euclidean distance. Ties go to the lower row.
 
-use crate::baselines::{Method, MethodKind, scancontext, scancontext_pp, solid};
+use crate::baselines::{Method, MethodKind, lidar_iris, scancontext, scancontext_pp, solid};
 use crate::toporec_plus;
 
 /// A hit: row, distance, and the yaw of the query relative to the row (degrees), for the
@@ -26,6 +27,8 @@ enum Inner {
     ScanContext { params: scancontext::ScanContextParams, descriptors: Vec<f32>, keys: Vec<f32> },
     /// Scan Context++'s own searcher.
     ScanContextPp(scancontext_pp::Searcher),
+    /// LiDAR-Iris's own searcher.
+    LidarIris(lidar_iris::Searcher),
     /// SOLiD: descriptors.
     Solid { params: solid::SolidParams, descriptors: Vec<f32> },
     /// Exact Euclidean search over vectors of `dim` values.
@@ -41,6 +44,7 @@ impl Growing {
                 Inner::ScanContext { params: p.clone(), descriptors: Vec::new(), keys: Vec::new() }
             }
             MethodKind::Solid(p) => Inner::Solid { params: p.clone(), descriptors: Vec::new() },
+            MethodKind::LidarIris(p) => Inner::LidarIris(lidar_iris::Searcher::new(Vec::new(), p.clone())),
             MethodKind::ScanContextPp(_) | MethodKind::ScanContextPpCart(_) => {
                 Inner::ScanContextPp(scancontext_pp::Searcher::new(
                     Vec::new(),
@@ -58,6 +62,7 @@ impl Growing {
             Inner::ScanContext { params, descriptors, .. } => descriptors.len() / params.len(),
             Inner::Solid { params, descriptors } => descriptors.len() / params.len(),
             Inner::ScanContextPp(s) => s.len(),
+            Inner::LidarIris(s) => s.len(),
             Inner::Euclidean { dim, vectors } => vectors.len() / dim,
         }
     }
@@ -77,6 +82,7 @@ impl Growing {
             }
             Inner::Solid { descriptors, .. } => descriptors.extend_from_slice(descriptor),
             Inner::ScanContextPp(s) => s.push(descriptor),
+            Inner::LidarIris(s) => s.push(descriptor),
             Inner::Euclidean { vectors, .. } => vectors.extend_from_slice(descriptor),
         }
     }
@@ -121,6 +127,9 @@ impl Growing {
                     .collect()
             }
             Inner::ScanContextPp(s) => {
+                s.search_where(query, k, allowed).into_iter().map(|(r, d, yaw)| (r, d, Some(yaw))).collect()
+            }
+            Inner::LidarIris(s) => {
                 s.search_where(query, k, allowed).into_iter().map(|(r, d, yaw)| (r, d, Some(yaw))).collect()
             }
             Inner::Solid { params: p, descriptors } => solid::ranked(query, descriptors, rows, k, p)

@@ -23,17 +23,19 @@
 //! dims = "paper"                     # or [0, 1, 2]
 //! # codebook = "codebook.json"       # … or load a saved one
 //! [descriptors]
-//! methods = ["toporec", "scancontext", "m2dp", "solid"]   # default ["toporec"]
+//! methods = ["toporec", "scancontext", "m2dp", "solid", "lidar-iris"]   # default ["toporec"]
 //! [scancontext]                      # optional: its parameters (see baselines::scancontext)
 //! [scancontext-pp]                   # optional: its parameters (see baselines::scancontext_pp)
 //! [scancontext-pp-cart]              # optional: its parameters (see baselines::scancontext_pp)
 //! [m2dp]                             # optional: its parameters
 //! [solid]                            # optional: its parameters (see baselines::solid)
+//! [lidar-iris]                       # optional: its parameters (see baselines::lidar_iris)
 //! ```
 
 use crate::baselines::{
-    M2DP, M2dpParams, Method, Methods, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, SOLID, TOPOREC,
-    TOPOREC_PLUS,
+    LIDAR_IRIS, M2DP, M2dpParams, Method, Methods, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, SOLID,
+    TOPOREC, TOPOREC_PLUS,
+    lidar_iris::IrisParams,
     scancontext::ScanContextParams,
     scancontext_pp::{CartParams, PolarParams},
     solid::SolidParams,
@@ -273,6 +275,7 @@ impl Pipeline {
                 crate::baselines::MethodKind::ScanContext(p) => Value::try_from(p),
                 crate::baselines::MethodKind::M2dp(p) => Value::try_from(p),
                 crate::baselines::MethodKind::Solid(p) => Value::try_from(p),
+                crate::baselines::MethodKind::LidarIris(p) => Value::try_from(p),
                 crate::baselines::MethodKind::ScanContextPp(p) => Value::try_from(p),
                 crate::baselines::MethodKind::ScanContextPpCart(p) => Value::try_from(p),
                 crate::baselines::MethodKind::ToporecPlus(p) => Value::try_from(p),
@@ -428,6 +431,7 @@ impl Parser {
         let m2dp: M2dpParams = self.method_section(root, M2DP);
         let plus: PlusParams = self.method_section(root, TOPOREC_PLUS);
         let solid: SolidParams = self.method_section(root, SOLID);
+        let iris: IrisParams = self.method_section(root, LIDAR_IRIS);
         let pp: PolarParams = self.method_section(root, SCANCONTEXT_PP);
         let pp_cart: CartParams = self.method_section(root, SCANCONTEXT_PP_CART);
         let mut methods = Methods { toporec: false, computed: Vec::new() };
@@ -460,6 +464,10 @@ impl Parser {
                 SOLID => {
                     self.errors.extend(solid.problems());
                     methods.computed.push(Method::solid(solid.clone()));
+                }
+                LIDAR_IRIS => {
+                    self.errors.extend(iris.problems());
+                    methods.computed.push(Method::lidar_iris(iris.clone()));
                 }
                 TOPOREC_PLUS => {
                     self.errors.extend(plus.problems());

@@ -268,6 +268,8 @@ pub struct DescriptorsFile {
     session: String,
     b: usize,
     codebook_id: String,
+    /// Whether the values are bytes (stored as uint8).
+    bytes: bool,
     rows: Vec<DescriptorRow>,
 }
 
@@ -280,10 +282,11 @@ impl DescriptorsFile {
             (schema::meta::METHOD, method.to_string()),
         ];
         Ok(DescriptorsFile {
-            file: TableFile::create(path, &schema::descriptors(b), &meta)?,
+            file: TableFile::create(path, &schema::descriptors_for(method, b), &meta)?,
             session: session.to_string(),
             b,
             codebook_id: codebook_id.to_string(),
+            bytes: crate::baselines::stores_bytes(method),
             rows: Vec::new(),
         })
     }
@@ -307,6 +310,12 @@ impl DescriptorsFile {
                 format!("scan {}: a descriptor with non-finite values is never stored", row.scan_id),
             ));
         }
+        if self.bytes && !row.values.iter().all(|&v| is_byte(v)) {
+            return Err(Error::table(
+                &self.file.path,
+                format!("scan {}: a byte descriptor with a value that is not a byte", row.scan_id),
+            ));
+        }
         self.rows.push(row);
         if self.rows.len() >= BATCH_ROWS / 4 { self.flush() } else { Ok(()) }
     }
@@ -316,7 +325,7 @@ impl DescriptorsFile {
             return Ok(());
         }
         let rows = std::mem::take(&mut self.rows);
-        let columns = descriptor_columns(&rows, self.b, &self.codebook_id);
+        let columns = descriptor_columns(&rows, self.b, &self.codebook_id, self.bytes);
         self.file.write(columns)
     }
 
@@ -400,16 +409,30 @@ impl DiagramColumns {
     }
 }
 
+/// Whether a descriptor value is a byte (an integer in 0..=255).
+pub fn is_byte(v: f32) -> bool {
+    (0.0..=255.0).contains(&v) && v.fract() == 0.0
+}
+
 /// The `descriptors` columns of `rows` (length `b`, made by `codebook_id`), in the schema's
-/// order ([`schema::descriptors`]).
-pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str) -> Vec<ArrayRef> {
+/// order ([`schema::descriptors_for`]): the values as uint8 when `bytes` (each a byte, as
+/// [`is_byte`] checks), else float32.
+pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str, bytes: bool) -> Vec<ArrayRef> {
     let mut ids = StringBuilder::new();
     let mut utime = Int64Builder::new();
     let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
     let mut dim = UInt8Builder::new();
-    let item = Arc::new(arrow::datatypes::Field::new("item", arrow::datatypes::DataType::Float32, false));
-    let mut vec =
-        FixedSizeListBuilder::new(Float32Builder::with_capacity(rows.len() * b), b as i32).with_field(item);
+    let item = |t| Arc::new(arrow::datatypes::Field::new("item", t, false));
+    let mut floats = FixedSizeListBuilder::new(
+        Float32Builder::with_capacity(if bytes { 0 } else { rows.len() * b }),
+        b as i32,
+    )
+    .with_field(item(arrow::datatypes::DataType::Float32));
+    let mut byte_values = FixedSizeListBuilder::new(
+        UInt8Builder::with_capacity(if bytes { rows.len() * b } else { 0 }),
+        b as i32,
+    )
+    .with_field(item(arrow::datatypes::DataType::UInt8));
     let mut codebook = StringBuilder::new();
     for r in rows {
         ids.append_value(&r.scan_id);
@@ -418,10 +441,16 @@ pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str) -
         pose[1].append_option(r.pose.map(|p| p.y));
         pose[2].append_option(r.pose.map(|p| p.z));
         dim.append_option(r.dim_used);
-        vec.values().append_slice(&r.values);
-        vec.append(true);
+        if bytes {
+            byte_values.values().extend(r.values.iter().map(|&v| Some(v as u8)));
+            byte_values.append(true);
+        } else {
+            floats.values().append_slice(&r.values);
+            floats.append(true);
+        }
         codebook.append_value(codebook_id);
     }
+    let vectors: ArrayRef = if bytes { Arc::new(byte_values.finish()) } else { Arc::new(floats.finish()) };
     let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
     let columns: Vec<ArrayRef> = vec![
         Arc::new(ids.finish()),
@@ -430,7 +459,7 @@ pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str) -
         py,
         pz,
         Arc::new(dim.finish()),
-        Arc::new(vec.finish()),
+        vectors,
         Arc::new(codebook.finish()),
     ];
     columns

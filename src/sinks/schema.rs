@@ -175,12 +175,25 @@ pub fn diagrams() -> Table {
 
 /// `descriptors`: one row per ok scan and method; `b` is the method's descriptor length.
 pub fn descriptors(b: usize) -> Table {
+    descriptors_of(b, DataType::Float32)
+}
+
+/// The `descriptors` table of `method`: its values `uint8` for the methods whose descriptors
+/// are bytes ([`crate::baselines::stores_bytes`]), `float32` for the others.
+pub fn descriptors_for(method: &str, b: usize) -> Table {
+    descriptors_of(
+        b,
+        if crate::baselines::stores_bytes(method) { DataType::UInt8 } else { DataType::Float32 },
+    )
+}
+
+fn descriptors_of(b: usize, values: DataType) -> Table {
     use DataType::*;
     use columns as C;
-    let item = Arc::new(Field::new("item", Float32, false));
+    let item = Arc::new(Field::new("item", values, false));
     Table {
         name: tables::DESCRIPTORS,
-        doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, ScanContext, M2DP, SOLiD, toporec-plus or an imported one.",
+        doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, ScanContext, Scan Context++, M2DP, SOLiD, LiDAR-Iris, toporec-plus or an imported one.",
         columns: vec![
             col(C::SCAN_ID, Utf8, false, "the scan"),
             col(C::UTIME, Int64, true, "timestamp (µs)"),
@@ -193,7 +206,12 @@ pub fn descriptors(b: usize) -> Table {
                 true,
                 "paper rule: the diagram dimension vectorized (null with concatenated dims)",
             ),
-            col(C::DESCRIPTOR, FixedSizeList(item, b as i32), false, "the vector (length b, float32)"),
+            col(
+                C::DESCRIPTOR,
+                FixedSizeList(item, b as i32),
+                false,
+                "the vector (length b, float32); uint8 for lidar-iris (its image, then its template and mask bit-packed)",
+            ),
             col(
                 C::CODEBOOK_ID,
                 Utf8,

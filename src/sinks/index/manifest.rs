@@ -110,7 +110,8 @@ pub struct Manifest {
     /// The codebook itself (its `codebook.json` form), once there is one.
     pub codebook: Option<serde_json::Value>,
     /// The descriptor methods besides the TopoRec one: name → what made the descriptors
-    /// (parameters, length). Computed ones (ScanContext, M2DP, SOLiD, toporec-plus) and imported ones.
+    /// (parameters, length). Computed ones (ScanContext, Scan Context++, M2DP, SOLiD, LiDAR-Iris,
+    /// toporec-plus) and imported ones.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub methods: BTreeMap<String, MethodEntry>,
     /// The effective pipeline the index was made with (TOML: absolute paths, every default
@@ -124,7 +125,8 @@ pub struct Manifest {
 /// A descriptor method of an index, besides the TopoRec one.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MethodEntry {
-    /// `scancontext`, `m2dp`, `solid`, `toporec-plus` or `imported`.
+    /// `scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`, `lidar-iris`,
+    /// `toporec-plus` or `imported`.
     pub kind: String,
     /// Its parameters (computed methods) or where the vectors came from (imported ones).
     pub params: serde_json::Value,

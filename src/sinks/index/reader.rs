@@ -170,7 +170,7 @@ impl IndexReader {
         let definition = match table {
             tables::SCANS => schema::scans(),
             tables::DIAGRAMS => schema::diagrams(),
-            _ => schema::descriptors(length.unwrap_or(0)),
+            _ => schema::descriptors_for(method, length.unwrap_or(0)),
         };
         let names: Vec<&'static str> = definition.columns.iter().map(|c| c.name).collect();
         // Field types as the checked columns come (a descriptor's list items may be nullable).
@@ -379,7 +379,7 @@ impl CheckedTable {
             };
             let mut data_type = column.data_type.clone();
             if name == C::DESCRIPTOR {
-                data_type = descriptor_type(path, field, length)?;
+                data_type = descriptor_type(path, field, length, &data_type)?;
             } else if family(field.data_type()) != family(&data_type) || family(&data_type) == Family::Other {
                 return Err(Error::table(
                     path,
@@ -477,18 +477,38 @@ fn table_of_path(path: &Path) -> Option<String> {
 
 /// The type a descriptor column is read as: `FixedSizeList<float32>` of the stored length
 /// (or of `length` for a variable-length list).
-fn descriptor_type(path: &Path, field: &Field, length: Option<usize>) -> Result<DataType> {
+/// The type a `descriptor` column of `field`'s type is read as: a fixed-size list of the
+/// `declared` list's items (float32, or uint8 for byte descriptors). Lists of floats or of
+/// integers are accepted (a byte descriptor's file holds uint8).
+fn descriptor_type(
+    path: &Path,
+    field: &Field,
+    length: Option<usize>,
+    declared: &DataType,
+) -> Result<DataType> {
+    let numbers = |t: &DataType| matches!(family(t), Family::Float | Family::Integer);
     let size = match field.data_type() {
-        DataType::FixedSizeList(_, n) if family(field.data_type()) == Family::FloatList => *n,
-        t if family(t) == Family::FloatList => match length {
-            Some(n) => n as i32,
-            None => return Err(Error::table(path, "column `descriptor` has no fixed length")),
-        },
+        DataType::FixedSizeList(f, n) if numbers(f.data_type()) => *n,
+        DataType::List(f) | DataType::LargeList(f) | DataType::ListView(f) | DataType::LargeListView(f)
+            if numbers(f.data_type()) =>
+        {
+            match length {
+                Some(n) => n as i32,
+                None => return Err(Error::table(path, "column `descriptor` has no fixed length")),
+            }
+        }
         t => {
-            return Err(Error::table(path, format!("column `descriptor` is {t}, expected a list of floats")));
+            return Err(Error::table(
+                path,
+                format!("column `descriptor` is {t}, expected a list of numbers"),
+            ));
         }
     };
-    Ok(DataType::FixedSizeList(Arc::new(Field::new("item", DataType::Float32, true)), size))
+    let item = match declared {
+        DataType::FixedSizeList(f, _) => f.data_type().clone(),
+        _ => DataType::Float32,
+    };
+    Ok(DataType::FixedSizeList(Arc::new(Field::new("item", item, true)), size))
 }
 
 /// Reads one `descriptors` file of `session`.
