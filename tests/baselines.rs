@@ -600,7 +600,11 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     std::fs::write(&toporec_only, edited).unwrap();
     let o = run_pipeline(&toporec_only, &index, 2);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
-    assert!(text(&o.stderr).contains("holds the descriptor methods [toporec, lidar-iris"), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("holds the descriptor methods [toporec, lidar-iris"),
+        "{}",
+        text(&o.stderr)
+    );
 }
 
 /// `toporec import`: vectors made elsewhere (here, copies of the index's own TopoRec

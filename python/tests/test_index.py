@@ -161,3 +161,33 @@ def test_describe_batch_reads_files_from_their_paths(sample_index):
     missing = files[0].with_name("1767261600000001.bin")
     rows = toporec.describe_batch(pa.table({"path": [str(missing)]}), sample_index)["scans"].to_pylist()
     assert rows[0]["status"] == "error" and f"{missing}: cannot read" in rows[0]["error"], rows
+
+
+@pytest.fixture(scope="module")
+def iris_index(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
+    """The sample job with LiDAR-Iris beside TopoRec: its descriptors are bytes (uint8)."""
+    folder = tmp_path_factory.mktemp("iris")
+    text = (REPO / "pipelines" / "sample.toml").read_text().replace('"../', f'"{REPO.as_posix()}/')
+    text += '\n[descriptors]\nmethods = ["toporec", "lidar-iris"]\n'
+    pipeline = folder / "iris.toml"
+    pipeline.write_text(text)
+    index = folder / "index"
+    summary = toporec.run(pipeline, threads=2, index=index, full=True)
+    assert summary["scans"]["indexed"] == 64, summary
+    return index
+
+
+def test_lidar_iris_is_stored_as_bytes_and_described_and_queried_alike(iris_index):
+    index = toporec.Index(iris_index)
+    assert index.methods() == ["lidar-iris", "toporec"]
+    stored = index.descriptors("lidar-iris")
+    assert stored.schema.field("descriptor").type == pa.list_(pa.field("item", pa.uint8(), False), 72000)
+    same(stored, read_with_pyarrow(iris_index, "descriptors", "lidar-iris"), ["scan_id"])
+    files = sample_files()
+    out = toporec.describe_batch(pa.table({"path": [str(f) for f in files]}), iris_index)
+    assert sorted(out["descriptors"]) == ["lidar-iris", "toporec"]
+    same(out["descriptors"]["lidar-iris"], stored, ["scan_id"])
+    # A stored scan, queried, is its own nearest at distance 0 and yaw 0.
+    hits = index.query([files[3]], k=1, method="lidar-iris")
+    assert hits["scan_id"][0].as_py().endswith(files[3].stem)
+    assert hits["distance"][0].as_py() == 0.0 and hits["yaw_deg"][0].as_py() == 0.0

@@ -218,6 +218,7 @@ impl Bank {
         let plane = ROWS * ROW_BYTES;
         let mut spectrum = vec![Complex64::default(); COLUMNS];
         let mut out = vec![Complex64::default(); COLUMNS];
+        let mut scratch = self.scratch();
         for row in 0..ROWS {
             let pixels = &img[row * COLUMNS..(row + 1) * COLUMNS];
             let at = row * ROW_BYTES;
@@ -231,12 +232,12 @@ impl Bank {
             for (c, &v) in spectrum.iter_mut().zip(pixels) {
                 *c = Complex64::new(v as f64, 0.0);
             }
-            self.row_forward.process(&mut spectrum);
+            self.row_forward.process_with_scratch(&mut spectrum, &mut scratch);
             for (s, h) in self.filters.iter().enumerate() {
                 for ((o, x), &g) in out.iter_mut().zip(&spectrum).zip(h) {
                     *o = x * g;
                 }
-                self.row_inverse.process(&mut out);
+                self.row_inverse.process_with_scratch(&mut out, &mut scratch);
                 for (c, y) in out.iter().enumerate() {
                     let bit = 0x80u8 >> (c % 8);
                     let byte = at + c / 8;
@@ -246,7 +247,8 @@ impl Bank {
                     if y.im > SIGN_MARGIN {
                         template[(p.scales + s) * plane + byte] |= bit;
                     }
-                    if y.norm() < MASK_BELOW {
+                    // |y| < MASK_BELOW, without hypot's cost (most of the encoding's time).
+                    if y.norm_sqr() < MASK_BELOW * MASK_BELOW {
                         mask[s * plane + byte] |= bit;
                     }
                 }
@@ -255,25 +257,31 @@ impl Bank {
         (template, mask)
     }
 
-    /// The 2-D Fourier transform of an image, row-major.
+    /// The 2-D Fourier transform of an image, transposed: column frequency by row frequency
+    /// (`COLUMNS × ROWS`), as [`Bank::correlation_shift`] takes it.
     fn spectrum(&self, img: &[u8]) -> Vec<Complex64> {
         let mut f: Vec<Complex64> = img.iter().map(|&v| Complex64::new(v as f64, 0.0)).collect();
-        self.row_forward.process(&mut f);
-        let mut column = vec![Complex64::default(); ROWS];
-        for c in 0..COLUMNS {
-            for (r, v) in column.iter_mut().enumerate() {
-                *v = f[r * COLUMNS + c];
-            }
-            self.column_forward.process(&mut column);
-            for (r, v) in column.iter().enumerate() {
-                f[r * COLUMNS + c] = *v;
-            }
-        }
-        f
+        let mut scratch = self.scratch();
+        // Every row's transform in one call, then every column's, contiguous once transposed.
+        self.row_forward.process_with_scratch(&mut f, &mut scratch);
+        let mut t = transposed(&f, ROWS, COLUMNS);
+        self.column_forward.process_with_scratch(&mut t, &mut scratch);
+        t
+    }
+
+    /// Scratch space for any of the bank's transforms.
+    fn scratch(&self) -> Vec<Complex64> {
+        let len = [&self.row_forward, &self.row_inverse, &self.column_forward, &self.column_inverse]
+            .iter()
+            .map(|f| f.get_inplace_scratch_len())
+            .max()
+            .unwrap_or(0);
+        vec![Complex64::default(); len]
     }
 
     /// The column shift at the peak of the phase correlation of `query` against `candidate`
-    /// (their spectra), in (−180, 180]; with `turned`, of the query turned by 180°.
+    /// (their transposed spectra, [`Bank::spectrum`]), in (−180, 180]; with `turned`, of the
+    /// query turned by 180°.
     fn correlation_shift(&self, query: &[Complex64], candidate: &[Complex64], turned: bool) -> i64 {
         let mut r: Vec<Complex64> = query
             .iter()
@@ -281,27 +289,18 @@ impl Bank {
             .enumerate()
             .map(|(i, (q, c))| {
                 // Turning by 180 columns multiplies column frequency k by e^{−iπk} = (−1)^k.
-                let q = if turned && (i % COLUMNS) % 2 == 1 { -q } else { *q };
+                let q = if turned && (i / ROWS) % 2 == 1 { -q } else { *q };
                 let x = q * c.conj();
-                let m = x.norm();
+                let m = x.norm_sqr().sqrt();
                 if m > 0.0 { x / m } else { Complex64::default() }
             })
             .collect();
-        let mut column = vec![Complex64::default(); ROWS];
-        for c in 0..COLUMNS {
-            for (row, v) in column.iter_mut().enumerate() {
-                *v = r[row * COLUMNS + c];
-            }
-            self.column_inverse.process(&mut column);
-            for (row, v) in column.iter().enumerate() {
-                r[row * COLUMNS + c] = *v;
-            }
-        }
-        for row in r.chunks_exact_mut(COLUMNS) {
-            self.row_inverse.process(row);
-        }
+        let mut scratch = self.scratch();
+        self.column_inverse.process_with_scratch(&mut r, &mut scratch);
+        let mut surface = transposed(&r, COLUMNS, ROWS);
+        self.row_inverse.process_with_scratch(&mut surface, &mut scratch);
         let mut best = (f64::NEG_INFINITY, 0usize);
-        for (i, v) in r.iter().enumerate() {
+        for (i, v) in surface.iter().enumerate() {
             if v.re > best.0 {
                 best = (v.re, i);
             }
@@ -309,6 +308,17 @@ impl Bank {
         let c = (best.1 % COLUMNS) as i64;
         if c > (COLUMNS / 2) as i64 { c - COLUMNS as i64 } else { c }
     }
+}
+
+/// The `columns × rows` transpose of a row-major `rows × columns` matrix.
+fn transposed(m: &[Complex64], rows: usize, columns: usize) -> Vec<Complex64> {
+    let mut t = vec![Complex64::default(); m.len()];
+    for (r, row) in m.chunks_exact(columns).enumerate() {
+        for (c, v) in row.iter().enumerate() {
+            t[c * rows + r] = *v;
+        }
+    }
+    t
 }
 
 /// The LiDAR-Iris descriptor of a raw scan (see the module doc), one byte per value.
@@ -348,12 +358,14 @@ fn words(packed: &[f32]) -> Vec<u64> {
 /// circular turn of a row is a window of it.
 fn doubled(rows: &[u64]) -> Vec<u64> {
     let mut out = vec![0u64; rows.len() * 2];
-    for (row, w) in rows.chunks_exact(WORDS).enumerate() {
-        for c in 0..COLUMNS {
-            if w[c / 64] >> (c % 64) & 1 == 1 {
-                for at in [c, c + COLUMNS] {
-                    out[row * 2 * WORDS + at / 64] |= 1 << (at % 64);
-                }
+    // The second copy starts at bit COLUMNS: word `whole`, bit `part`.
+    let (whole, part) = (COLUMNS / 64, COLUMNS % 64);
+    for (w, d) in rows.chunks_exact(WORDS).zip(out.chunks_exact_mut(2 * WORDS)) {
+        d[..WORDS].copy_from_slice(w);
+        for (i, &v) in w.iter().enumerate() {
+            d[whole + i] |= v << part;
+            if part > 0 && whole + i + 1 < 2 * WORDS {
+                d[whole + i + 1] |= v >> (64 - part);
             }
         }
     }
