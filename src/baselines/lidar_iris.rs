@@ -26,7 +26,10 @@
 //!   distance over the shifts `s − 2 … s + 2`: the template bits that differ, over the bits
 //!   that neither mask covers, the candidate's template and mask turned by the shift. With
 //!   `reverse` (the reference's match mode 2) the query turned by 180° is matched the same way,
-//!   and the better of the two counts (the turned one on a tie, as the reference). The yaw of
+//!   and the better of the two counts (the turned one on a tie, as the reference). Its peak is
+//!   the forward peak moved by 180 columns (turning multiplies the spectrum's column
+//!   frequency k by (−1)ᵏ, which rolls the correlation surface), so it is not computed again.
+//!   The yaw of
 //!   the query against the candidate is the shift, one degree a column.
 //!
 //! Where toporec departs from the reference code:
@@ -280,16 +283,12 @@ impl Bank {
     }
 
     /// The column shift at the peak of the phase correlation of `query` against `candidate`
-    /// (their transposed spectra, [`Bank::spectrum`]), in (−180, 180]; with `turned`, of the
-    /// query turned by 180°.
-    fn correlation_shift(&self, query: &[Complex64], candidate: &[Complex64], turned: bool) -> i64 {
+    /// (their transposed spectra, [`Bank::spectrum`]), in (−180, 180].
+    fn correlation_shift(&self, query: &[Complex64], candidate: &[Complex64]) -> i64 {
         let mut r: Vec<Complex64> = query
             .iter()
             .zip(candidate)
-            .enumerate()
-            .map(|(i, (q, c))| {
-                // Turning by 180 columns multiplies column frequency k by e^{−iπk} = (−1)^k.
-                let q = if turned && (i / ROWS) % 2 == 1 { -q } else { *q };
+            .map(|(q, c)| {
                 let x = q * c.conj();
                 let m = x.norm_sqr().sqrt();
                 if m > 0.0 { x / m } else { Complex64::default() }
@@ -458,14 +457,16 @@ pub struct Match {
 
 fn compare_prepared(c: &Entry, q: &Query, p: &IrisParams, bank: &Bank) -> Match {
     let spectrum = bank.spectrum(&c.image);
-    let forward = {
-        let s = bank.correlation_shift(&q.spectrum, &spectrum, false);
-        hamming(c, q, s, 0, p)
-    };
+    let peak = bank.correlation_shift(&q.spectrum, &spectrum);
+    let forward = hamming(c, q, peak, 0, p);
     let yaw = |shift: i64| shift.rem_euclid(COLUMNS as i64) as f64;
     if p.reverse {
-        let s = bank.correlation_shift(&q.spectrum, &spectrum, true);
-        let turned = hamming(c, q, s, COLUMNS as i64 / 2, p);
+        // Turning the query by 180 columns multiplies its column frequency k by (−1)^k, which
+        // rolls the correlation surface by 180 columns: the turned query's peak is the forward
+        // one moved by 180 (the reference transforms again; the cross-check test compares).
+        let half = COLUMNS as i64 / 2;
+        let turned_peak = if peak > 0 { peak - half } else { peak + half };
+        let turned = hamming(c, q, turned_peak, half, p);
         if !(forward.0 < turned.0) {
             return Match {
                 distance: turned.0,
