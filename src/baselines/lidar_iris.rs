@@ -467,7 +467,8 @@ fn compare_prepared(c: &Entry, q: &Query, p: &IrisParams, bank: &Bank) -> Match 
         let half = COLUMNS as i64 / 2;
         let turned_peak = if peak > 0 { peak - half } else { peak + half };
         let turned = hamming(c, q, turned_peak, half, p);
-        if !(forward.0 < turned.0) {
+        if turned.0 <= forward.0 {
+            // The turned one on a tie, as the reference (`dis1 < dis2` keeps the forward one).
             return Match {
                 distance: turned.0,
                 yaw_degrees: yaw(turned.1 + COLUMNS as i64 / 2),
