@@ -1,5 +1,6 @@
-//! LiDAR-Iris (Wang, Sun, Xu, Shen, Liu, *LiDAR Iris for Loop-Closure Detection*, IROS 2020),
-//! as the authors' code computes it (`BigMoWangying/LiDAR-Iris`, `LidarIris/LidarIris.cpp`).
+//! LiDAR-Iris (Wang, Sun, Xu, Sarma, Yang, Kong, *LiDAR Iris for Loop-Closure Detection*,
+//! IROS 2020), as the authors' code computes it (`BigMoWangying/LiDAR-Iris`,
+//! `LidarIris/LidarIris.cpp`).
 //!
 //! * **The image.** 80 × 360 pixels: row ⌊√(x² + y²)⌋ (1 m bins; everything beyond 79 m in the
 //!   last row), column ⌊θ + 180.5⌋ with θ = atan2(y, x) in degrees (clamped to 359, so the
