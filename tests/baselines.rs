@@ -229,15 +229,26 @@ fn solid_by_hand() {
     assert_eq!(solid::distance(&empty, &full, &p), 1.0);
 }
 
-/// The real scans the cross-checks of SOLiD and Scan Context++ run on: three KITTI scans and an
-/// NCLT one.
-fn cross_check_scans(data: &std::path::Path) -> [std::path::PathBuf; 4] {
-    [
+/// What a cross-check of SOLiD, Scan Context++ or LiDAR-Iris runs on: three KITTI scans and an
+/// NCLT one, the clouds as CSV files and as read, and what `script` (in `scripts/`) prints for
+/// them. `None` (a skip, or a failure in CI) without `../shared/data` or numpy.
+#[allow(clippy::type_complexity)]
+fn cross_check(
+    test: &str,
+    script: &str,
+) -> Option<([std::path::PathBuf; 4], Vec<std::path::PathBuf>, Vec<Vec<Point>>, String)> {
+    let data = shared_data(test)?;
+    if !python_with(test, &["numpy"]) {
+        return None;
+    }
+    let scans = [
         data.join("kitti/sequences/00/velodyne/000000.bin"),
         data.join("kitti/sequences/08/velodyne/000006.bin"),
         data.join("kitti/sequences/05/velodyne/000003.bin"),
         data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
-    ]
+    ];
+    let (csvs, clouds, text) = reference_output(script.trim_end_matches(".py"), script, &scans);
+    Some((scans, csvs, clouds, text))
 }
 
 /// SOLiD equals the numpy transcription of the reference code (`scripts/solid_reference.py`)
@@ -246,12 +257,7 @@ fn cross_check_scans(data: &std::path::Path) -> [std::path::PathBuf; 4] {
 #[test]
 fn solid_matches_the_reference_transcription_on_real_scans() {
     let test = "solid_matches_the_reference_transcription_on_real_scans";
-    let Some(data) = shared_data(test) else { return };
-    if !python_with(test, &["numpy"]) {
-        return;
-    }
-    let scans = cross_check_scans(&data);
-    let (csvs, clouds, text) = reference_output("solid_reference", "solid_reference.py", &scans);
+    let Some((scans, csvs, clouds, text)) = cross_check(test, "solid_reference.py") else { return };
     // No voxel grid: the reference's (PCL, Open3D) and toporec's place their cells differently.
     let p = SolidParams { voxel: 0.0, ..SolidParams::default() };
     let ours = |cloud: &[Point]| solid::describe(&solid::preprocess(cloud, &p), &p);
@@ -350,13 +356,7 @@ fn scancontext_pp_by_hand() {
 #[test]
 fn scancontext_pp_matches_the_reference_transcription_on_real_scans() {
     let test = "scancontext_pp_matches_the_reference_transcription_on_real_scans";
-    let Some(data) = shared_data(test) else { return };
-    if !python_with(test, &["numpy"]) {
-        return;
-    }
-    let scans = cross_check_scans(&data);
-    let (csvs, clouds, text) =
-        reference_output("scancontext_pp_reference", "scancontext_pp_reference.py", &scans);
+    let Some((scans, csvs, clouds, text)) = cross_check(test, "scancontext_pp_reference.py") else { return };
     let polar = PolarParams { voxel: 0.0, ..PolarParams::default() };
     let cart = CartParams { voxel: 0.0, ..CartParams::default() };
     let close = |ours: &[f32], theirs: &[f64], name: &str, what: &str| {
@@ -435,32 +435,12 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     );
     let manifest: serde_json::Value = read_json(&index.join("manifest.json"));
     let methods = manifest["methods"].as_object().unwrap();
-    assert_eq!(
-        methods.keys().collect::<Vec<_>>(),
-        [
-            "lidar-iris",
-            "m2dp",
-            "scancontext",
-            "scancontext-pp",
-            "scancontext-pp-cart",
-            "solid",
-            "toporec-plus"
-        ]
-    );
+    assert_eq!(methods.keys().map(String::as_str).collect::<Vec<_>>(), util::EVERY_METHOD[1..]);
     assert_eq!(methods["scancontext"]["length"], 1200);
     assert_eq!(methods["lidar-iris"]["length"], 72000);
     assert_eq!(methods["m2dp"]["length"], 192);
     assert_eq!(methods["solid"]["params"]["fov_up"], 10.67);
-    for m in [
-        "toporec",
-        "toporec-plus",
-        "scancontext",
-        "scancontext-pp",
-        "scancontext-pp-cart",
-        "m2dp",
-        "solid",
-        "lidar-iris",
-    ] {
+    for m in util::EVERY_METHOD {
         for s in ["2026-01-01", "2026-01-02"] {
             assert!(index.join(format!("descriptors/method={m}/session={s}")).is_dir(), "{m} {s}");
         }
@@ -551,19 +531,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     };
     let names: Vec<&str> =
         report["methods"].as_array().unwrap().iter().map(|m| m["method"].as_str().unwrap()).collect();
-    assert_eq!(
-        names,
-        [
-            "toporec",
-            "lidar-iris",
-            "m2dp",
-            "scancontext",
-            "scancontext-pp",
-            "scancontext-pp-cart",
-            "solid",
-            "toporec-plus"
-        ]
-    );
+    assert_eq!(names, util::EVERY_METHOD);
     // Regression values (toporec's own output on the committed sample): R@1 at 5, 10, 20,
     // 50 m, in 32nds of the queries.
     assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
@@ -829,12 +797,7 @@ fn lidar_iris_by_hand() {
 fn lidar_iris_matches_the_reference_transcription_on_real_scans() {
     use toporec::baselines::lidar_iris::{self, IrisParams};
     let test = "lidar_iris_matches_the_reference_transcription_on_real_scans";
-    let Some(data) = shared_data(test) else { return };
-    if !python_with(test, &["numpy"]) {
-        return;
-    }
-    let scans = cross_check_scans(&data);
-    let (csvs, clouds, text) = reference_output("lidar_iris_reference", "lidar_iris_reference.py", &scans);
+    let Some((scans, csvs, clouds, text)) = cross_check(test, "lidar_iris_reference.py") else { return };
     let p = IrisParams::default();
     let described: Vec<Vec<f32>> = clouds.iter().map(|c| lidar_iris::describe(c, &p)).collect();
     let mut checked = 0;

@@ -3,6 +3,19 @@
 use std::path::{Path, PathBuf};
 use toporec::homology::{Diagram, Point};
 
+/// Every method `pipelines/compare.toml` and `pipelines/kitti.toml` index, in the order
+/// `eval` reports them (TopoRec first, then by name).
+pub const EVERY_METHOD: [&str; 8] = [
+    "toporec",
+    "lidar-iris",
+    "m2dp",
+    "scancontext",
+    "scancontext-pp",
+    "scancontext-pp-cart",
+    "solid",
+    "toporec-plus",
+];
+
 /// The crate root.
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
