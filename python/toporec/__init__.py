@@ -296,7 +296,8 @@ class Index:
         return _table(_toporec.index_table(self.path, "diagrams", None))
 
     def descriptors(self, method: str = "toporec") -> pa.Table:
-        """One row per ok scan: the descriptor of ``method`` (a fixed-size list of float32)."""
+        """One row per ok scan: the descriptor of ``method`` (a fixed-size list of float32;
+        of uint8 for ``lidar-iris``, its image and its bit-packed template and mask)."""
         return _table(_toporec.index_table(self.path, "descriptors", method))
 
     def query(
