@@ -1,5 +1,5 @@
 //! Baselines benchmark: ScanContext, Scan Context++ (polar and Cartesian), M2DP, SOLiD and
-//! LiDAR-Iris per scan (design goal: under 2 ms each for a 4096-point scan), and their searches
+//! LiDAR-Iris (and toporec-plus, for the comparison) per scan (design goal: under 2 ms each for a 4096-point scan), and their searches
 //! over 100,000 entries (design goal: under 5 ms per query), one thread. LiDAR-Iris's entries
 //! take 75 KB each in its searcher, so its search runs over 1,000 and 10,000 entries: the
 //! row-key pass grows with the entries, the re-rank of its candidates does not.
@@ -90,7 +90,8 @@ fn main() {
         let sp = SolidParams::default();
         let (pp, ppc) = (PolarParams::default(), CartParams::default());
         let ip = IrisParams::default();
-        let rows: [(&str, Describe); 9] = [
+        let plus = toporec::toporec_plus::PlusParams::default();
+        let rows: [(&str, Describe); 10] = [
             ("ScanContext descriptor", &|c| {
                 std::hint::black_box(scancontext::describe(c, &p));
             }),
@@ -117,6 +118,9 @@ fn main() {
             }),
             ("LiDAR-Iris image, template and mask", &|c| {
                 std::hint::black_box(lidar_iris::describe(c, &ip));
+            }),
+            ("toporec-plus (its searches: `cargo bench --bench toporec_plus`)", &|c| {
+                std::hint::black_box(toporec::toporec_plus::describe(c, &plus).ok());
             }),
         ];
         for (label, f) in rows {
