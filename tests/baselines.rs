@@ -114,13 +114,21 @@ fn m2dp_is_invariant_to_rotations_the_sign_convention_keeps() {
     assert!(max_abs_diff(&m2dp::describe(&other), &d0) > 1e-2);
 }
 
+/// A line `<cloud>,<kind>,<values…>` that a reference transcription printed.
+struct ReferenceLine {
+    /// Which of the scans it is about.
+    cloud: usize,
+    kind: String,
+    values: Vec<f64>,
+}
+
 /// The clouds of `scans` as toporec reads them, handed to `scripts/SCRIPT` as exact CSV in
-/// a scratch folder `name`: the CSV paths, the clouds, and what the script printed.
+/// a scratch folder `name`: the clouds, and the lines the script printed.
 fn reference_output(
     name: &str,
     script: &str,
     scans: &[std::path::PathBuf],
-) -> (Vec<std::path::PathBuf>, Vec<Vec<Point>>, String) {
+) -> (Vec<Vec<Point>>, Vec<ReferenceLine>) {
     let dir = util::scratch_dir(name);
     let mut csvs = Vec::new();
     let mut clouds = Vec::new();
@@ -141,7 +149,19 @@ fn reference_output(
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    (csvs, clouds, String::from_utf8(out.stdout).unwrap())
+    let lines = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|line| {
+            let fields: Vec<&str> = line.split(',').collect();
+            ReferenceLine {
+                cloud: csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours"),
+                kind: fields[1].to_string(),
+                values: fields[2..].iter().map(|v| v.parse().unwrap()).collect(),
+            }
+        })
+        .collect();
+    (clouds, lines)
 }
 
 /// ScanContext and M2DP equal the numpy transcription of the reference code within 1e-6 on
@@ -157,14 +177,12 @@ fn baselines_match_the_reference_transcription_on_real_scans() {
         data.join("kitti/sequences/08/velodyne/000006.bin"),
         data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
     ];
-    let (csvs, clouds, text) = reference_output("baselines_reference", "baselines_reference.py", &scans);
+    let (clouds, lines) = reference_output("baselines_reference", "baselines_reference.py", &scans);
     let p = ScanContextParams::default();
     let mut checked = 0;
-    for line in text.lines() {
-        let fields: Vec<&str> = line.split(',').collect();
-        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
-        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
-        let ours: Vec<f64> = match fields[1] {
+    for line in &lines {
+        let (i, kind, values) = (line.cloud, line.kind.as_str(), &line.values);
+        let ours: Vec<f64> = match kind {
             "scancontext" => scancontext::describe(&clouds[i], &p).iter().map(|&v| v as f64).collect(),
             "m2dp" => m2dp::describe(&clouds[i]).iter().map(|&v| v as f64).collect(),
             "scdist" => {
@@ -175,10 +193,10 @@ fn baselines_match_the_reference_transcription_on_real_scans() {
             }
             other => panic!("unknown line kind {other}"),
         };
-        assert_eq!(ours.len(), values.len(), "{} {}", scans[i].display(), fields[1]);
-        let worst = ours.iter().zip(&values).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-        assert!(worst <= 1e-6, "{} {}: max difference {worst:e}", scans[i].display(), fields[1]);
-        println!("{} {}: {} values, max difference {worst:e}", scans[i].display(), fields[1], ours.len());
+        assert_eq!(ours.len(), values.len(), "{} {}", scans[i].display(), kind);
+        let worst = ours.iter().zip(values).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        assert!(worst <= 1e-6, "{} {}: max difference {worst:e}", scans[i].display(), kind);
+        println!("{} {}: {} values, max difference {worst:e}", scans[i].display(), kind, ours.len());
         checked += 1;
     }
     assert_eq!(checked, 3 * scans.len());
@@ -230,13 +248,12 @@ fn solid_by_hand() {
 }
 
 /// What a cross-check of SOLiD, Scan Context++ or LiDAR-Iris runs on: three KITTI scans and an
-/// NCLT one, the clouds as CSV files and as read, and what `script` (in `scripts/`) prints for
-/// them. `None` (a skip, or a failure in CI) without `../shared/data` or numpy.
+/// NCLT one, the clouds as read, and the lines `script` (in `scripts/`) prints for them. `None` (a skip, or a failure in CI) without `../shared/data` or numpy.
 #[allow(clippy::type_complexity)]
 fn cross_check(
     test: &str,
     script: &str,
-) -> Option<([std::path::PathBuf; 4], Vec<std::path::PathBuf>, Vec<Vec<Point>>, String)> {
+) -> Option<([std::path::PathBuf; 4], Vec<Vec<Point>>, Vec<ReferenceLine>)> {
     let data = shared_data(test)?;
     if !python_with(test, &["numpy"]) {
         return None;
@@ -247,8 +264,8 @@ fn cross_check(
         data.join("kitti/sequences/05/velodyne/000003.bin"),
         data.join("nclt/2012-01-15/velodyne_sync/1326652795280148.bin"),
     ];
-    let (csvs, clouds, text) = reference_output(script.trim_end_matches(".py"), script, &scans);
-    Some((scans, csvs, clouds, text))
+    let (clouds, lines) = reference_output(script.trim_end_matches(".py"), script, &scans);
+    Some((scans, clouds, lines))
 }
 
 /// SOLiD equals the numpy transcription of the reference code (`scripts/solid_reference.py`)
@@ -257,23 +274,21 @@ fn cross_check(
 #[test]
 fn solid_matches_the_reference_transcription_on_real_scans() {
     let test = "solid_matches_the_reference_transcription_on_real_scans";
-    let Some((scans, csvs, clouds, text)) = cross_check(test, "solid_reference.py") else { return };
+    let Some((scans, clouds, lines)) = cross_check(test, "solid_reference.py") else { return };
     // No voxel grid: the reference's (PCL, Open3D) and toporec's place their cells differently.
     let p = SolidParams { voxel: 0.0, ..SolidParams::default() };
     let ours = |cloud: &[Point]| solid::describe(&solid::preprocess(cloud, &p), &p);
     let mut checked = 0;
-    for line in text.lines() {
-        let fields: Vec<&str> = line.split(',').collect();
-        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
-        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
+    for line in &lines {
+        let (i, kind, values) = (line.cloud, line.kind.as_str(), &line.values);
         let name = scans[i].display();
-        match fields[1] {
+        match kind {
             "solid" => {
                 let d: Vec<f64> = ours(&clouds[i]).iter().map(|&v| v as f64).collect();
                 assert_eq!(d.len(), values.len(), "{name}");
                 assert!(d.iter().any(|&v| v > 0.0), "{name}: an empty descriptor");
                 let worst =
-                    d.iter().zip(&values).map(|(a, b)| (a - b).abs() / b.abs().max(1.0)).fold(0.0, f64::max);
+                    d.iter().zip(values).map(|(a, b)| (a - b).abs() / b.abs().max(1.0)).fold(0.0, f64::max);
                 assert!(worst <= 1e-6, "{name}: max relative difference {worst:e}");
                 println!("{name} solid: {} values, max relative difference {worst:e}", d.len());
             }
@@ -356,7 +371,7 @@ fn scancontext_pp_by_hand() {
 #[test]
 fn scancontext_pp_matches_the_reference_transcription_on_real_scans() {
     let test = "scancontext_pp_matches_the_reference_transcription_on_real_scans";
-    let Some((scans, csvs, clouds, text)) = cross_check(test, "scancontext_pp_reference.py") else { return };
+    let Some((scans, clouds, lines)) = cross_check(test, "scancontext_pp_reference.py") else { return };
     let polar = PolarParams { voxel: 0.0, ..PolarParams::default() };
     let cart = CartParams { voxel: 0.0, ..CartParams::default() };
     let close = |ours: &[f32], theirs: &[f64], name: &str, what: &str| {
@@ -371,14 +386,12 @@ fn scancontext_pp_matches_the_reference_transcription_on_real_scans() {
         println!("{name} {what}: {} values, max relative difference {worst:e}", ours.len());
     };
     let mut checked = 0;
-    for line in text.lines() {
-        let fields: Vec<&str> = line.split(',').collect();
-        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
-        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
+    for line in &lines {
+        let (i, kind, values) = (line.cloud, line.kind.as_str(), &line.values);
         let name = scans[i].display().to_string();
-        match fields[1] {
-            "pp-polar" => close(&scancontext_pp::describe_polar(&clouds[i], &polar), &values, &name, "polar"),
-            "pp-cart" => close(&scancontext_pp::describe_cart(&clouds[i], &cart), &values, &name, "cart"),
+        match kind {
+            "pp-polar" => close(&scancontext_pp::describe_polar(&clouds[i], &polar), values, &name, "polar"),
+            "pp-cart" => close(&scancontext_pp::describe_cart(&clouds[i], &cart), values, &name, "cart"),
             "pp-polardist" => {
                 let q = scancontext_pp::describe_polar(&turned(&clouds[i], 42.0), &polar);
                 let c = scancontext_pp::describe_polar(&clouds[i], &polar);
@@ -797,14 +810,12 @@ fn lidar_iris_by_hand() {
 fn lidar_iris_matches_the_reference_transcription_on_real_scans() {
     use toporec::baselines::lidar_iris::{self, IrisParams};
     let test = "lidar_iris_matches_the_reference_transcription_on_real_scans";
-    let Some((scans, csvs, clouds, text)) = cross_check(test, "lidar_iris_reference.py") else { return };
+    let Some((scans, clouds, lines)) = cross_check(test, "lidar_iris_reference.py") else { return };
     let p = IrisParams::default();
     let described: Vec<Vec<f32>> = clouds.iter().map(|c| lidar_iris::describe(c, &p)).collect();
     let mut checked = 0;
-    for line in text.lines() {
-        let fields: Vec<&str> = line.split(',').collect();
-        let i = csvs.iter().position(|c| c.to_str() == Some(fields[0])).expect("a cloud of ours");
-        let values: Vec<f64> = fields[2..].iter().map(|v| v.parse().unwrap()).collect();
+    for line in &lines {
+        let (i, kind, values) = (line.cloud, line.kind.as_str(), &line.values);
         let name = scans[i].display();
         let check = |m: lidar_iris::Match, what: &str| {
             assert!(
@@ -823,11 +834,11 @@ fn lidar_iris_matches_the_reference_transcription_on_real_scans() {
                 m.distance, m.yaw_degrees, m.reversed
             );
         };
-        match fields[1] {
+        match kind {
             "iris" => {
                 let ours: Vec<f64> = described[i].iter().map(|&v| v as f64).collect();
                 assert_eq!(ours.len(), values.len(), "{name}");
-                let differ = ours.iter().zip(&values).filter(|(a, b)| a != b).count();
+                let differ = ours.iter().zip(values).filter(|(a, b)| a != b).count();
                 assert_eq!(differ, 0, "{name}: {differ} of {} bytes differ", ours.len());
                 let set: u32 = described[i].iter().map(|&v| (v as u8).count_ones()).sum();
                 assert!(set > 10_000, "{name}: {set} bits set");

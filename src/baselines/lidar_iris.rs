@@ -470,11 +470,7 @@ fn compare_prepared(c: &Entry, q: &Query, p: &IrisParams, bank: &Bank) -> Match 
         let turned = hamming(c, q, turned_peak, half, p);
         if turned.0 <= forward.0 {
             // The turned one on a tie, as the reference (`dis1 < dis2` keeps the forward one).
-            return Match {
-                distance: turned.0,
-                yaw_degrees: yaw(turned.1 + COLUMNS as i64 / 2),
-                reversed: true,
-            };
+            return Match { distance: turned.0, yaw_degrees: yaw(turned.1 + half), reversed: true };
         }
     }
     Match { distance: forward.0, yaw_degrees: yaw(forward.1), reversed: false }
@@ -547,7 +543,7 @@ impl Searcher {
             .chunks_exact(ROWS)
             .enumerate()
             .filter(|(r, _)| allowed(*r))
-            .map(|(r, k)| (r, k.iter().zip(&key).map(|(a, b)| (a - b) * (a - b)).sum::<f32>()))
+            .map(|(r, row)| (r, row.iter().zip(&key).map(|(a, b)| (a - b) * (a - b)).sum::<f32>()))
             .collect();
         let order = |a: &(usize, f32), b: &(usize, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
         if by_key.len() > wanted {

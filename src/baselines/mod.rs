@@ -270,11 +270,6 @@ impl Method {
         )
     }
 
-    /// Whether the method's descriptor values are bytes ([`stores_bytes`]).
-    pub fn stores_bytes(&self) -> bool {
-        matches!(self.kind, MethodKind::LidarIris(_))
-    }
-
     /// The descriptor of a raw scan (sensor frame, metres) for the methods computed from it
     /// (ScanContext, Scan Context++, M2DP, SOLiD, LiDAR-Iris, toporec-plus), after the method's own preprocessing (its voxel
     /// grid); `None` for the others. An error, with the reason, when the method could not

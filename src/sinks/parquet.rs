@@ -9,8 +9,8 @@ use crate::homology::Diagram;
 use crate::types::Pose;
 use crate::vectorize::codebook::Descriptor;
 use arrow::array::{
-    ArrayRef, FixedSizeListBuilder, Float32Builder, Float64Builder, Int64Builder, RecordBatch, StringBuilder,
-    UInt8Builder, UInt64Builder,
+    ArrayRef, FixedSizeListArray, Float32Array, Float64Builder, Int64Builder, RecordBatch, StringBuilder,
+    UInt8Array, UInt8Builder, UInt64Builder,
 };
 use arrow::datatypes::Schema;
 use parquet::arrow::ArrowWriter;
@@ -422,17 +422,6 @@ pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str, b
     let mut utime = Int64Builder::new();
     let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
     let mut dim = UInt8Builder::new();
-    let item = |t| Arc::new(arrow::datatypes::Field::new("item", t, false));
-    let mut floats = FixedSizeListBuilder::new(
-        Float32Builder::with_capacity(if bytes { 0 } else { rows.len() * b }),
-        b as i32,
-    )
-    .with_field(item(arrow::datatypes::DataType::Float32));
-    let mut byte_values = FixedSizeListBuilder::new(
-        UInt8Builder::with_capacity(if bytes { rows.len() * b } else { 0 }),
-        b as i32,
-    )
-    .with_field(item(arrow::datatypes::DataType::UInt8));
     let mut codebook = StringBuilder::new();
     for r in rows {
         ids.append_value(&r.scan_id);
@@ -441,16 +430,16 @@ pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str, b
         pose[1].append_option(r.pose.map(|p| p.y));
         pose[2].append_option(r.pose.map(|p| p.z));
         dim.append_option(r.dim_used);
-        if bytes {
-            byte_values.values().extend(r.values.iter().map(|&v| Some(v as u8)));
-            byte_values.append(true);
-        } else {
-            floats.values().append_slice(&r.values);
-            floats.append(true);
-        }
         codebook.append_value(codebook_id);
     }
-    let vectors: ArrayRef = if bytes { Arc::new(byte_values.finish()) } else { Arc::new(floats.finish()) };
+    let values = rows.iter().flat_map(|r| r.values.iter().copied());
+    let values: ArrayRef = if bytes {
+        Arc::new(UInt8Array::from_iter_values(values.map(|v| v as u8)))
+    } else {
+        Arc::new(Float32Array::from_iter_values(values))
+    };
+    let item = Arc::new(arrow::datatypes::Field::new("item", values.data_type().clone(), false));
+    let vectors = Arc::new(FixedSizeListArray::new(item, b as i32, values, None));
     let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
     let columns: Vec<ArrayRef> = vec![
         Arc::new(ids.finish()),

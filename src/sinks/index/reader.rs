@@ -475,11 +475,10 @@ fn table_of_path(path: &Path) -> Option<String> {
     })
 }
 
-/// The type a descriptor column is read as: `FixedSizeList<float32>` of the stored length
-/// (or of `length` for a variable-length list).
 /// The type a `descriptor` column of `field`'s type is read as: a fixed-size list of the
-/// `declared` list's items (float32, or uint8 for byte descriptors). Lists of floats or of
-/// integers are accepted (a byte descriptor's file holds uint8).
+/// `declared` list's items (float32, or uint8 for byte descriptors), of the stored length (or of
+/// `length` for a variable-length list). Lists of floats or of integers are accepted (a byte
+/// descriptor's file holds uint8).
 fn descriptor_type(
     path: &Path,
     field: &Field,
