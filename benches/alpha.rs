@@ -1,6 +1,7 @@
 //! Alpha-persistence benchmark, per cloud:
 //! - the step times (Delaunay complex, filtration, persistence) and the whole diagram on one
-//!   and on two threads (`alpha_persistence` inside a rayon pool of that size);
+//!   and on two threads (`alpha_persistence` inside a rayon pool of that size), with the
+//!   two-thread speed-up (the median of the per-round ratios);
 //! - the ratio to CGAL's `Delaunay_triangulation_3` alone (EPICK, points inserted as a range),
 //!   when `scripts/build_cgal_reference.sh` has built its reference program: the two run
 //!   interleaved (toporec, CGAL, toporec, CGAL, …) and each ratio is the median of the
@@ -11,8 +12,9 @@
 //!   with the pair counts of both beside toporec's.
 //!
 //! Run: `cargo bench --bench alpha` (add `-- --quick` for fewer repetitions).
-//! Clouds: synthetic (uniform cube, the LiDAR-like fixture, a simulated scan of `samples/`) always; real KITTI / NCLT scans
-//! from `../shared/data` when present, subsampled with a fixed seed.
+//! Clouds: synthetic (uniform cube, the LiDAR-like fixture, a simulated scan of `samples/`)
+//! always; real KITTI / NCLT scans from `../shared/data` when present, subsampled with a fixed
+//! seed, and whole (23,546 and 124,668 points).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::{BufRead, BufReader, Write};
@@ -161,6 +163,10 @@ fn clouds() -> Vec<Cloud> {
     if let Some(k) = &nclt_pts {
         out.push(Cloud { name: format!("nclt_2012-01-15_full_{}", k.len()), points: k.clone() });
     }
+    // A whole HDL-64E scan, above 100,000 points: where two threads should pay most.
+    if let Some(k) = &kitti_pts {
+        out.push(Cloud { name: format!("kitti_00_000000_full_{}", k.len()), points: k.clone() });
+    }
     if kitti_pts.is_none() {
         println!("note: ../shared/data absent: real-scan clouds skipped");
     }
@@ -221,6 +227,8 @@ struct Row<'a> {
     steps: Times,
     counts: [usize; 3],
     whole: [f64; 2],
+    /// Median of the per-round ratios whole (1 thread) / whole (2 threads).
+    speedup: f64,
     /// CGAL ms, then the median per-round ratios Delaunay / CGAL, whole (1 thread) / CGAL,
     /// whole (2 threads) / CGAL, and CGAL's finite cells.
     cgal: Option<(f64, [f64; 3], usize)>,
@@ -270,6 +278,7 @@ fn main() {
             11
         };
         let (mut whole, mut ratios, mut cgal_ms) = ([vec![], vec![]], [vec![], vec![], vec![]], vec![]);
+        let mut speedups = Vec::new();
         let mut cgal_cells = 0;
         for _ in 0..rounds {
             let d = pools[0].install(|| time_ms(|| DelaunayComplex::new(&c.points).expect("finite cloud")));
@@ -278,6 +287,7 @@ fn main() {
             });
             whole[0].push(w[0]);
             whole[1].push(w[1]);
+            speedups.push(w[0] / w[1]);
             if let Some(reference) = cgal.as_mut() {
                 match reference.time(&path) {
                     Some((m, cells)) => {
@@ -295,22 +305,23 @@ fn main() {
             }
         }
         let whole = whole.map(median_f);
+        let speedup = median_f(speedups);
         let cgal_row = (!cgal_ms.is_empty() && cgal.is_some())
             .then(|| (median_f(cgal_ms), ratios.map(median_f), cgal_cells));
-        rows.push(Row { cloud: c, steps, counts, whole, cgal: cgal_row, tets, peak, path });
+        rows.push(Row { cloud: c, steps, counts, whole, speedup, cgal: cgal_row, tets, peak, path });
     }
     println!("one thread unless said; medians; ratios are medians of interleaved per-round ratios");
     println!(
-        "| cloud | points | Delaunay ms | filtration ms | persistence ms | whole ms, 1 thread | whole ms, 2 threads | CGAL triangulation ms | Delaunay / CGAL | whole / CGAL | whole (2 threads) / CGAL | tetrahedra (toporec; CGAL) | peak bytes / point |"
+        "| cloud | points | Delaunay ms | filtration ms | persistence ms | whole ms, 1 thread | whole ms, 2 threads | 2-thread speed-up | CGAL triangulation ms | Delaunay / CGAL | whole / CGAL | whole (2 threads) / CGAL | tetrahedra (toporec; CGAL) | peak bytes / point |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|");
     for r in &rows {
         let (cg, ratios, cells) = match r.cgal {
             Some((m, q, cells)) => (format!("{m:.2}"), q.map(|x| format!("{x:.2}")), cells.to_string()),
             None => ("n/a".into(), ["n/a".to_string(), "n/a".into(), "n/a".into()], "n/a".into()),
         };
         println!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {} | {} | {}; {} | {:.0} |",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2}x | {} | {} | {} | {} | {}; {} | {:.0} |",
             r.cloud.name,
             r.cloud.points.len(),
             ms(r.steps.delaunay),
@@ -318,6 +329,7 @@ fn main() {
             ms(r.steps.persistence),
             r.whole[0],
             r.whole[1],
+            r.speedup,
             cg,
             ratios[0],
             ratios[1],

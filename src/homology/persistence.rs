@@ -12,6 +12,7 @@
 //! Pairs whose birth and death values are exactly equal are dropped (GUDHI's
 //! `min_persistence = 0`); H0 gets one essential class (0, +inf).
 
+use super::complex::OUTSIDE;
 use super::filtration::{Filtration, Value};
 use super::{Diagram, Pair};
 use std::cmp::Ordering;
@@ -53,14 +54,14 @@ fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
         return;
     }
     if c.dim == 3 {
-        let ((h0, edge_positive), (h2, negative)) = rayon::join(|| h0_pass(f), || dual_pass_3d(f));
+        let ((h0, positive_rank), (h2, tri_rank, negative)) = rayon::join(|| h0_pass(f), || dual_pass_3d(f));
         for (pair, killer) in h0.into_iter().chain(h2) {
             emit(pair, killer);
         }
-        reduce_h1(f, &edge_positive, &negative, &mut emit);
+        reduce_h1(f, &positive_rank, &tri_rank, &negative, &mut emit);
         return;
     }
-    let (h0, edge_positive) = h0_pass(f);
+    let (h0, positive_rank) = h0_pass(f);
     for (pair, killer) in h0 {
         emit(pair, killer);
     }
@@ -74,7 +75,10 @@ fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
         for &e in f.edge_order.iter().rev() {
             let [a, b] = c.edge_cofaces[e as usize];
             if let Some(t) = dual.union(a, b) {
-                debug_assert!(edge_positive[e as usize], "duality: dual merges are positive edges");
+                debug_assert!(
+                    positive_rank[e as usize] != NEGATIVE,
+                    "duality: dual merges are positive edges"
+                );
                 push_finite(
                     f,
                     &mut emit,
@@ -88,52 +92,85 @@ fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
     }
 }
 
+/// Marks an edge that is not positive in [`h0_pass`]'s ranks, and an empty row slot.
+const NEGATIVE: u32 = u32::MAX;
+
 /// H0 (vertices are all born at 0): union-find over the edges in filtration order. Returns
-/// its pairs, the essential class last, and which edges are positive (close a loop).
-fn h0_pass(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<bool>) {
+/// its pairs, the essential class last, and for each edge its filtration rank if it is
+/// positive (closes a loop), else [`NEGATIVE`]: the rows of the H1 columns.
+fn h0_pass(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<u32>) {
     let c = f.complex;
     let mut uf = UnionFind::new(c.points.len());
-    let mut edge_positive = vec![false; c.edges.len()];
+    let mut positive_rank = vec![NEGATIVE; c.edges.len()];
     let mut pairs = Vec::with_capacity(c.points.len());
-    for &e in &f.edge_order {
+    for (r, &e) in f.edge_order.iter().enumerate() {
         let [u, v] = c.edges[e as usize];
         if uf.union(u, v) {
             pairs.push((Pair { dim: 0, birth: 0.0, death: f.edges[e as usize].value }, Killer::Edge(e)));
         } else {
-            edge_positive[e as usize] = true;
+            positive_rank[e as usize] = r as u32;
         }
     }
     pairs.push((Pair { dim: 0, birth: 0.0, death: f64::INFINITY }, Killer::Never));
-    (pairs, edge_positive)
+    (pairs, positive_rank)
 }
 
-/// H2 in 3D by duality: tetrahedra + outside, triangles in reverse order. Returns its pairs
-/// and the negative triangles (those that kill a loop), in filtration order.
-fn dual_pass_3d(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<u32>) {
-    let c = f.complex;
-    let mut rank = vec![0u32; c.tets.len()];
-    for (r, &t) in f.tet_order.iter().enumerate() {
-        rank[t as usize] = r as u32;
+/// The rank of each simplex in `order`.
+fn ranks(order: &[u32]) -> Vec<u32> {
+    let mut rank = vec![0u32; order.len()];
+    for (r, &s) in order.iter().enumerate() {
+        rank[s as usize] = r as u32;
     }
-    let mut dual = ElderUnionFind::new(&rank);
-    let mut pairs = Vec::new();
-    let mut negative = Vec::with_capacity(c.triangles.len() - c.tets.len() + 1);
-    for &t in f.triangle_order.iter().rev() {
-        let [a, b] = c.tri_cofaces[t as usize];
-        match dual.union(a, b) {
-            Some(tet) => push_finite(
-                f,
-                &mut |pair, killer| pairs.push((pair, killer)),
-                2,
-                f.triangles[t as usize],
-                f.tets[tet as usize],
-                Killer::Tet(tet),
-            ),
-            None => negative.push(t),
+    rank
+}
+
+/// H2 in 3D by duality: tetrahedra + outside, triangles in reverse order. Returns its pairs,
+/// each triangle's rank, and the ranks of the negative triangles (those that kill a loop),
+/// increasing.
+///
+/// It works in rank space, because in filtration order the simplices are scattered over
+/// memory: each triangle's two cofaces are first written as tetrahedron ranks at the
+/// triangle's rank (one pass in triangle-id order, where neighbouring triangles have
+/// neighbouring cofaces), so that the pass itself reads them in sequence; tetrahedron `r` of
+/// the union-find is the one of rank `r`, the outside is rank `n`, and every root is the
+/// eldest (largest rank) of its set, so a merge links the younger root under the elder one
+/// and the younger root is the tetrahedron that dies.
+fn dual_pass_3d(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<u32>, Vec<u32>) {
+    let c = f.complex;
+    let (ntri, ntet) = (c.triangles.len(), c.tets.len());
+    let outside = ntet as u32;
+    let tri_rank = ranks(&f.triangle_order);
+    let mut cofaces = vec![[0u32; 2]; ntri];
+    {
+        let tet_rank = ranks(&f.tet_order);
+        for (t, ab) in c.tri_cofaces.iter().enumerate() {
+            cofaces[tri_rank[t] as usize] =
+                ab.map(|x| if x == OUTSIDE { outside } else { tet_rank[x as usize] });
         }
     }
+    let mut parent: Vec<u32> = (0..=outside).collect();
+    let mut pairs = Vec::new();
+    let mut negative = Vec::with_capacity(ntri - ntet + 1);
+    for (r, &[a, b]) in cofaces.iter().enumerate().rev() {
+        let (ra, rb) = (find_root(&mut parent, a), find_root(&mut parent, b));
+        if ra == rb {
+            negative.push(r as u32);
+            continue;
+        }
+        let (young, old) = if ra < rb { (ra, rb) } else { (rb, ra) };
+        parent[young as usize] = old;
+        let (t, tet) = (f.triangle_order[r], f.tet_order[young as usize]);
+        push_finite(
+            f,
+            &mut |pair, killer| pairs.push((pair, killer)),
+            2,
+            f.triangles[t as usize],
+            f.tets[tet as usize],
+            Killer::Tet(tet),
+        );
+    }
     negative.reverse();
-    (pairs, negative)
+    (pairs, tri_rank, negative)
 }
 
 /// Records a finite pair unless it has zero length (see [`Filtration::pair_values`]).
@@ -151,12 +188,19 @@ fn push_finite(
 }
 
 /// H1 pairs: reduce the columns (positive edges, by rank) of the negative triangles, given
-/// in filtration order.
-fn reduce_h1(f: &Filtration, edge_positive: &[bool], negative: &[u32], emit: &mut impl FnMut(Pair, Killer)) {
+/// by rank, increasing. Each triangle's column is first written at its rank (one pass in
+/// triangle-id order, as in [`dual_pass_3d`]), so that the reduction reads them in sequence.
+fn reduce_h1(
+    f: &Filtration,
+    positive_rank: &[u32],
+    tri_rank: &[u32],
+    negative: &[u32],
+    emit: &mut impl FnMut(Pair, Killer),
+) {
     let c = f.complex;
-    let mut edge_rank = vec![0u32; c.edges.len()];
-    for (r, &e) in f.edge_order.iter().enumerate() {
-        edge_rank[e as usize] = r as u32;
+    let mut columns = vec![[NEGATIVE; 3]; c.triangles.len()];
+    for (t, edges) in c.tri_edges.iter().enumerate() {
+        columns[tri_rank[t] as usize] = edges.map(|e| positive_rank[e as usize]);
     }
     // owner[rank] = index of the stored reduced column whose pivot is that edge rank.
     let mut owner = vec![u32::MAX; c.edges.len()];
@@ -164,13 +208,10 @@ fn reduce_h1(f: &Filtration, edge_positive: &[bool], negative: &[u32], emit: &mu
     let mut store_start: Vec<u32> = Vec::new();
     let mut col: Vec<u32> = Vec::with_capacity(16);
     let mut tmp: Vec<u32> = Vec::with_capacity(16);
-    for &t in negative {
+    for &r in negative {
+        let t = f.triangle_order[r as usize];
         col.clear();
-        for &e in &c.tri_edges[t as usize] {
-            if edge_positive[e as usize] {
-                col.push(edge_rank[e as usize]);
-            }
-        }
+        col.extend(columns[r as usize].iter().copied().filter(|&x| x != NEGATIVE));
         // At most three entries: a sorting network.
         if col.len() >= 2 && col[0] < col[1] {
             col.swap(0, 1);
@@ -239,19 +280,10 @@ impl UnionFind {
     fn new(n: usize) -> Self {
         UnionFind { parent: (0..n as u32).collect(), size: vec![1; n] }
     }
-    #[inline]
-    fn find(&mut self, mut x: u32) -> u32 {
-        while self.parent[x as usize] != x {
-            let g = self.parent[self.parent[x as usize] as usize];
-            self.parent[x as usize] = g;
-            x = g;
-        }
-        x
-    }
     /// Merges the sets of `a` and `b`; false if they were one set.
     #[inline]
     fn union(&mut self, a: u32, b: u32) -> bool {
-        let (a, b) = (self.find(a), self.find(b));
+        let (a, b) = (find_root(&mut self.parent, a), find_root(&mut self.parent, b));
         if a == b {
             return false;
         }
@@ -268,6 +300,17 @@ impl UnionFind {
         self.size[a as usize] += self.size[b as usize];
         a
     }
+}
+
+/// The root of `x` in a forest of parent links, halving the path on the way.
+#[inline]
+fn find_root(parent: &mut [u32], mut x: u32) -> u32 {
+    while parent[x as usize] != x {
+        let g = parent[parent[x as usize] as usize];
+        parent[x as usize] = g;
+        x = g;
+    }
+    x
 }
 
 /// Union-find over top cells plus the outside (index = number of cells, rank +inf) where
@@ -296,7 +339,7 @@ impl ElderUnionFind {
     fn union(&mut self, a: u32, b: u32) -> Option<u32> {
         let a = if a == u32::MAX { self.outside } else { a };
         let b = if b == u32::MAX { self.outside } else { b };
-        let (ra, rb) = (self.uf.find(a), self.uf.find(b));
+        let (ra, rb) = (find_root(&mut self.uf.parent, a), find_root(&mut self.uf.parent, b));
         if ra == rb {
             return None;
         }
