@@ -58,7 +58,7 @@ fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
         for (pair, killer) in h0.into_iter().chain(h2) {
             emit(pair, killer);
         }
-        reduce_h1(f, &positive_rank, &tri_rank, &negative, &mut emit);
+        reduce_h1(f, &positive_rank, tri_rank, &negative, &mut emit);
         return;
     }
     let (h0, positive_rank) = h0_pass(f);
@@ -193,7 +193,7 @@ fn push_finite(
 fn reduce_h1(
     f: &Filtration,
     positive_rank: &[u32],
-    tri_rank: &[u32],
+    tri_rank: Vec<u32>,
     negative: &[u32],
     emit: &mut impl FnMut(Pair, Killer),
 ) {
@@ -202,6 +202,7 @@ fn reduce_h1(
     for (t, edges) in c.tri_edges.iter().enumerate() {
         columns[tri_rank[t] as usize] = edges.map(|e| positive_rank[e as usize]);
     }
+    drop(tri_rank);
     // owner[rank] = index of the stored reduced column whose pivot is that edge rank.
     let mut owner = vec![u32::MAX; c.edges.len()];
     let mut store: Vec<u32> = Vec::new();
