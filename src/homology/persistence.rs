@@ -54,7 +54,18 @@ fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
         return;
     }
     if c.dim == 3 {
-        let ((h0, positive_rank), (h2, tri_rank, negative)) = rayon::join(|| h0_pass(f), || dual_pass_3d(f));
+        // H2 by duality: tetrahedra + outside, triangles in reverse order.
+        let tets = Dual {
+            dim: 2,
+            face_order: &f.triangle_order,
+            face_cofaces: &c.tri_cofaces,
+            face_values: &f.triangles,
+            cell_order: &f.tet_order,
+            cell_values: &f.tets,
+            killer: Killer::Tet,
+        };
+        let ((h0, positive_rank), (h2, tri_rank, negative)) =
+            rayon::join(|| h0_pass(f), || dual_pass(f, &tets));
         for (pair, killer) in h0.into_iter().chain(h2) {
             emit(pair, killer);
         }
@@ -67,27 +78,27 @@ fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
     }
     if c.dim == 2 {
         // H1 by duality: triangles + outside, edges in reverse order.
-        let mut rank = vec![0u32; c.triangles.len()];
-        for (r, &t) in f.triangle_order.iter().enumerate() {
-            rank[t as usize] = r as u32;
-        }
-        let mut dual = ElderUnionFind::new(&rank);
-        for &e in f.edge_order.iter().rev() {
-            let [a, b] = c.edge_cofaces[e as usize];
-            if let Some(t) = dual.union(a, b) {
-                debug_assert!(
-                    positive_rank[e as usize] != NEGATIVE,
-                    "duality: dual merges are positive edges"
-                );
-                push_finite(
-                    f,
-                    &mut emit,
-                    1,
-                    f.edges[e as usize],
-                    f.triangles[t as usize],
-                    Killer::Triangle(t),
-                );
-            }
+        let triangles = Dual {
+            dim: 1,
+            face_order: &f.edge_order,
+            face_cofaces: &c.edge_cofaces,
+            face_values: &f.edges,
+            cell_order: &f.triangle_order,
+            cell_values: &f.triangles,
+            killer: Killer::Triangle,
+        };
+        let (h1, _, negative) = dual_pass(f, &triangles);
+        debug_assert!(
+            {
+                let mut negative = negative.iter().peekable();
+                f.edge_order.iter().enumerate().all(|(r, &e)| {
+                    negative.next_if_eq(&&(r as u32)).is_some() || positive_rank[e as usize] != NEGATIVE
+                })
+            },
+            "duality: dual merges are positive edges"
+        );
+        for (pair, killer) in h1 {
+            emit(pair, killer);
         }
     }
 }
@@ -124,33 +135,45 @@ fn ranks(order: &[u32]) -> Vec<u32> {
     rank
 }
 
-/// H2 in 3D by duality: tetrahedra + outside, triangles in reverse order. Returns its pairs,
-/// each triangle's rank, and the ranks of the negative triangles (those that kill a loop),
+/// A dual pass: the top cells plus the outside, joined by their faces taken in reverse
+/// filtration order (Alexander duality). A face that joins two components kills the younger
+/// one's eldest cell: a class of dimension `dim`, born with the face.
+struct Dual<'a> {
+    dim: u8,
+    face_order: &'a [u32],
+    /// Each face's two cells ([`OUTSIDE`] for the hull side).
+    face_cofaces: &'a [[u32; 2]],
+    face_values: &'a [Value],
+    cell_order: &'a [u32],
+    cell_values: &'a [Value],
+    killer: fn(u32) -> Killer,
+}
+
+/// Runs a dual pass. Returns its pairs, each face's rank, and the ranks of the faces that
+/// join no two components (the negative ones: in 3D, the triangles that kill a loop),
 /// increasing.
 ///
 /// It works in rank space, because in filtration order the simplices are scattered over
-/// memory: each triangle's two cofaces are first written as tetrahedron ranks at the
-/// triangle's rank (one pass in triangle-id order, where neighbouring triangles have
-/// neighbouring cofaces), so that the pass itself reads them in sequence; tetrahedron `r` of
-/// the union-find is the one of rank `r`, the outside is rank `n`, and every root is the
-/// eldest (largest rank) of its set, so a merge links the younger root under the elder one
-/// and the younger root is the tetrahedron that dies.
-fn dual_pass_3d(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<u32>, Vec<u32>) {
-    let c = f.complex;
-    let (ntri, ntet) = (c.triangles.len(), c.tets.len());
-    let outside = ntet as u32;
-    let tri_rank = ranks(&f.triangle_order);
-    let mut cofaces = vec![[0u32; 2]; ntri];
+/// memory: each face's two cofaces are first written as cell ranks at the face's rank (one
+/// pass in face-id order, where neighbouring faces have neighbouring cofaces), so that the
+/// pass itself reads them in sequence; cell `r` of the union-find is the one of rank `r`, the
+/// outside is rank `n`, and every root is the eldest (largest rank) of its set, so a merge
+/// links the younger root under the elder one and the younger root is the cell that dies.
+fn dual_pass(f: &Filtration, d: &Dual) -> (Vec<(Pair, Killer)>, Vec<u32>, Vec<u32>) {
+    let (nfaces, ncells) = (d.face_order.len(), d.cell_order.len());
+    let outside = ncells as u32;
+    let face_rank = ranks(d.face_order);
+    let mut cofaces = vec![[0u32; 2]; nfaces];
     {
-        let tet_rank = ranks(&f.tet_order);
-        for (t, ab) in c.tri_cofaces.iter().enumerate() {
-            cofaces[tri_rank[t] as usize] =
-                ab.map(|x| if x == OUTSIDE { outside } else { tet_rank[x as usize] });
+        let cell_rank = ranks(d.cell_order);
+        for (face, ab) in d.face_cofaces.iter().enumerate() {
+            cofaces[face_rank[face] as usize] =
+                ab.map(|x| if x == OUTSIDE { outside } else { cell_rank[x as usize] });
         }
     }
     let mut parent: Vec<u32> = (0..=outside).collect();
     let mut pairs = Vec::new();
-    let mut negative = Vec::with_capacity(ntri - ntet + 1);
+    let mut negative = Vec::with_capacity((nfaces + 1).saturating_sub(ncells));
     for (r, &[a, b]) in cofaces.iter().enumerate().rev() {
         let (ra, rb) = (find_root(&mut parent, a), find_root(&mut parent, b));
         if ra == rb {
@@ -159,18 +182,18 @@ fn dual_pass_3d(f: &Filtration) -> (Vec<(Pair, Killer)>, Vec<u32>, Vec<u32>) {
         }
         let (young, old) = if ra < rb { (ra, rb) } else { (rb, ra) };
         parent[young as usize] = old;
-        let (t, tet) = (f.triangle_order[r], f.tet_order[young as usize]);
+        let (face, cell) = (d.face_order[r], d.cell_order[young as usize]);
         push_finite(
             f,
             &mut |pair, killer| pairs.push((pair, killer)),
-            2,
-            f.triangles[t as usize],
-            f.tets[tet as usize],
-            Killer::Tet(tet),
+            d.dim,
+            d.face_values[face as usize],
+            d.cell_values[cell as usize],
+            (d.killer)(cell),
         );
     }
     negative.reverse();
-    (pairs, tri_rank, negative)
+    (pairs, face_rank, negative)
 }
 
 /// Records a finite pair unless it has zero length (see [`Filtration::pair_values`]).
@@ -189,7 +212,7 @@ fn push_finite(
 
 /// H1 pairs: reduce the columns (positive edges, by rank) of the negative triangles, given
 /// by rank, increasing. Each triangle's column is first written at its rank (one pass in
-/// triangle-id order, as in [`dual_pass_3d`]), so that the reduction reads them in sequence.
+/// triangle-id order, as in [`dual_pass`]), so that the reduction reads them in sequence.
 fn reduce_h1(
     f: &Filtration,
     positive_rank: &[u32],
@@ -281,25 +304,20 @@ impl UnionFind {
     fn new(n: usize) -> Self {
         UnionFind { parent: (0..n as u32).collect(), size: vec![1; n] }
     }
-    /// Merges the sets of `a` and `b`; false if they were one set.
+    /// Merges the sets of `a` and `b` (the smaller under the larger); false if they were
+    /// one set.
     #[inline]
     fn union(&mut self, a: u32, b: u32) -> bool {
-        let (a, b) = (find_root(&mut self.parent, a), find_root(&mut self.parent, b));
+        let (mut a, mut b) = (find_root(&mut self.parent, a), find_root(&mut self.parent, b));
         if a == b {
             return false;
         }
-        self.link(a, b);
-        true
-    }
-    /// Links two distinct roots (the smaller set under the larger); returns the new root.
-    #[inline]
-    fn link(&mut self, mut a: u32, mut b: u32) -> u32 {
         if self.size[a as usize] < self.size[b as usize] {
             std::mem::swap(&mut a, &mut b);
         }
         self.parent[b as usize] = a;
         self.size[a as usize] += self.size[b as usize];
-        a
+        true
     }
 }
 
@@ -312,45 +330,4 @@ fn find_root(parent: &mut [u32], mut x: u32) -> u32 {
         x = g;
     }
     x
-}
-
-/// Union-find over top cells plus the outside (index = number of cells, rank +inf) where
-/// each root knows the largest rank in its set.
-struct ElderUnionFind {
-    uf: UnionFind,
-    elder_rank: Vec<u32>,
-    cell_of_rank_root: Vec<u32>,
-    outside: u32,
-}
-
-impl ElderUnionFind {
-    fn new(rank: &[u32]) -> Self {
-        let n = rank.len();
-        let mut elder_rank: Vec<u32> = rank.to_vec();
-        elder_rank.push(u32::MAX);
-        ElderUnionFind {
-            uf: UnionFind::new(n + 1),
-            elder_rank,
-            cell_of_rank_root: (0..=n as u32).collect(),
-            outside: n as u32,
-        }
-    }
-    /// Joins the sets of cells `a` and `b` (`OUTSIDE` allowed). Returns the cell that dies
-    /// (the younger set's eldest cell), or `None` if they were already one set.
-    fn union(&mut self, a: u32, b: u32) -> Option<u32> {
-        let a = if a == u32::MAX { self.outside } else { a };
-        let b = if b == u32::MAX { self.outside } else { b };
-        let (ra, rb) = (find_root(&mut self.uf.parent, a), find_root(&mut self.uf.parent, b));
-        if ra == rb {
-            return None;
-        }
-        let (ea, eb) = (self.elder_rank[ra as usize], self.elder_rank[rb as usize]);
-        let (young, old) = if ea < eb { (ra, rb) } else { (rb, ra) };
-        let dying = self.cell_of_rank_root[young as usize];
-        let (keep_rank, keep_cell) = (self.elder_rank[old as usize], self.cell_of_rank_root[old as usize]);
-        let root = self.uf.link(ra, rb);
-        self.elder_rank[root as usize] = keep_rank;
-        self.cell_of_rank_root[root as usize] = keep_cell;
-        Some(dying)
-    }
 }
