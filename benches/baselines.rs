@@ -21,12 +21,13 @@ mod common;
 use common::median_ms;
 use std::path::Path;
 use std::time::Instant;
-use toporec::baselines::lidar_iris::{self, IrisParams};
-use toporec::baselines::m2dp;
-use toporec::baselines::scancontext::{self, ScanContextParams, Searcher};
-use toporec::baselines::scancontext_pp::{self, CartParams, PolarParams, Variant};
-use toporec::baselines::solid::{self, SolidParams};
 use toporec::homology::Point;
+use toporec::methods::Searcher as _;
+use toporec::methods::lidar_iris::{self, IrisParams};
+use toporec::methods::m2dp;
+use toporec::methods::scancontext::{self, ScanContextParams, Searcher};
+use toporec::methods::scancontext_pp::{self, CartParams, PolarParams, Variant};
+use toporec::methods::solid::{self, SolidParams};
 use toporec::rng::SplitMix64;
 
 fn scans() -> (String, Vec<Vec<Point>>) {
@@ -90,7 +91,7 @@ fn main() {
         let sp = SolidParams::default();
         let (pp, ppc) = (PolarParams::default(), CartParams::default());
         let ip = IrisParams::default();
-        let plus = toporec::toporec_plus::PlusParams::default();
+        let plus = toporec::methods::toporec_plus::PlusParams::default();
         let rows: [(&str, Describe); 10] = [
             ("ScanContext descriptor", &|c| {
                 std::hint::black_box(scancontext::describe(c, &p));
@@ -120,7 +121,7 @@ fn main() {
                 std::hint::black_box(lidar_iris::describe(c, &ip));
             }),
             ("toporec-plus (its searches: `cargo bench --bench toporec_plus`)", &|c| {
-                std::hint::black_box(toporec::toporec_plus::describe(c, &plus).ok());
+                std::hint::black_box(toporec::methods::toporec_plus::describe(c, &plus).ok());
             }),
         ];
         for (label, f) in rows {
@@ -164,7 +165,7 @@ fn main() {
         for _ in 0..10 {
             for q in &queries {
                 let s = Instant::now();
-                let (hits, times) = searcher.search(q, 25);
+                let (hits, times) = searcher.search(q, 25, None);
                 total.push(s.elapsed().as_secs_f64() * 1e3);
                 cand.push(times.candidates * 1e3);
                 rerank.push(times.rerank * 1e3);
@@ -211,7 +212,7 @@ fn main() {
             let t = Instant::now();
             let s = scancontext_pp::Searcher::new(db, variant.clone());
             let build = t.elapsed().as_secs_f64();
-            let total = query_ms(&queries, |q| s.search(q, 25).len());
+            let total = query_ms(&queries, |q| s.search(q, 25, None).0.len());
             println!(
                 "{label} search, {n} entries (keys made in {build:.2} s), k = 25 ({} candidates): {:.3} ms per query (the keys' nearest, then the re-rank), mean of {} queries",
                 variant.candidates().max(25),
@@ -228,7 +229,7 @@ fn main() {
                 s.push(&iris_base[i % iris_base.len()]);
             }
             let build = t.elapsed().as_secs_f64();
-            let total = query_ms(&iris_base, |q| s.search(q, 25).len());
+            let total = query_ms(&iris_base, |q| s.search(q, 25, None).0.len());
             println!(
                 "LiDAR-Iris search, {iris_n} entries (added in {build:.2} s), k = 25 ({} candidates): {:.3} ms per query (the row keys' nearest, then the phase correlation and Hamming distances, both directions), mean of {} queries",
                 ip.candidates.max(25),
@@ -240,7 +241,7 @@ fn main() {
         let searcher = solid::Searcher::new(solid_db, sp.clone());
         let build = t.elapsed().as_secs_f64();
         let queries = solid_base;
-        let total = query_ms(&queries, |q| searcher.search(q, 25).len());
+        let total = query_ms(&queries, |q| searcher.search(q, 25, None).len());
         println!(
             "SOLiD search, {n} entries (unit range parts made in {build:.2} s), k = 25: {:.3} ms per query (every cosine, then the exact distances and yaws of the best), mean of {} queries",
             mean(&total),

@@ -15,8 +15,10 @@
 mod common;
 
 use common::{simulated_scans, turned_copy};
-use toporec::baselines::Method;
 use toporec::loops::{Detector, Exclusion};
+use toporec::methods::Method;
+use toporec::methods::scancontext::ScanContextParams;
+use toporec::methods::toporec_plus::PlusParams;
 use toporec::rng::SplitMix64;
 
 fn mean(v: &[f64]) -> f64 {
@@ -27,12 +29,15 @@ fn main() {
     let n: usize =
         std::env::var("TOPOREC_BENCH_ENTRIES").ok().and_then(|v| v.parse().ok()).unwrap_or(100_000);
     let scans = simulated_scans(2_000);
-    let methods = [Method::toporec_plus(Default::default()), Method::scancontext(Default::default())];
+    let (plus, sc) = (PlusParams::default(), ScanContextParams::default());
+    // Each method with its sectors, and whether its values are codes (toporec-plus).
+    let methods =
+        [(Method::of(plus.clone()), plus.sectors, true), (Method::of(sc.clone()), sc.sectors, false)];
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     println!("| method | describe ms | search + insert ms at 10,000 scans | at {n} scans |");
     println!("|---|---:|---:|---:|");
     pool.install(|| {
-        for method in methods {
+        for (method, sectors, codes) in methods {
             let threshold = toporec::loops::default_threshold(&method).expect("a default threshold");
             let exclusion = Exclusion::Seconds(30.0);
             // Describing, as `add` times it.
@@ -44,12 +49,6 @@ fn main() {
             }
             let described: Vec<Vec<f32>> =
                 scans.iter().map(|s| method.describe_raw(s).expect("raw").expect("described")).collect();
-            let sectors = match &method.kind {
-                toporec::baselines::MethodKind::ToporecPlus(p) => p.sectors,
-                toporec::baselines::MethodKind::ScanContext(p) => p.sectors,
-                _ => unreachable!("two methods"),
-            };
-            let codes = matches!(method.kind, toporec::baselines::MethodKind::ToporecPlus(_));
             let mut detector = Detector::new(method.clone(), exclusion, threshold).expect("a detector");
             let mut rng = SplitMix64(7);
             let (mut at_10k, mut at_n) = (Vec::new(), Vec::new());

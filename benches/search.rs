@@ -5,8 +5,8 @@
 //! Run: `cargo bench --bench search`.
 
 use std::time::Instant;
+use toporec::methods::euclidean::Database;
 use toporec::rng::SplitMix64;
-use toporec::search::Database;
 
 fn random(n: usize, b: usize, seed: u64) -> Vec<f32> {
     let mut rng = SplitMix64(seed);

@@ -20,9 +20,9 @@ use common::{median_ms, simulated_scans, turned_copy};
 use std::path::Path;
 use std::time::Instant;
 use toporec::homology::{Point, alpha_persistence};
+use toporec::methods::toporec_plus::{self, PlusParams, Searcher};
 use toporec::preprocess::{Preprocess, preprocess};
 use toporec::rng::SplitMix64;
-use toporec::toporec_plus::{self, PlusParams, Searcher};
 use toporec::vectorize::atol::{Atol, Contrast, Weighting};
 
 fn kitti_scans() -> Option<Vec<Vec<Point>>> {
@@ -58,7 +58,7 @@ fn costs(clouds: &[Vec<Point>], p: &PlusParams) -> (Vec<f64>, Vec<f64>, Vec<f64>
         contrast: Contrast::Laplacian,
         weighting: Weighting::Cloud,
     };
-    let scp = toporec::baselines::scancontext::ScanContextParams::default();
+    let scp = toporec::methods::scancontext::ScanContextParams::default();
     let (mut base, mut plus, mut sc) = (Vec::new(), Vec::new(), Vec::new());
     for (i, c) in clouds.iter().enumerate() {
         base.push(median_ms(5, || {
@@ -72,7 +72,7 @@ fn costs(clouds: &[Vec<Point>], p: &PlusParams) -> (Vec<f64>, Vec<f64>, Vec<f64>
         }));
         sc.push(median_ms(5, || {
             let grid = toporec::preprocess::voxel_grid(c, scp.voxel);
-            std::hint::black_box(toporec::baselines::scancontext::describe(&grid, &scp));
+            std::hint::black_box(toporec::methods::scancontext::describe(&grid, &scp));
         }));
     }
     (base, plus, sc)

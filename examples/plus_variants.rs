@@ -479,8 +479,10 @@ fn main() {
     for variant in variants.split(',') {
         let mut line = format!("{variant:28} |");
         if variant == "toporec-plus" {
-            let p = toporec::toporec_plus::PlusParams { turns, search_ratio: 1.0, ..Default::default() };
-            let describe = |pts: &[Point]| toporec::toporec_plus::describe(pts, &p).expect("a descriptor");
+            let p =
+                toporec::methods::toporec_plus::PlusParams { turns, search_ratio: 1.0, ..Default::default() };
+            let describe =
+                |pts: &[Point]| toporec::methods::toporec_plus::describe(pts, &p).expect("a descriptor");
             let described: Vec<Vec<f32>> = db.par_iter().map(|s| describe(&s.points)).collect();
             for c in &conditions {
                 let res = queries
@@ -488,7 +490,7 @@ fn main() {
                     .map(|q| {
                         let d = describe(&changed(q, c));
                         let top = (0..db.len())
-                            .map(|i| (toporec::toporec_plus::distance(&d, &described[i], &p).0, i))
+                            .map(|i| (toporec::methods::toporec_plus::distance(&d, &described[i], &p).0, i))
                             .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a })
                             .1;
                         judged(q, &db, top)

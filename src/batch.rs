@@ -185,7 +185,7 @@ impl BatchDescriber {
     pub fn methods(&self) -> Vec<(String, usize)> {
         let mut out = Vec::new();
         if let Some(cb) = &self.describer.codebook {
-            out.push((crate::baselines::TOPOREC.to_string(), cb.len()));
+            out.push((crate::methods::TOPOREC.to_string(), cb.len()));
         }
         out.extend(self.describer.computed.iter().map(|m| (m.name.clone(), m.len())));
         out
@@ -440,7 +440,7 @@ impl BatchDescriber {
         let mut per_method: Vec<(String, usize, String, Vec<_>, Vec<&str>)> = Vec::new();
         if let Some(cb) = &self.describer.codebook {
             let id = self.codebook_id.clone().unwrap_or_default();
-            per_method.push((crate::baselines::TOPOREC.into(), cb.len(), id, Vec::new(), Vec::new()));
+            per_method.push((crate::methods::TOPOREC.into(), cb.len(), id, Vec::new(), Vec::new()));
         }
         for (m, (name, id)) in self.describer.computed.iter().zip(&self.computed) {
             per_method.push((name.clone(), m.len(), id.clone(), Vec::new(), Vec::new()));
@@ -455,7 +455,7 @@ impl BatchDescriber {
         }
         let mut descriptors = Vec::new();
         for (name, length, id, rows, row_sessions) in per_method {
-            let bytes = crate::baselines::stores_bytes(&name);
+            let bytes = crate::methods::stores_bytes(&name);
             let columns = descriptor_columns(&rows, length, &id, bytes);
             let table = schema::descriptors_for(&name, length);
             descriptors.push((name, with_session(table, columns, sessions(row_sessions))?));

@@ -8,8 +8,8 @@
 //! scan's [`DescribeError::Internal`]. Stage times are the calling thread's CPU time, so they
 //! add up to the work done whatever the thread count and machine load.
 
-use crate::baselines::Method;
 use crate::homology::{ComplexError, Diagram, alpha_persistence};
+use crate::methods::Method;
 use crate::preprocess::{Preprocess, Skip, preprocess};
 use crate::sources::Scan;
 use crate::types::Point;
@@ -138,6 +138,17 @@ impl Describer {
     /// A TopoRec-only describer.
     pub fn toporec(preprocess: Preprocess, squared: bool, codebook: Option<Codebook>) -> Self {
         Describer { preprocess, squared, codebook, topological: true, computed: Vec::new() }
+    }
+
+    /// A describer of one method computed from raw scans (none for an imported one).
+    pub fn of_computed(method: &Method) -> Self {
+        let computed = if method.is_computed() { vec![method.clone()] } else { Vec::new() };
+        Describer { topological: false, computed, ..Self::toporec(Preprocess::default(), true, None) }
+    }
+
+    /// A describer that describes nothing (a search over stored descriptors).
+    pub fn nothing() -> Self {
+        Describer { topological: false, ..Self::toporec(Preprocess::default(), true, None) }
     }
 
     /// The baseline descriptors of a raw scan (sensor frame), one per computed method.

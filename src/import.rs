@@ -12,8 +12,8 @@
 //! other row; anything else is an error naming the file and the row, and nothing is written.
 //! Importing a method again replaces its descriptors in one commit.
 
-use crate::baselines::{COMPUTED, IMPORTED, Method, MethodKind, TOPOREC};
 use crate::error::{Error, Result, ResultExt};
+use crate::methods::{IMPORTED, Method, MethodKind, TOPOREC, computed_names};
 use crate::sinks::index::IndexWriter;
 use crate::sinks::parquet::{DescriptorRow, Status};
 use std::collections::HashSet;
@@ -128,7 +128,7 @@ pub fn import(args: &ImportArgs) -> Result<Imported> {
 
 /// A method name: letters, digits, `_` and `-` (it names a folder), not a computed method's.
 fn check_name(name: &str) -> Result<()> {
-    if name == TOPOREC || COMPUTED.contains(&name) {
+    if name == TOPOREC || computed_names().contains(&name) {
         return Err(Error::invalid(format!(
             "--method {name}: the name of a computed method; choose another"
         )));

@@ -79,7 +79,7 @@ pub fn info(index: &Path) -> Result<IndexInfo> {
                     s.remove(key);
                 }
             }
-            let method = crate::baselines::TOPOREC;
+            let method = crate::methods::TOPOREC;
             let kind = method.to_string();
             methods.insert(
                 method.to_string(),
@@ -178,7 +178,7 @@ impl std::fmt::Display for IndexInfo {
         }
         writeln!(f, "methods:")?;
         for (name, m) in &self.methods {
-            let id = if m.kind == crate::baselines::TOPOREC { "codebook" } else { "id" };
+            let id = if m.kind == crate::methods::TOPOREC { "codebook" } else { "id" };
             let settings = serde_json::to_string(&m.settings).unwrap_or_default();
             writeln!(f, "  {name}: length {}, {id} {}, {} rows, {settings}", m.length, m.id, m.rows)?;
         }

@@ -36,7 +36,6 @@
 //! library.
 #![deny(missing_docs)]
 
-pub mod baselines;
 pub mod batch;
 pub mod describe;
 pub mod diagram_csv;
@@ -51,6 +50,7 @@ pub mod info;
 pub mod inspect;
 pub mod loops;
 pub mod maintenance;
+pub mod methods;
 pub mod offline;
 pub mod pipeline;
 pub mod plot;
@@ -62,7 +62,6 @@ pub mod search;
 pub mod simulate;
 pub mod sinks;
 pub mod sources;
-pub mod toporec_plus;
 pub mod types;
 pub mod vectorize;
 

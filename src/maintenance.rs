@@ -3,8 +3,8 @@
 //! (a new codebook for the stored diagrams, switched to atomically). `compact` and
 //! `revectorize` take the index's writer lock, like `run`.
 
-use crate::baselines::TOPOREC;
 use crate::error::{Error, Result};
+use crate::methods::TOPOREC;
 use crate::offline::CodebookArgs;
 use crate::pipeline::config::{Pipeline, dims_needed};
 use crate::pipeline::{RunOptions, fit_on_stored, stored_descriptors};
@@ -165,8 +165,12 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
     for e in std::fs::read_dir(&caches).into_iter().flatten().flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
         let rel = format!("{}/{name}", crate::sinks::index::searchers::FOLDER);
+        let layout = |method: &str| {
+            let m = manifest.methods.get(method).and_then(|entry| entry.method(method));
+            m.and_then(|m| m.as_computed().and_then(|c| c.cache_layout()))
+        };
         match crate::sinks::index::searchers::header(&e.path()) {
-            Ok(h) if h.generation == manifest.generation && h.layout == crate::toporec_plus::SEARCHER_LAYOUT => {
+            Ok(h) if h.generation == manifest.generation && layout(&h.method) == Some(h.layout.as_str()) => {
                 v.notes.push(format!("{rel}: search cache of {} ({} rows), current", h.method, h.rows))
             }
             Ok(h) if h.generation == manifest.generation => v.notes.push(format!(
@@ -289,7 +293,7 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
     // Each method: one row per ok scan (TopoRec once it has a codebook; computed methods
     // always; imported ones may cover some scans only), never a row of another scan.
     let mut methods: Vec<(String, bool)> = vec![(TOPOREC.to_string(), codebook.is_some())];
-    methods.extend(manifest.methods.iter().map(|(m, e)| (m.clone(), e.kind != crate::baselines::IMPORTED)));
+    methods.extend(manifest.methods.iter().map(|(m, e)| (m.clone(), e.kind != crate::methods::IMPORTED)));
     for (method, complete) in &methods {
         let with_descriptor = ids_of(tables::DESCRIPTORS, Some(method))?;
         let what =

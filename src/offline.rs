@@ -7,7 +7,7 @@ use crate::diagram_csv;
 use crate::error::{Error, Result, ResultExt};
 use crate::fsutil::AtomicFile;
 use crate::homology::Diagram;
-use crate::query::csv_field;
+use crate::sinks::csv::field as csv_field;
 use crate::sinks::index::IndexReader;
 use crate::sinks::parquet::{DescriptorRow, DescriptorsFile};
 use crate::vectorize::atol::{Contrast, Weighting};
@@ -134,8 +134,7 @@ pub fn vectorize(args: &VectorizeArgs, stdout: &mut dyn Write) -> Result<(Codebo
 
 /// A descriptors table with the index's schema (id = scan id or CSV path; utime and pose null).
 fn to_parquet(args: &VectorizeArgs, codebook: &Codebook, out: &Path) -> Result<u64> {
-    let mut file =
-        DescriptorsFile::create(out, "", crate::baselines::TOPOREC, codebook.len(), &codebook.id())?;
+    let mut file = DescriptorsFile::create(out, "", crate::methods::TOPOREC, codebook.len(), &codebook.id())?;
     let mut rows = 0;
     for item in diagram_inputs(&args.diagrams) {
         let (id, diagram) = item?;

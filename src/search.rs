@@ -1,205 +1,429 @@
-//! Exact k-nearest-neighbour search over descriptors (Euclidean).
+//! Search over an index, in one place: an [`Engine`] loads one method's stored descriptors (or
+//! maps its cached structure), describes new scans as the index made its own, and answers the
+//! k best rows through the method's [`Searcher`], at a search budget. `query`, `eval`, `loops`,
+//! `offline` and the Python package all search through it.
 //!
-//! Three routes, one answer: a kiddo k-d tree for short descriptors (b ≤ 16, padded with
-//! zeros to 4, 8 or 16 — padding does not change distances), a batched matrix product
-//! (nalgebra) for long ones — `‖q − x‖² = ‖q‖² + ‖x‖² − 2 q·x` in f32 picks candidates, which are
-//! re-ranked with exact f64 distances, and a query whose candidate cut is not provably safe
-//! under the f32 error bound falls back to the scan — and the plain scan itself
-//! ([`Database::brute_force`]), the reference. Results are `(row, distance)` sorted by
-//! (distance, row), distances computed in f64 from the f32 descriptors.
+//! Every descriptor method of an index can answer: TopoRec, M2DP and imported vectors by exact
+//! Euclidean k-NN, the other computed methods by their own searchers (candidates by keys,
+//! re-ranked by their distances), which also estimate the query's yaw relative to each hit.
+//! Imported methods have no way to describe a new scan; `eval` compares them on stored
+//! descriptors.
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::DMatrix;
-use rayon::prelude::*;
-use std::num::NonZeroUsize;
+use crate::describe::{DescribeError, Describer};
+use crate::error::{Error, Result};
+use crate::methods::{Hit, Method, MethodKind, SearchBudget, Searcher, TOPOREC};
+use crate::sinks::index::searchers;
+use crate::sinks::index::{IndexReader, IndexedScan};
+use crate::sources::Scan;
+use crate::vectorize::codebook::Codebook;
+use std::path::Path;
 
-/// A hit: database row and Euclidean distance.
-pub type Hit = (usize, f64);
-
-enum Tree {
-    K4(ImmutableKdTree<f64, 4>),
-    K8(ImmutableKdTree<f64, 8>),
-    K16(ImmutableKdTree<f64, 16>),
-}
-
-/// Database descriptors with a search structure.
-pub struct Database {
-    b: usize,
-    /// Column-major `b × n`: each column a descriptor — the same memory as row-major `n × b`.
-    matrix: DMatrix<f32>,
-    tree: Option<Tree>,
-    norms: Vec<f32>,
-    max_norm: f32,
-}
-
-/// Descriptors up to this length use the k-d tree.
-pub const KD_TREE_MAX_B: usize = 16;
-
-fn padded<const K: usize>(v: &[f32]) -> [f64; K] {
-    let mut out = [0.0; K];
-    out.iter_mut().zip(v).for_each(|(o, &x)| *o = x as f64);
-    out
-}
-
-impl Database {
-    /// Builds the database over `vectors` (`n × b`, row-major).
-    pub fn new(vectors: Vec<f32>, b: usize) -> Self {
-        assert!(b > 0 && vectors.len().is_multiple_of(b), "vectors must be n × b");
-        let rows: Vec<&[f32]> = vectors.chunks_exact(b).collect();
-        // (A tree that cannot be built — kiddo refuses some degenerate inputs — means the
-        // matrix route.)
-        let tree = if b <= KD_TREE_MAX_B && !rows.is_empty() {
-            match b {
-                0..=4 => {
-                    ImmutableKdTree::new_from_slice(&rows.iter().map(|r| padded::<4>(r)).collect::<Vec<_>>())
-                        .ok()
-                        .map(Tree::K4)
-                }
-                5..=8 => {
-                    ImmutableKdTree::new_from_slice(&rows.iter().map(|r| padded::<8>(r)).collect::<Vec<_>>())
-                        .ok()
-                        .map(Tree::K8)
-                }
-                _ => {
-                    ImmutableKdTree::new_from_slice(&rows.iter().map(|r| padded::<16>(r)).collect::<Vec<_>>())
-                        .ok()
-                        .map(Tree::K16)
-                }
-            }
-        } else {
-            None
-        };
-        let norms: Vec<f32> = rows.iter().map(|r| r.iter().map(|x| x * x).sum::<f32>().sqrt()).collect();
-        let max_norm = norms.iter().copied().fold(0.0, f32::max);
-        let n = rows.len();
-        let matrix = DMatrix::from_vec(b, n, vectors);
-        Database { b, matrix, tree, norms, max_norm }
-    }
-
-    /// Rows.
-    pub fn len(&self) -> usize {
-        self.matrix.ncols()
-    }
-
-    /// Whether there are no rows.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
+/// One method's stored descriptors, checked: all of one length, made by one codebook (or one
+/// parameter set), finite.
+pub struct Loaded {
+    /// The method.
+    pub method: Method,
+    /// What made them: the codebook id, or the method's id.
+    pub id: String,
     /// Descriptor length.
-    pub fn dim(&self) -> usize {
-        self.b
-    }
+    pub length: usize,
+    /// The codebook (TopoRec).
+    pub codebook: Option<Codebook>,
+    /// The rows.
+    pub scans: Vec<IndexedScan>,
+}
 
-    /// Exact squared distance in f64.
-    fn dist2(&self, q: &[f32], row: usize) -> f64 {
-        let x = &self.matrix.as_slice()[row * self.b..(row + 1) * self.b];
-        q.iter().zip(x).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum()
-    }
+/// An opened index, ready to answer queries with one method.
+pub struct Engine {
+    /// How a scan becomes this method's descriptor (the index's preprocessing, persistence
+    /// units and codebook for TopoRec; the method alone for the others).
+    pub describer: Describer,
+    /// The method.
+    pub method: Method,
+    /// What made the descriptors (codebook or method id).
+    pub id: String,
+    /// Database rows (id, session, pose; their descriptors, unless the structure was mapped
+    /// from the index's cache).
+    pub scans: Vec<IndexedScan>,
+    /// Descriptor length.
+    length: usize,
+    searcher: Box<dyn Searcher>,
+}
 
-    fn finish(mut hits: Vec<(usize, f64)>, k: usize) -> Vec<Hit> {
-        hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        hits.truncate(k);
-        hits.into_iter().map(|(i, d2)| (i, d2.sqrt())).collect()
-    }
+/// Per-query seconds of each step (those a method does not have stay 0).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepTimes {
+    /// TopoRec: preprocess + alpha persistence.
+    pub persistence: f64,
+    /// TopoRec: ATOL.
+    pub vectorize: f64,
+    /// A computed method: the descriptor (with the method's preprocessing).
+    pub describe: f64,
+    /// Nearest-neighbour search (the methods narrowing by keys: the candidates).
+    pub search: f64,
+    /// The methods narrowing by keys: the re-rank of the candidates.
+    pub rerank: f64,
+}
 
-    /// The reference: scan every row.
-    pub fn brute_force(&self, q: &[f32], k: usize) -> Vec<Hit> {
-        assert_eq!(q.len(), self.b, "query length");
-        Self::finish((0..self.len()).map(|i| (i, self.dist2(q, i))).collect(), k)
-    }
-
-    /// The `k` nearest rows of one query.
-    pub fn search(&self, q: &[f32], k: usize) -> Vec<Hit> {
-        self.search_many(q, k).pop().unwrap_or_default()
-    }
-
-    /// The `k` nearest rows of each query (`queries` is `m × b`, row-major), in parallel.
-    pub fn search_many(&self, queries: &[f32], k: usize) -> Vec<Vec<Hit>> {
-        assert_eq!(queries.len() % self.b, 0, "queries must be m × b");
-        let k = k.min(self.len());
-        if k == 0 {
-            return vec![Vec::new(); queries.len() / self.b];
-        }
-        match &self.tree {
-            Some(tree) => queries.par_chunks(self.b).map(|q| self.tree_search(tree, q, k)).collect(),
-            None => queries
-                .par_chunks(self.b * MATRIX_BLOCK)
-                .flat_map_iter(|block| self.matrix_search(block, k))
-                .collect(),
-        }
-    }
-
-    fn tree_search(&self, tree: &Tree, q: &[f32], k: usize) -> Vec<Hit> {
-        let n = NonZeroUsize::new(k).expect("k > 0");
-        let hits: Vec<(usize, f64)> = match tree {
-            Tree::K4(t) => t
-                .query(&padded::<4>(q))
-                .nearest_n::<SquaredEuclidean<f64>>(n)
-                .execute()
-                .iter()
-                .map(|h| (h.item as usize, h.distance))
-                .collect(),
-            Tree::K8(t) => t
-                .query(&padded::<8>(q))
-                .nearest_n::<SquaredEuclidean<f64>>(n)
-                .execute()
-                .iter()
-                .map(|h| (h.item as usize, h.distance))
-                .collect(),
-            Tree::K16(t) => t
-                .query(&padded::<16>(q))
-                .nearest_n::<SquaredEuclidean<f64>>(n)
-                .execute()
-                .iter()
-                .map(|h| (h.item as usize, h.distance))
-                .collect(),
-        };
-        // Same distance formula as the scan (the tree's sums are in the same order).
-        Self::finish(hits.into_iter().map(|(i, _)| (i, self.dist2(q, i))).collect(), k)
-    }
-
-    fn matrix_search(&self, block: &[f32], k: usize) -> Vec<Vec<Hit>> {
-        let m = block.len() / self.b;
-        let db = &self.matrix;
-        // m × n dot products as one GEMM (matrixmultiply's blocked kernels): Qᵀ·D with Qᵀ
-        // built directly (row-major m × b is column-major b × m, so transpose the small side).
-        // A few queries: matrix–vector products instead (GEMM would repack the database).
-        let dots = if m >= 8 {
-            DMatrix::from_row_slice(m, self.b, block) * db
+impl StepTimes {
+    /// The search steps a method has, with their times (of a stored descriptor).
+    pub fn search_steps(&self, method: &Method) -> Vec<(&'static str, f64)> {
+        let steps = method.search_steps();
+        if steps.len() == 2 {
+            vec![(steps[0], self.search), (steps[1], self.rerank)]
         } else {
-            db.tr_mul(&DMatrix::from_column_slice(self.b, m, block)).transpose()
+            vec![(steps[0], self.search)]
+        }
+    }
+
+    /// The steps a method has, with their times.
+    pub fn steps(&self, method: &Method) -> Vec<(&'static str, f64)> {
+        let mut out = match method.kind {
+            MethodKind::Toporec => vec![("persistence", self.persistence), ("vectorize", self.vectorize)],
+            MethodKind::Computed(_) => vec![("describe", self.describe)],
+            MethodKind::Imported { .. } => Vec::new(),
         };
-        let n = self.len();
-        let extra = 16.min(n - k);
-        (0..m)
-            .map(|j| {
-                let q = &block[j * self.b..(j + 1) * self.b];
-                let qn2: f32 = q.iter().map(|x| x * x).sum();
-                let qn = qn2.sqrt();
-                let mut approx: Vec<(f32, usize)> =
-                    (0..n).map(|i| (qn2 + self.norms[i] * self.norms[i] - 2.0 * dots[(j, i)], i)).collect();
-                let cut = k + extra;
-                if cut < n {
-                    approx.select_nth_unstable_by(cut, |a, b| a.0.total_cmp(&b.0));
+        out.extend(self.search_steps(method));
+        out
+    }
+}
+
+impl Engine {
+    /// Opens `index` to search with `method` (only `sessions` as the database, when not
+    /// empty).
+    pub fn open(index: &Path, sessions: &[String], method: &str) -> Result<Self> {
+        if let Some(engine) =
+            Self::open_cached(index, method, &|s| sessions.is_empty() || sessions.contains(&s.session))?
+        {
+            return Ok(engine);
+        }
+        let loaded = load_method(index, method, sessions)?;
+        Self::from_loaded(index, loaded)
+    }
+
+    /// For a method whose search structure is cached in the index ([`searchers`],
+    /// [`crate::methods::Computed::cache_layout`]), an engine over its rows `chosen` keeps,
+    /// mapped from the cache (built and written first, when the cache is missing or stale);
+    /// `None` for the other methods.
+    pub fn open_cached(
+        index: &Path,
+        method: &str,
+        chosen: &dyn Fn(&IndexedScan) -> bool,
+    ) -> Result<Option<Self>> {
+        let reader = IndexReader::open(index)?;
+        let Some(manifest) = reader.manifest() else { return Ok(None) };
+        let Some(entry) = manifest.methods.get(method) else { return Ok(None) };
+        let Some(m) = entry.method(method) else { return Ok(None) };
+        let Some(computed) = m.as_computed() else { return Ok(None) };
+        let Some(layout) = computed.cache_layout() else { return Ok(None) };
+        let path = searchers::path(index, method);
+        let (searcher, rows) = match searchers::open(&path, manifest.generation, &entry.id, layout) {
+            Some(cached) => {
+                let (body, n) = (cached.header.body.0, cached.header.rows);
+                let searcher =
+                    computed.mapped_searcher(cached.map, body, n).map_err(|e| Error::index(&path, e))?;
+                (searcher, cached.rows)
+            }
+            None => {
+                let loaded = load_method(index, method, &[])?;
+                let vectors: Vec<f32> =
+                    loaded.scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
+                let searcher = computed.searcher(vectors);
+                let rows: Vec<IndexedScan> =
+                    loaded.scans.into_iter().map(|s| IndexedScan { descriptor: Vec::new(), ..s }).collect();
+                let header = searchers::Header {
+                    format_version: searchers::FORMAT_VERSION,
+                    generation: manifest.generation,
+                    method: method.to_string(),
+                    id: entry.id.clone(),
+                    params: entry.params.clone(),
+                    layout: layout.to_string(),
+                    rows: rows.len(),
+                    sessions: Vec::new(),
+                    body: (0, 0),
+                };
+                // An index that cannot be written (read-only, another user's) gets no cache.
+                let bytes = searcher.bytes().expect("a cached method's searcher has bytes");
+                if let Err(e) = searchers::write(&path, &header, &rows, &bytes) {
+                    tracing::info!("{}: not cached ({e})", path.display());
                 }
-                let threshold = if cut < n { approx[cut].0 as f64 } else { f64::INFINITY };
-                let hits = Self::finish(
-                    approx[..cut.min(n)].iter().map(|&(_, i)| (i, self.dist2(q, i))).collect(),
-                    k,
-                );
-                // Rows outside the candidates have approx ≥ threshold, so exact ≥ threshold − err.
-                // err bounds the f32 rounding of norms and dot products (generously).
-                let err = 4.0
-                    * (self.b as f64 + 2.0)
-                    * f32::EPSILON as f64
-                    * (qn as f64 + self.max_norm as f64).powi(2);
-                let kth = hits.last().map_or(0.0, |h| h.1 * h.1);
-                if kth < threshold - err { hits } else { self.brute_force(q, k) }
+                drop(bytes);
+                (searcher, rows)
+            }
+        };
+        let engine = Engine {
+            describer: Describer::of_computed(&m),
+            length: m.len(),
+            method: m,
+            id: entry.id.clone(),
+            scans: rows,
+            searcher,
+        };
+        let engine = engine.retain(chosen)?;
+        if engine.scans.is_empty() {
+            return Err(Error::index(index, format!("no {method} descriptors among the scans chosen")));
+        }
+        Ok(Some(engine))
+    }
+
+    /// An engine over descriptors already loaded from `index`.
+    pub fn from_loaded(index: &Path, loaded: Loaded) -> Result<Self> {
+        let describer = match &loaded.method.kind {
+            MethodKind::Toporec => {
+                let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
+                Describer::toporec(pipeline.preprocess, pipeline.persistence.squared, loaded.codebook.clone())
+            }
+            _ => Describer::of_computed(&loaded.method),
+        };
+        Ok(Self::with_describer(loaded, describer))
+    }
+
+    /// An engine that searches `loaded` but describes nothing (`eval places`, whose queries
+    /// are stored descriptors).
+    pub fn search_only(loaded: Loaded) -> Self {
+        Self::with_describer(loaded, Describer::nothing())
+    }
+
+    fn with_describer(loaded: Loaded, describer: Describer) -> Self {
+        let Loaded { method, id, length, scans, .. } = loaded;
+        let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
+        let searcher = method.searcher(vectors, length);
+        Engine { describer, method, id, scans, length, searcher }
+    }
+
+    /// The engine over the database rows `keep` keeps, in their order (a subset of a cached
+    /// structure is copied, not rebuilt).
+    pub fn retain(mut self, keep: &dyn Fn(&IndexedScan) -> bool) -> Result<Self> {
+        let rows: Vec<usize> = (0..self.scans.len()).filter(|&i| keep(&self.scans[i])).collect();
+        if rows.len() == self.scans.len() {
+            return Ok(self);
+        }
+        let scans: Vec<IndexedScan> = rows.iter().map(|&i| self.scans[i].clone()).collect();
+        self.searcher = self.searcher.subset(&rows).unwrap_or_else(|| {
+            let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
+            self.method.searcher(vectors, self.length)
+        });
+        self.scans = scans;
+        Ok(self)
+    }
+
+    /// The engine searching at `budget` instead of its method's own settings (the same
+    /// entries: nothing rebuilt).
+    pub fn with_budget(mut self, budget: SearchBudget) -> Self {
+        self.searcher.set_budget(budget, self.scans.len());
+        self
+    }
+
+    /// The index's codebook (TopoRec engines).
+    pub fn codebook(&self) -> Option<&Codebook> {
+        self.describer.codebook.as_ref()
+    }
+
+    /// The descriptor of points — preprocessed ones for TopoRec, a raw scan (sensor frame)
+    /// for the others — with the time of each step.
+    pub fn describe_points(
+        &self,
+        points: &[[f64; 3]],
+        label: &str,
+    ) -> Result<(Vec<f32>, StepTimes), DescribeError> {
+        if self.describer.topological {
+            let d = self.describer.describe_points(points, label);
+            let described = d.outcome?;
+            let times = StepTimes {
+                persistence: d.times.persistence,
+                vectorize: d.times.vectorize,
+                ..Default::default()
+            };
+            return Ok((described.descriptor.expect("a TopoRec engine has a codebook").to_f32(), times));
+        }
+        self.describe_raw(points, label)
+    }
+
+    /// The descriptor of a raw scan with a computed method (not TopoRec).
+    fn describe_raw(&self, points: &[[f64; 3]], label: &str) -> Result<(Vec<f32>, StepTimes), DescribeError> {
+        let t = cpu_time::ThreadTime::now();
+        let mut d = self.describer.describe_raw(points, label)?;
+        let times = StepTimes { describe: t.elapsed().as_secs_f64(), ..Default::default() };
+        match d.pop() {
+            Some(v) => Ok((v, times)),
+            None => Err(DescribeError::Internal {
+                label: label.into(),
+                message: format!(
+                    "method `{}` has its vectors imported: new scans cannot be described",
+                    self.method.name
+                ),
+            }),
+        }
+    }
+
+    /// A scan's descriptor through every step of the method.
+    pub fn describe_scan(&self, scan: Scan) -> Result<(Vec<f32>, StepTimes), DescribeError> {
+        if !self.describer.topological {
+            let label = format!("{}: scan {}", scan.path.display(), scan.id);
+            return self.describe_raw(&scan.points, &label);
+        }
+        let d = self.describer.describe(scan);
+        let times = StepTimes {
+            persistence: d.times.preprocess + d.times.persistence,
+            vectorize: d.times.vectorize,
+            ..Default::default()
+        };
+        let x = d.outcome?;
+        Ok((x.descriptor.expect("a TopoRec engine has a codebook").to_f32(), times))
+    }
+
+    /// The `k` best database rows, with the time of each search step.
+    pub fn find(&self, descriptor: &[f32], k: usize) -> (Vec<Hit>, StepTimes) {
+        self.find_many(descriptor, k).pop().unwrap_or_default()
+    }
+
+    /// The `k` best database rows of each query (`queries` is `m × length`, row-major), each
+    /// charged its share of the search time.
+    pub fn find_many(&self, queries: &[f32], k: usize) -> Vec<(Vec<Hit>, StepTimes)> {
+        self.searcher
+            .search_many(queries, self.length, k)
+            .into_iter()
+            .map(|(hits, t)| {
+                (hits, StepTimes { search: t.candidates, rerank: t.rerank, ..Default::default() })
             })
             .collect()
     }
 }
 
-/// Queries per matrix product.
-const MATRIX_BLOCK: usize = 64;
+/// The methods of an index, as its manifest records them (TopoRec first, when present).
+pub fn index_methods(index: &Path) -> Result<Vec<Method>> {
+    methods_of(&IndexReader::open(index)?)
+}
+
+/// The methods an opened index records (see [`index_methods`]).
+fn methods_of(reader: &IndexReader) -> Result<Vec<Method>> {
+    let mut out = Vec::new();
+    for name in reader.methods()? {
+        if name == TOPOREC {
+            out.insert(0, Method::toporec());
+            continue;
+        }
+        let entry = reader.manifest().and_then(|m| m.methods.get(&name)).expect("listed by the manifest");
+        match entry.method(&name) {
+            Some(m) => out.push(m),
+            None => tracing::warn!(
+                "{}: method `{name}` is of kind `{}`, unknown to this toporec; left out",
+                reader.root().display(),
+                entry.kind
+            ),
+        }
+    }
+    Ok(out)
+}
+
+/// One method's descriptors of an index (only `sessions`, when not empty), checked to have
+/// been made by one codebook or parameter set, of one length; rows with non-finite values are
+/// left out with a warning.
+pub fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Loaded> {
+    IndexReader::read_consistent(index, |reader| load_method_from(reader, method, sessions))
+}
+
+/// [`load_method`] on an opened index.
+fn load_method_from(reader: &IndexReader, method: &str, sessions: &[String]) -> Result<Loaded> {
+    let index = reader.root();
+    let methods = methods_of(reader)?;
+    let Some(m) = methods.iter().find(|m| m.name == method).cloned() else {
+        let names: Vec<&str> = methods.iter().map(|m| m.name.as_str()).collect();
+        return Err(Error::index(
+            index,
+            format!("holds no descriptors of method `{method}` (it holds: {})", names.join(", ")),
+        ));
+    };
+    let (codebook, id, length) = match &m.kind {
+        MethodKind::Toporec => {
+            let cb = reader.codebook()?;
+            let (id, len) = (cb.id(), cb.len());
+            (Some(cb), id, len)
+        }
+        _ => {
+            let e = reader.manifest().and_then(|x| x.methods.get(method)).expect("listed by the manifest");
+            (None, e.id.clone(), e.length)
+        }
+    };
+    let mut scans = reader.descriptors_of(method, sessions, Some(length))?;
+    // A descriptor with a NaN or infinite value (a foreign or damaged table) is never ranked.
+    scans.retain(|s| {
+        let finite = s.descriptor.iter().all(|v| v.is_finite());
+        if !finite {
+            tracing::warn!(
+                "{}: {method} descriptors of session {}: scan {} has non-finite values; left out",
+                index.display(),
+                s.session,
+                s.scan_id
+            );
+        }
+        finite
+    });
+    if scans.is_empty() {
+        let which = if sessions.is_empty() { String::new() } else { format!(" in sessions {sessions:?}") };
+        return Err(Error::index(index, format!("no {method} descriptors{which}")));
+    }
+    let what = if codebook.is_some() { "codebook" } else { "method id" };
+    if let Some(s) = scans.iter().find(|s| s.codebook_id != id) {
+        return Err(Error::index(
+            index,
+            format!("scan {} was made with {what} {}, the index's is {id}", s.scan_id, s.codebook_id),
+        ));
+    }
+    if let Some(s) = scans.iter().find(|s| s.descriptor.len() != length) {
+        return Err(Error::index(
+            index,
+            format!(
+                "scan {} has a {method} descriptor of length {}, the index's is {length}",
+                s.scan_id,
+                s.descriptor.len()
+            ),
+        ));
+    }
+    // Rows in scan order, whatever the files' layout (a merged or a Spark-written index holds
+    // the same rows in other files): ties in a search go to the lower row, so the answers
+    // depend on the rows alone.
+    scans.sort_by(|a, b| (&a.session, &a.scan_id).cmp(&(&b.session, &b.scan_id)));
+    Ok(Loaded { method: m, id, length, codebook, scans })
+}
+
+/// An index's codebook and its TopoRec descriptors (only `sessions`, when not empty).
+pub fn load_descriptors(index: &Path, sessions: &[String]) -> Result<(Codebook, Vec<IndexedScan>)> {
+    let loaded = load_method(index, TOPOREC, sessions)?;
+    Ok((loaded.codebook.expect("TopoRec has a codebook"), loaded.scans))
+}
+
+/// Mean and p95 (ms) of each step of a method's per-query times: every step, or (`search_only`)
+/// those of the search.
+pub fn step_stats(method: &Method, times: &[StepTimes], search_only: bool) -> Vec<(&'static str, f64, f64)> {
+    let steps = |t: &StepTimes| if search_only { t.search_steps(method) } else { t.steps(method) };
+    let names: Vec<&'static str> = steps(&StepTimes::default()).into_iter().map(|s| s.0).collect();
+    names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let (mean, p95) = mean_p95_ms(&times.iter().map(|t| steps(t)[i].1).collect::<Vec<_>>());
+            (*name, mean, p95)
+        })
+        .collect()
+}
+
+/// `step mean / p95, …` of a method's per-query times (see [`step_stats`]).
+pub fn step_summary(method: &Method, times: &[StepTimes], search_only: bool) -> String {
+    step_stats(method, times, search_only)
+        .iter()
+        .map(|(name, mean, p95)| format!("{name} {mean:.3} / {p95:.3}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Mean and 95th percentile (nearest rank) of a sample, in milliseconds.
+pub fn mean_p95_ms(v: &[f64]) -> (f64, f64) {
+    if v.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let p95 = s[((0.95 * s.len() as f64).ceil() as usize).clamp(1, s.len()) - 1];
+    (1e3 * s.iter().sum::<f64>() / s.len() as f64, 1e3 * p95)
+}

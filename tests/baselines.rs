@@ -3,11 +3,11 @@
 //! scans of `../shared/data`.
 
 use crate::util::{self, eval_days, python_with, read_json, root, shared_data};
-use toporec::baselines::m2dp;
-use toporec::baselines::scancontext::{self, ScanContextParams};
-use toporec::baselines::scancontext_pp::{self, CartParams, PolarParams, Variant};
-use toporec::baselines::solid::{self, SolidParams};
 use toporec::homology::Point;
+use toporec::methods::m2dp;
+use toporec::methods::scancontext::{self, ScanContextParams};
+use toporec::methods::scancontext_pp::{self, CartParams, PolarParams, Variant};
+use toporec::methods::solid::{self, SolidParams};
 
 fn turned(points: &[Point], degrees: f64) -> Vec<Point> {
     let (s, c) = degrees.to_radians().sin_cos();
@@ -720,7 +720,7 @@ fn imported_vectors_are_one_more_method() {
 
 #[test]
 fn every_computed_method_refuses_its_bad_settings_by_key() {
-    use toporec::baselines::Method;
+    use toporec::methods::Method;
     let bad = [
         ("m2dp", serde_json::json!({ "voxel": -1.0 }), "m2dp.voxel"),
         ("scancontext", serde_json::json!({ "rings": 0 }), "scancontext"),
@@ -741,7 +741,7 @@ fn every_computed_method_refuses_its_bad_settings_by_key() {
 /// bit ⌈z + 5⌉).
 #[test]
 fn lidar_iris_by_hand() {
-    use toporec::baselines::lidar_iris::{self, COLUMNS, IrisParams, ROWS};
+    use toporec::methods::lidar_iris::{self, COLUMNS, IrisParams, ROWS};
     let p = IrisParams::default();
     let at = |r: f64, degrees: f64, z: f64| {
         let (s, c) = degrees.to_radians().sin_cos();
@@ -808,7 +808,7 @@ fn lidar_iris_by_hand() {
 /// the direction found equal.
 #[test]
 fn lidar_iris_matches_the_reference_transcription_on_real_scans() {
-    use toporec::baselines::lidar_iris::{self, IrisParams};
+    use toporec::methods::lidar_iris::{self, IrisParams};
     let test = "lidar_iris_matches_the_reference_transcription_on_real_scans";
     let Some((scans, clouds, lines)) = cross_check(test, "lidar_iris_reference.py") else { return };
     let p = IrisParams::default();

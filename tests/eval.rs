@@ -2,8 +2,8 @@
 
 use crate::util::*;
 use toporec::eval::metrics::{Denominator, first_hit, one_percent_k, recall};
+use toporec::methods::euclidean::Database;
 use toporec::rng::SplitMix64;
-use toporec::search::Database;
 
 #[test]
 fn recall_metrics_on_hand_made_cases() {

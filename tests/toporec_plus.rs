@@ -5,7 +5,7 @@
 use crate::util::*;
 use std::path::{Path, PathBuf};
 use toporec::homology::Point;
-use toporec::toporec_plus::{self, PlusParams, Searcher};
+use toporec::methods::toporec_plus::{self, PlusParams, Searcher};
 
 /// The 48 shared KITTI scans, by path.
 fn kitti_scans(data: &Path) -> Vec<(PathBuf, Vec<Point>)> {

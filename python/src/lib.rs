@@ -519,7 +519,7 @@ impl LoopDetector {
                 .map_err(toporec_error)?,
             None => {
                 let settings: serde_json::Value = serde_json::from_str(settings).map_err(value_error)?;
-                toporec::baselines::Method::from_settings(method, &settings).map_err(value_error)?
+                toporec::methods::Method::from_settings(method, &settings).map_err(value_error)?
             }
         };
         if !(exclude_seconds.is_finite() && exclude_seconds >= 0.0) {
@@ -586,7 +586,7 @@ impl LoopDetector {
 /// Answers queries against one method of an index.
 #[pyclass(module = "toporec._toporec")]
 struct QueryEngine {
-    engine: Arc<toporec::query::Engine>,
+    engine: Arc<toporec::search::Engine>,
 }
 
 /// One query: its id and descriptor, or why it has none.
@@ -598,7 +598,7 @@ impl QueryEngine {
     #[pyo3(signature = (index, method, sessions))]
     fn new(py: Python<'_>, index: PathBuf, method: &str, sessions: Vec<String>) -> PyResult<Self> {
         let engine =
-            py.detach(|| toporec::query::Engine::open(&index, &sessions, method)).map_err(toporec_error)?;
+            py.detach(|| toporec::search::Engine::open(&index, &sessions, method)).map_err(toporec_error)?;
         Ok(QueryEngine { engine: Arc::new(engine) })
     }
 
@@ -664,7 +664,7 @@ impl QueryEngine {
 
 /// The query table (`toporec query`'s columns) of described queries, and the failures.
 fn answer(
-    engine: &toporec::query::Engine,
+    engine: &toporec::search::Engine,
     described: Vec<Described>,
     k: usize,
 ) -> (ArrowStream, Vec<String>) {

@@ -3,7 +3,7 @@
 //! job share those without depending on the command-line framework.
 
 use std::path::PathBuf;
-use toporec::baselines::TOPOREC;
+use toporec::methods::TOPOREC;
 use toporec::vectorize::codebook::DimSelection;
 
 /// Arguments of `toporec query`.
@@ -92,7 +92,7 @@ pub struct PlacesArgs {
     /// `exhaustive` (every database entry re-ranked at every shift), or `matched:N` (N
     /// re-ranked candidates and shifts within ±3 sectors, for every method that has them).
     #[arg(long, default_value = "default")]
-    pub search: toporec::query::SearchBudget,
+    pub search: toporec::methods::SearchBudget,
     /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
     /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
     #[arg(long, value_enum, default_value = "places")]
@@ -124,7 +124,7 @@ pub struct PerturbationArgs {
     /// The search budget of every method: `default`, `exhaustive` or `matched:N` (see
     /// `eval places --help`).
     #[arg(long, default_value = "default")]
-    pub search: toporec::query::SearchBudget,
+    pub search: toporec::methods::SearchBudget,
     /// Output folder.
     #[arg(long, short)]
     pub out: PathBuf,

@@ -427,7 +427,7 @@ fn simulate(a: SimulateArgs) -> Result<()> {
 }
 
 fn query(a: QueryArgs) -> Result<Done> {
-    let engine = toporec::query::Engine::open(&a.index, &a.sessions, &a.method)?;
+    let engine = toporec::search::Engine::open(&a.index, &a.sessions, &a.method)?;
     let report = match &a.out {
         Some(path) => {
             let mut file = AtomicFile::create(path)?;

@@ -29,10 +29,10 @@ macro_rules! line {
     }};
 }
 
-use crate::baselines::{Method, MethodKind, TOPOREC};
 use crate::error::{Error, Result, ResultExt};
-use crate::query::{Engine, StepTimes, index_methods, step_stats, step_summary};
+use crate::methods::{Method, MethodKind, TOPOREC};
 use crate::rng::SplitMix64;
+use crate::search::{Engine, StepTimes, index_methods, step_stats, step_summary};
 use metrics::{Denominator, first_hit, one_percent_k, recall};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -198,7 +198,7 @@ pub struct PerturbationArgs {
     pub methods: Vec<String>,
     /// The search budget of every method: `default`, `exhaustive` or `matched:N` (see
     /// `eval places --help`).
-    pub search: crate::query::SearchBudget,
+    pub search: crate::methods::SearchBudget,
     /// Output folder.
     pub out: PathBuf,
 }

@@ -24,9 +24,10 @@ use super::report::{
     PlacesReport, QuerySide, Report, ThresholdResult, Top1, Top1Row,
 };
 use super::{Curve, chosen_methods, clamp_max_n, file_names, names, timing_of};
-use crate::baselines::TOPOREC;
 use crate::error::{Error, Result, ResultExt};
-use crate::query::{Engine, Found, Loaded, StepTimes, load_method, step_summary};
+use crate::methods::Hit;
+use crate::methods::TOPOREC;
+use crate::search::{Engine, Loaded, StepTimes, load_method, step_summary};
 use crate::sinks::index::IndexedScan;
 use rayon::prelude::*;
 use std::collections::{HashMap, HashSet};
@@ -84,7 +85,7 @@ pub struct PlacesArgs {
     /// The search budget of every method: `default` (each method's own settings),
     /// `exhaustive` (every database entry re-ranked at every shift), or `matched:N` (N
     /// re-ranked candidates and shifts within ±3 sectors, for every method that has them).
-    pub search: crate::query::SearchBudget,
+    pub search: crate::methods::SearchBudget,
     /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
     /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
     pub protocol: Protocol,
@@ -531,7 +532,7 @@ impl Prepared {
         let k = (want + skips.iter().copied().max().unwrap_or(0)).min(n_db);
         let start = Instant::now();
         c.length = vectors.iter().flatten().next().map_or(0, |v| v.len());
-        let mut retrieved: Vec<Option<(Vec<Found>, StepTimes)>> = vec![None; self.queries.len()];
+        let mut retrieved: Vec<Option<(Vec<Hit>, StepTimes)>> = vec![None; self.queries.len()];
         let described_rows: Vec<usize> = (0..self.queries.len()).filter(|&i| vectors[i].is_some()).collect();
         c.described = described_rows.len();
         for block in described_rows.chunks(256) {
@@ -539,7 +540,7 @@ impl Prepared {
             debug_assert_eq!(flat.len(), block.len() * c.length);
             for (&i, (hits, t)) in block.iter().zip(self.engine.find_many(&flat, k)) {
                 let q = &self.queries[i];
-                let kept: Vec<Found> =
+                let kept: Vec<Hit> =
                     hits.into_iter().filter(|h| !self.excluded(a, q, &db[h.row])).take(want).collect();
                 retrieved[i] = Some((kept, t));
             }

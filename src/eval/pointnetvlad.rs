@@ -16,7 +16,7 @@
 
 use super::metrics::{Denominator, first_hit, one_percent_k, recall};
 use crate::error::{Error, Result};
-use crate::query::{Engine, Loaded, load_method};
+use crate::search::{Engine, Loaded, load_method};
 use crate::sinks::index::IndexedScan;
 use crate::sources::SourceSpec;
 use std::collections::BTreeMap;
@@ -132,7 +132,7 @@ pub fn evaluate_method(
     index: &Path,
     method: &str,
     sets: &[Dataset],
-    budget: crate::query::SearchBudget,
+    budget: crate::methods::SearchBudget,
 ) -> Result<(String, Vec<DatasetRecall>)> {
     let loaded = load_method(index, method, &[])?;
     let (id, length, method_def) = (loaded.id.clone(), loaded.length, loaded.method.clone());
@@ -209,7 +209,7 @@ pub fn evaluate_method(
 pub fn evaluate(
     index: &Path,
     methods: &[String],
-    budget: crate::query::SearchBudget,
+    budget: crate::methods::SearchBudget,
 ) -> Result<(String, super::report::PointNetVladReport, Vec<super::Curve>)> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
     let Some(SourceSpec::PointNetVlad(spec)) =

@@ -1,11 +1,11 @@
 //! The online loop detector: scans arrive one at a time, in time order, from a running system
 //! (a SLAM front end); each is described, searched against the earlier scans outside its own
 //! session's exclusion window, and added. Its matches are `toporec loops`' on the same scans in
-//! the same order (both search a [`Growing`] structure under the same rule).
+//! the same order (both search the method's [`Searcher`], grown in that order, under the same
+//! rule).
 
-use super::search::{Growing, LoopHit};
 use super::{Exclusion, distance3};
-use crate::baselines::{Method, MethodKind};
+use crate::methods::{Hit, Method, Searcher};
 use crate::types::Point;
 
 /// A scan's best allowed earlier match.
@@ -40,7 +40,7 @@ pub struct Detector {
     method: Method,
     exclusion: Exclusion,
     threshold: f64,
-    growing: Growing,
+    growing: Box<dyn Searcher>,
     /// Per scan added: session (an index into `sessions`), time (µs), pose, position within
     /// its session.
     session: Vec<u32>,
@@ -57,17 +57,17 @@ impl Detector {
     /// accepting matches below `threshold`; an error for a method that does not describe raw
     /// scans (TopoRec needs an index's codebook; imported vectors are made elsewhere).
     pub fn new(method: Method, exclusion: Exclusion, threshold: f64) -> Result<Self, String> {
-        if matches!(method.kind, MethodKind::Toporec | MethodKind::Imported { .. }) {
+        if !method.is_computed() {
             return Err(format!(
                 "{}: the loop detector takes the methods computed from raw scans ({})",
                 method.name,
-                crate::baselines::COMPUTED.join(", ")
+                crate::methods::computed_names().join(", ")
             ));
         }
         if !threshold.is_finite() {
             return Err(format!("threshold {threshold}: must be finite"));
         }
-        let growing = Growing::new(&method, method.len());
+        let growing = method.searcher(Vec::new(), method.len());
         Ok(Detector {
             method,
             exclusion,
@@ -159,12 +159,12 @@ impl Detector {
                 (self.session[row], self.in_session[row], self.utime[row]),
             )
         };
-        let hits: Vec<LoopHit> = self.growing.search(descriptor, 2, &allowed);
-        let found = hits.first().map(|&(row, distance, yaw_degrees)| Match {
+        let (hits, _) = self.growing.search(descriptor, 2, Some(&allowed));
+        let found = hits.first().map(|&Hit { row, distance, yaw_degrees, .. }| Match {
             row,
             distance,
             yaw_degrees,
-            rank2_distance: hits.get(1).map(|h| h.1),
+            rank2_distance: hits.get(1).map(|h| h.distance),
             true_distance_m: pose.zip(self.pose[row]).map(|(a, b)| distance3(a, b)),
             accepted: distance < self.threshold,
         });

@@ -4,7 +4,7 @@
 //! without a timestamp last). Each scan is searched against the scans before it, leaving out
 //! those of its own session within `exclude_seconds` (or `exclude_scans` positions) of it, by
 //! the method's own search at its default budget over those allowed scans alone
-//! ([`search::Growing`]); the online [`Detector`] does the same one scan at a time, so both give
+//! (the method's [`crate::methods::Searcher`], restricted to them); the online [`Detector`] does the same one scan at a time, so both give
 //! the same matches. The best allowed match is a loop when its descriptor distance is below the
 //! threshold. Each row keeps the runner-up's distance (a margin for the user's own checks) and,
 //! where both scans have poses, their true distance.
@@ -15,13 +15,12 @@
 
 pub mod detector;
 pub mod icp;
-pub mod search;
 pub mod verify;
 
 pub use detector::{Detector, Match};
 
 use crate::error::{Error, Result, ResultExt};
-use crate::query::Engine;
+use crate::search::Engine;
 use crate::sinks::index::reader::IndexedScan;
 use std::collections::HashMap;
 use std::io::Write;
@@ -122,7 +121,7 @@ pub fn time_order(scans: &[IndexedScan]) -> Vec<usize> {
 
 /// The best two allowed matches of every scan with an earlier allowed scan, in time order:
 /// `(query row, [(row, distance, yaw)], …)`.
-type Matches = Vec<(usize, Vec<(usize, f64, Option<f64>)>)>;
+type Matches = Vec<(usize, Vec<crate::methods::Hit>)>;
 
 /// Which scans each scan may be matched with: earlier in [`time_order`], and outside its own
 /// session's exclusion window.
@@ -218,7 +217,7 @@ fn best_matches_counted(
 ) -> Matches {
     use rayon::prelude::*;
     let order = &rule.order;
-    let mut growing = search::Growing::new(&engine.method, queries.first().map_or(0, |d| d.len()));
+    let mut growing = engine.method.searcher(Vec::new(), queries.first().map_or(0, |d| d.len()));
     for &row in order {
         growing.push(&queries[row]);
     }
@@ -230,9 +229,9 @@ fn best_matches_counted(
                 b.inc(1);
             }
             let allowed = |position: usize| position < at && rule.allows(query, order[position]);
-            let best = growing.search(&queries[query], 2, &allowed);
+            let (best, _) = growing.search(&queries[query], 2, Some(&allowed));
             (!best.is_empty()).then(|| {
-                (query, best.into_iter().map(|(position, d, yaw)| (order[position], d, yaw)).collect())
+                (query, best.into_iter().map(|h| crate::methods::Hit { row: order[h.row], ..h }).collect())
             })
         })
         .collect()
@@ -245,7 +244,7 @@ pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> 
     matches
         .iter()
         .filter_map(|(query, best)| {
-            let (row, distance, yaw) = *best.first()?;
+            let crate::methods::Hit { row, distance, yaw_degrees: yaw, .. } = *best.first()?;
             let (q, m) = (&scans[*query], &scans[row]);
             Some(LoopRow {
                 method: engine.method.name.clone(),
@@ -255,7 +254,7 @@ pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> 
                 matched_session: m.session.clone(),
                 distance,
                 yaw_degrees: yaw,
-                rank2_distance: best.get(1).map(|b| b.1),
+                rank2_distance: best.get(1).map(|b| b.distance),
                 true_distance_m: match (q.pose, m.pose) {
                     (Some(a), Some(b)) => Some(distance3(a, b)),
                     _ => None,
@@ -424,15 +423,8 @@ pub(crate) fn progress_bar(enabled: bool, len: usize, what: &str) -> Option<indi
 /// The default threshold of a method at its default settings: the threshold calibrated to
 /// precision 0.99 (revisits within 5 m, 30 s excluded) on the simulated HDL-64E drive of
 /// docs/loops.md. `None` for the other methods and settings (their distances differ).
-pub fn default_threshold(method: &crate::baselines::Method) -> Option<f64> {
-    use crate::baselines::MethodKind;
-    match &method.kind {
-        MethodKind::ToporecPlus(p) if *p == crate::toporec_plus::PlusParams::default() => Some(0.3619),
-        MethodKind::ScanContext(p) if *p == crate::baselines::scancontext::ScanContextParams::default() => {
-            Some(0.5335)
-        }
-        _ => None,
-    }
+pub fn default_threshold(method: &crate::methods::Method) -> Option<f64> {
+    method.as_computed().and_then(|c| c.default_threshold())
 }
 
 /// The threshold of one method: given, from a calibration file (which must be the method's and
@@ -485,7 +477,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         return Err(Error::invalid("--threshold, --threshold-from and --calibrate: give one".to_string()));
     }
     let methods = if a.methods.is_empty() {
-        crate::query::index_methods(&a.index)?.into_iter().map(|m| m.name).collect()
+        crate::search::index_methods(&a.index)?.into_iter().map(|m| m.name).collect()
     } else {
         a.methods.clone()
     };
@@ -630,7 +622,7 @@ fn query_descriptors(index: &Path, engine: &Engine) -> Result<Vec<Vec<f32>>> {
     if engine.scans.iter().all(|s| !s.descriptor.is_empty()) {
         return Ok(engine.scans.iter().map(|s| s.descriptor.clone()).collect());
     }
-    let loaded = crate::query::load_method(index, &engine.method.name, &[])?;
+    let loaded = crate::search::load_method(index, &engine.method.name, &[])?;
     let mut by_id: HashMap<String, Vec<f32>> =
         loaded.scans.into_iter().map(|s| (s.scan_id, s.descriptor)).collect();
     engine
@@ -665,11 +657,11 @@ pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
             let rel = |i: usize| opt(c.map(|c| c.relative[i]).filter(|v| v.is_finite()));
             text.push_str(&format!(
                 "{},{},{},{},{},{:?},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-                crate::query::csv_field(&r.method),
-                crate::query::csv_field(&r.query_scan),
-                crate::query::csv_field(&r.query_session),
-                crate::query::csv_field(&r.matched_scan),
-                crate::query::csv_field(&r.matched_session),
+                crate::sinks::csv::field(&r.method),
+                crate::sinks::csv::field(&r.query_scan),
+                crate::sinks::csv::field(&r.query_session),
+                crate::sinks::csv::field(&r.matched_scan),
+                crate::sinks::csv::field(&r.matched_session),
                 r.distance,
                 opt(r.yaw_degrees),
                 opt(r.rank2_distance),

@@ -24,26 +24,13 @@
 //! # codebook = "codebook.json"       # … or load a saved one
 //! [descriptors]
 //! methods = ["toporec", "scancontext", "m2dp", "solid", "lidar-iris"]   # default ["toporec"]
-//! [scancontext]                      # optional: its parameters (see baselines::scancontext)
-//! [scancontext-pp]                   # optional: its parameters (see baselines::scancontext_pp)
-//! [scancontext-pp-cart]              # optional: its parameters (see baselines::scancontext_pp)
-//! [m2dp]                             # optional: its parameters
-//! [solid]                            # optional: its parameters (see baselines::solid)
-//! [lidar-iris]                       # optional: its parameters (see baselines::lidar_iris)
-//! ```
+//! [scancontext]                      # optional: a method's parameters, one section per method
+//! ```                                # computed from raw scans (crate::methods::REGISTRY)
 
-use crate::baselines::{
-    LIDAR_IRIS, M2DP, M2dpParams, Method, Methods, SCANCONTEXT, SCANCONTEXT_PP, SCANCONTEXT_PP_CART, SOLID,
-    TOPOREC, TOPOREC_PLUS,
-    lidar_iris::IrisParams,
-    scancontext::ScanContextParams,
-    scancontext_pp::{CartParams, PolarParams},
-    solid::SolidParams,
-};
 pub use crate::error::ConfigErrors;
+use crate::methods::{Method, Methods, REGISTRY, TOPOREC};
 use crate::preprocess::Preprocess;
 use crate::sources::SourceSpec;
-use crate::toporec_plus::PlusParams;
 use crate::vectorize::atol::{Contrast, Weighting};
 use crate::vectorize::codebook::{Codebook, CodebookSpec, DimSelection};
 use crate::vectorize::kmeans::{Algorithm, KMeansParams};
@@ -271,17 +258,7 @@ impl Pipeline {
         d.insert("methods".into(), Value::Array(names));
         doc.insert("descriptors".into(), Value::Table(d));
         for m in &self.methods.computed {
-            let params = match &m.kind {
-                crate::baselines::MethodKind::ScanContext(p) => Value::try_from(p),
-                crate::baselines::MethodKind::M2dp(p) => Value::try_from(p),
-                crate::baselines::MethodKind::Solid(p) => Value::try_from(p),
-                crate::baselines::MethodKind::LidarIris(p) => Value::try_from(p),
-                crate::baselines::MethodKind::ScanContextPp(p) => Value::try_from(p),
-                crate::baselines::MethodKind::ScanContextPpCart(p) => Value::try_from(p),
-                crate::baselines::MethodKind::ToporecPlus(p) => Value::try_from(p),
-                _ => continue,
-            };
-            doc.insert(m.name.clone(), params.expect("plain data"));
+            doc.insert(m.name.clone(), Value::try_from(m.params()).expect("plain data"));
         }
         format!(
             "# The effective pipeline of this index (resolved by toporec {}).\n{}",
@@ -427,13 +404,8 @@ impl Parser {
         let mut s = self.section(root, "descriptors");
         let names: Vec<String> = s.get("methods", &mut self.errors).unwrap_or_else(|| vec![TOPOREC.into()]);
         s.finish(&mut self.errors);
-        let sc: ScanContextParams = self.method_section(root, SCANCONTEXT);
-        let m2dp: M2dpParams = self.method_section(root, M2DP);
-        let plus: PlusParams = self.method_section(root, TOPOREC_PLUS);
-        let solid: SolidParams = self.method_section(root, SOLID);
-        let iris: IrisParams = self.method_section(root, LIDAR_IRIS);
-        let pp: PolarParams = self.method_section(root, SCANCONTEXT_PP);
-        let pp_cart: CartParams = self.method_section(root, SCANCONTEXT_PP_CART);
+        // Every method's section is read (and checked to parse) whether it is listed or not.
+        let sections: Vec<Method> = REGISTRY.iter().map(|r| self.method_section(root, r)).collect();
         let mut methods = Methods { toporec: false, computed: Vec::new() };
         if names.is_empty() {
             self.errors.push(format!("descriptors.methods: empty ({})", Self::method_names()));
@@ -443,41 +415,17 @@ impl Parser {
                 self.errors.push(format!("descriptors.methods: `{name}` is listed twice"));
                 continue;
             }
-            match name.as_str() {
-                TOPOREC => methods.toporec = true,
-                SCANCONTEXT => {
-                    self.errors.extend(sc.problems());
-                    methods.computed.push(Method::scancontext(sc.clone()));
-                }
-                SCANCONTEXT_PP => {
-                    self.errors.extend(pp.problems());
-                    methods.computed.push(Method::scancontext_pp(pp.clone()));
-                }
-                SCANCONTEXT_PP_CART => {
-                    self.errors.extend(pp_cart.problems());
-                    methods.computed.push(Method::scancontext_pp_cart(pp_cart.clone()));
-                }
-                M2DP => {
-                    self.errors.extend(m2dp.problems());
-                    methods.computed.push(Method::m2dp(m2dp.clone()));
-                }
-                SOLID => {
-                    self.errors.extend(solid.problems());
-                    methods.computed.push(Method::solid(solid.clone()));
-                }
-                LIDAR_IRIS => {
-                    self.errors.extend(iris.problems());
-                    methods.computed.push(Method::lidar_iris(iris.clone()));
-                }
-                TOPOREC_PLUS => {
-                    self.errors.extend(plus.problems());
-                    methods.computed.push(Method::toporec_plus(plus.clone()));
-                }
-                other => self.errors.push(format!(
-                    "descriptors.methods: unknown method `{other}` ({}; vectors made elsewhere come in with \
+            if name == TOPOREC {
+                methods.toporec = true;
+            } else if let Some(m) = sections.iter().find(|m| m.name == *name) {
+                self.errors.extend(m.as_computed().expect("a registered method").problems());
+                methods.computed.push(m.clone());
+            } else {
+                self.errors.push(format!(
+                    "descriptors.methods: unknown method `{name}` ({}; vectors made elsewhere come in with \
                      `toporec import`)",
                     Self::method_names()
-                )),
+                ));
             }
         }
         methods
@@ -485,18 +433,18 @@ impl Parser {
 
     /// The methods a pipeline can compute, for its messages.
     fn method_names() -> String {
-        format!("{TOPOREC}, {}", crate::baselines::COMPUTED.join(", "))
+        format!("{TOPOREC}, {}", crate::methods::computed_names().join(", "))
     }
 
-    /// A method's section (`[scancontext]`, `[m2dp]`, `[solid]`, `[toporec-plus]`, …), defaults
-    /// filled in.
-    fn method_section<T: DeserializeOwned + Default>(&mut self, root: &mut Section, key: &'static str) -> T {
-        root.seen.push(key);
-        match root.table.get(key) {
-            None => T::default(),
-            Some(v) => v.clone().try_into::<T>().unwrap_or_else(|e| {
-                self.errors.push(format!("{key}: {}", e.message().trim()));
-                T::default()
+    /// A registered method with the settings of its section (`[scancontext]`, `[m2dp]`,
+    /// `[toporec-plus]`, …), defaults filled in; its defaults when the section does not parse.
+    fn method_section(&mut self, root: &mut Section, entry: &crate::methods::Registered) -> Method {
+        root.seen.push(entry.name);
+        match root.table.get(entry.name) {
+            None => entry.default_method(),
+            Some(v) => entry.from_toml(v.clone()).unwrap_or_else(|e| {
+                self.errors.push(format!("{}: {e}", entry.name));
+                entry.default_method()
             }),
         }
     }

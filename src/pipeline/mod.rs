@@ -243,7 +243,7 @@ impl std::fmt::Display for RunSummary {
             .methods
             .iter()
             .map(|(m, len)| {
-                if m == crate::baselines::TOPOREC {
+                if m == crate::methods::TOPOREC {
                     format!("{m} (length {len}, codebook {})", self.codebook_id)
                 } else {
                     format!("{m} (length {len})")
@@ -283,7 +283,7 @@ fn run_index(p: &Pipeline, opts: &RunOptions, main: Option<&shard::MainIndex>) -
         None => None,
     };
     let mut methods = writer.manifest().methods.clone();
-    methods.retain(|_, e| e.kind == crate::baselines::IMPORTED);
+    methods.retain(|_, e| e.kind == crate::methods::IMPORTED);
     methods.extend(crate::sinks::index::manifest::MethodEntry::of_computed(&p.methods));
     writer.set_methods(methods);
     let pipeline_toml = p.effective_toml(&index);
@@ -343,7 +343,7 @@ fn run_index(p: &Pipeline, opts: &RunOptions, main: Option<&shard::MainIndex>) -
         summary.descriptors_from_stored = made;
         summary.codebook_id = codebook.id();
         summary.descriptor_len = codebook.len();
-        summary.methods.push((crate::baselines::TOPOREC.into(), codebook.len()));
+        summary.methods.push((crate::methods::TOPOREC.into(), codebook.len()));
     }
     summary.methods.extend(p.methods.computed.iter().map(|m| (m.name.clone(), m.len())));
     // A rebuild switches the index to its new generation here, in one commit.
@@ -369,18 +369,17 @@ fn settings_change(writer: &IndexWriter, p: &Pipeline) -> String {
     let mut held: Vec<String> = manifest
         .methods
         .iter()
-        .filter(|(_, e)| e.kind != crate::baselines::IMPORTED)
+        .filter(|(_, e)| e.kind != crate::methods::IMPORTED)
         .map(|(m, e)| format!("{m} {}", e.id))
         .collect();
-    if manifest.codebook.is_some() || manifest.descriptor_files_of(crate::baselines::TOPOREC).next().is_some()
-    {
-        held.insert(0, crate::baselines::TOPOREC.into());
+    if manifest.codebook.is_some() || manifest.descriptor_files_of(crate::methods::TOPOREC).next().is_some() {
+        held.insert(0, crate::methods::TOPOREC.into());
     }
     let mut wanted: Vec<String> =
         p.methods.computed.iter().map(|m| format!("{} {}", m.name, m.id())).collect();
     wanted.sort();
     if p.methods.toporec {
-        wanted.insert(0, crate::baselines::TOPOREC.into());
+        wanted.insert(0, crate::methods::TOPOREC.into());
     }
     if held != wanted && manifest.counts.ok > 0 {
         format!(
@@ -467,11 +466,7 @@ impl ScanResult {
         let mut out = Vec::new();
         if let (Some(id), Some(d)) = (codebook_id, &self.descriptor) {
             let r = DescriptorRow::new(row.scan_id.clone(), row.utime, row.pose, d);
-            out.push(MethodDescriptor {
-                method: crate::baselines::TOPOREC.into(),
-                id: id.to_string(),
-                row: r,
-            });
+            out.push(MethodDescriptor { method: crate::methods::TOPOREC.into(), id: id.to_string(), row: r });
         }
         if row.status == Status::Ok {
             for ((method, id), values) in computed.iter().zip(&self.baselines) {

@@ -145,7 +145,7 @@ fn freeze_saved_codebook(p: &Pipeline, main: &Path, settings: &str) -> Result<()
         return Ok(()); // another shard was first
     }
     let mut methods = writer.manifest().methods.clone();
-    methods.retain(|_, e| e.kind == crate::baselines::IMPORTED);
+    methods.retain(|_, e| e.kind == crate::methods::IMPORTED);
     methods.extend(MethodEntry::of_computed(&p.methods));
     writer.set_methods(methods);
     match saved {
@@ -223,7 +223,7 @@ pub fn fit_sample(p: &Pipeline, index: &Path, fraction: f64, threads: usize) -> 
         Error::index(index, format!("no codebook could be fitted on the {scans} sampled scans: {e}"))
     })?;
     let mut methods = writer.manifest().methods.clone();
-    methods.retain(|_, e| e.kind == crate::baselines::IMPORTED);
+    methods.retain(|_, e| e.kind == crate::methods::IMPORTED);
     methods.extend(MethodEntry::of_computed(&p.methods));
     writer.set_methods(methods);
     writer.set_codebook(codebook.clone(), Some(p.effective_toml(index)));

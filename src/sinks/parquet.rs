@@ -286,7 +286,7 @@ impl DescriptorsFile {
             session: session.to_string(),
             b,
             codebook_id: codebook_id.to_string(),
-            bytes: crate::baselines::stores_bytes(method),
+            bytes: crate::methods::stores_bytes(method),
             rows: Vec::new(),
         })
     }

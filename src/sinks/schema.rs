@@ -179,12 +179,9 @@ pub fn descriptors(b: usize) -> Table {
 }
 
 /// The `descriptors` table of `method`: its values `uint8` for the methods whose descriptors
-/// are bytes ([`crate::baselines::stores_bytes`]), `float32` for the others.
+/// are bytes ([`crate::methods::stores_bytes`]), `float32` for the others.
 pub fn descriptors_for(method: &str, b: usize) -> Table {
-    descriptors_of(
-        b,
-        if crate::baselines::stores_bytes(method) { DataType::UInt8 } else { DataType::Float32 },
-    )
+    descriptors_of(b, if crate::methods::stores_bytes(method) { DataType::UInt8 } else { DataType::Float32 })
 }
 
 fn descriptors_of(b: usize, values: DataType) -> Table {

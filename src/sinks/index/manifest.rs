@@ -5,8 +5,8 @@
 //! leaves such files behind, and the next writer deletes them. The format is documented as a
 //! JSON Schema in `schemas/manifest.json`.
 
-use crate::baselines::{COMPUTED, IMPORTED, Method, MethodKind, Methods};
 use crate::error::{Error, Result, ResultExt};
+use crate::methods::{IMPORTED, Method, MethodKind, Methods, Registered};
 use crate::vectorize::codebook::Codebook;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -53,7 +53,7 @@ impl MethodEntry {
     /// know.
     pub fn method(&self, name: &str) -> Option<Method> {
         let kind = match self.kind.as_str() {
-            kind if COMPUTED.contains(&kind) => Method::with_settings(kind, &self.params).ok()?.kind,
+            kind if Registered::of(kind).is_some() => Method::with_settings(kind, &self.params).ok()?.kind,
             IMPORTED => MethodKind::Imported {
                 length: self.length,
                 source: self.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),
@@ -67,7 +67,7 @@ impl MethodEntry {
 impl FileEntry {
     /// The method of a descriptors file (`toporec` when the entry names none).
     pub fn method_name(&self) -> &str {
-        self.method.as_deref().unwrap_or(crate::baselines::TOPOREC)
+        self.method.as_deref().unwrap_or(crate::methods::TOPOREC)
     }
 }
 

@@ -95,7 +95,7 @@ pub fn partition(session: &str) -> String {
 pub fn partition_dir(table: &str, method: Option<&str>, session: &str) -> PathBuf {
     let mut dir = PathBuf::from(table);
     if table == crate::sinks::schema::tables::DESCRIPTORS {
-        dir.push(format!("method={}", method.unwrap_or(crate::baselines::TOPOREC)));
+        dir.push(format!("method={}", method.unwrap_or(crate::methods::TOPOREC)));
     }
     dir.push(partition(session));
     dir
@@ -140,9 +140,9 @@ pub fn table_files(root: &Path, table: &str, method: Option<&str>) -> Result<Vec
     }
     let mut partitions = vec![dir.clone()];
     if table == crate::sinks::schema::tables::DESCRIPTORS {
-        let method = method.unwrap_or(crate::baselines::TOPOREC);
+        let method = method.unwrap_or(crate::methods::TOPOREC);
         partitions = vec![dir.join(format!("method={method}"))];
-        if method == crate::baselines::TOPOREC {
+        if method == crate::methods::TOPOREC {
             partitions.push(dir);
         }
     }

@@ -125,7 +125,7 @@ impl IndexReader {
     /// `descriptors`, the TopoRec method's (see [`IndexReader::descriptor_files`]).
     pub fn files(&self, table: &str) -> Result<Vec<(String, PathBuf)>> {
         if table == tables::DESCRIPTORS {
-            return self.descriptor_files(crate::baselines::TOPOREC);
+            return self.descriptor_files(crate::methods::TOPOREC);
         }
         match &self.manifest {
             Some(m) => {
@@ -154,12 +154,12 @@ impl IndexReader {
         table: &str,
         method: Option<&str>,
     ) -> Result<(Arc<arrow::datatypes::Schema>, Vec<RecordBatch>)> {
-        let method = method.unwrap_or(crate::baselines::TOPOREC);
+        let method = method.unwrap_or(crate::methods::TOPOREC);
         let (files, length) = match table {
             tables::DESCRIPTORS => {
                 let length = match self.manifest.as_ref().and_then(|m| m.methods.get(method)) {
                     Some(entry) => Some(entry.length),
-                    None if method == crate::baselines::TOPOREC => self.codebook().ok().map(|c| c.len()),
+                    None if method == crate::methods::TOPOREC => self.codebook().ok().map(|c| c.len()),
                     None => None,
                 };
                 (self.descriptor_files(method)?, length)
@@ -210,10 +210,10 @@ impl IndexReader {
         let mut out = Vec::new();
         let toporec = match &self.manifest {
             Some(m) => m.codebook.is_some(),
-            None => !self.descriptor_files(crate::baselines::TOPOREC)?.is_empty(),
+            None => !self.descriptor_files(crate::methods::TOPOREC)?.is_empty(),
         };
         if toporec {
-            out.push(crate::baselines::TOPOREC.to_string());
+            out.push(crate::methods::TOPOREC.to_string());
         }
         if let Some(m) = &self.manifest {
             out.extend(m.methods.keys().cloned());
@@ -225,7 +225,7 @@ impl IndexReader {
     /// Every TopoRec descriptor (only `sessions`, when not empty), in (session, part, row)
     /// order. `length`: the descriptor length expected (needed to read variable-length lists).
     pub fn descriptors(&self, sessions: &[String], length: Option<usize>) -> Result<Vec<IndexedScan>> {
-        self.descriptors_of(crate::baselines::TOPOREC, sessions, length)
+        self.descriptors_of(crate::methods::TOPOREC, sessions, length)
     }
 
     /// Every descriptor of `method` (only `sessions`, when not empty), in (session, part, row)

@@ -29,10 +29,10 @@ use super::recovery;
 use super::{
     CODEBOOK_FILE, LOCK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path,
 };
-use crate::baselines::TOPOREC;
 use crate::error::{Error, Result, ResultExt};
 use crate::fsutil::StagedFile;
 use crate::homology::Diagram;
+use crate::methods::TOPOREC;
 use crate::sinks::parquet::{
     DescriptorRow, DescriptorsFile, DiagramsFile, ScanRow, ScansFile, Status, TableFile,
 };

@@ -17,7 +17,12 @@
 //! which SC-A-LOAM and most systems deploy. The input is expected pre-downsampled (the paper: a
 //! 0.5 m voxel grid), which the method's preprocessing does.
 
+use super::euclidean::Euclidean;
+use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
 use crate::types::Point;
+
+/// The method's name.
+pub const NAME: &str = "scancontext";
 
 /// ScanContext settings (`[scancontext]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -235,16 +240,7 @@ pub type ScHit = (usize, f64, usize);
 pub struct Searcher {
     params: ScanContextParams,
     descriptors: Vec<f32>,
-    keys: crate::search::Database,
-}
-
-/// Seconds a search spent in each step.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct SearchTimes {
-    /// Ring-key nearest neighbours.
-    pub candidates: f64,
-    /// ScanContext distances of the candidates.
-    pub rerank: f64,
+    keys: Euclidean,
 }
 
 impl Searcher {
@@ -252,18 +248,8 @@ impl Searcher {
     pub fn new(descriptors: Vec<f32>, params: ScanContextParams) -> Self {
         let keys: Vec<f32> =
             descriptors.chunks_exact(params.len()).flat_map(|d| ring_key(d, &params)).collect();
-        let keys = crate::search::Database::new(keys, params.rings);
+        let keys = Euclidean::new(keys, params.rings);
         Searcher { params, descriptors, keys }
-    }
-
-    /// Rows.
-    pub fn len(&self) -> usize {
-        self.keys.len()
-    }
-
-    /// Whether there are no rows.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 
     /// The parameters.
@@ -271,16 +257,80 @@ impl Searcher {
         &self.params
     }
 
-    /// The `k` best rows for `query`, by (distance, row), with the time of each step.
-    pub fn search(&self, query: &[f32], k: usize) -> (Vec<ScHit>, SearchTimes) {
+    /// The `k` best rows for `query` (among those `allowed` admits), by (distance, row), each
+    /// with its best column shift, and the time of each step.
+    pub fn ranked(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<ScHit>, SearchTimes) {
         let p = &self.params;
         let t = std::time::Instant::now();
-        let wanted = p.candidates.max(k).min(self.len());
-        let candidates = self.keys.search(&ring_key(query, p), wanted);
+        let wanted = p.candidates.max(k).min(super::Searcher::len(self));
+        let candidates = self.keys.nearest(&ring_key(query, p), wanted, allowed);
         let candidates_secs = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
         let hits = rerank(query, &self.descriptors, candidates.into_iter().map(|(row, _)| row), k, p);
         (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
+    }
+}
+
+impl super::Searcher for Searcher {
+    fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    fn push(&mut self, descriptor: &[f32]) {
+        self.descriptors.extend_from_slice(descriptor);
+        self.keys.push(&ring_key(descriptor, &self.params));
+    }
+
+    fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
+        let (hits, times) = self.ranked(query, k, allowed);
+        let hits =
+            hits.into_iter().map(|(row, d, shift)| Hit::turned(row, d, yaw_degrees(shift, &self.params)));
+        (hits.collect(), times)
+    }
+
+    fn set_budget(&mut self, budget: SearchBudget, entries: usize) {
+        if let Some((candidates, ratio)) = budget.candidates_and_ratio(self.params.sectors, entries) {
+            (self.params.candidates, self.params.search_ratio) = (candidates, ratio);
+        }
+    }
+}
+
+impl super::Computed for ScanContextParams {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn settings(&self) -> serde_json::Value {
+        serde_json::to_value(self).expect("plain data")
+    }
+
+    fn problems(&self) -> Vec<String> {
+        ScanContextParams::problems(self)
+    }
+
+    fn len(&self) -> usize {
+        ScanContextParams::len(self)
+    }
+
+    fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
+        let grid = if self.voxel > 0.0 {
+            crate::preprocess::voxel_grid(points, self.voxel)
+        } else {
+            points.to_vec()
+        };
+        Ok(describe(&grid, self))
+    }
+
+    fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
+        Box::new(Searcher::new(descriptors, self.clone()))
+    }
+
+    fn search_steps(&self) -> &'static [&'static str] {
+        &["candidates", "rerank"]
+    }
+
+    fn default_threshold(&self) -> Option<f64> {
+        (*self == ScanContextParams::default()).then_some(0.5335)
     }
 }
 

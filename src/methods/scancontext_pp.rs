@@ -41,7 +41,13 @@
 //! does. When no column is filled in both contexts the MATLAB distance is 0/0; toporec's is 1.
 
 use super::scancontext::{self, ScanContextParams};
+use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, timed};
 use crate::types::Point;
+
+/// The name of Scan Context++'s polar context.
+pub const POLAR: &str = "scancontext-pp";
+/// The name of Scan Context++'s Cartesian context.
+pub const CARTESIAN: &str = "scancontext-pp-cart";
 
 /// Scan Context++ polar-context settings (`[scancontext-pp]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -149,7 +155,7 @@ fn common_problems(name: &str, candidates: usize, search_ratio: f64, voxel: f64,
 impl PolarParams {
     /// The settings' problems, each with its key.
     pub fn problems(&self) -> Vec<String> {
-        let name = super::SCANCONTEXT_PP;
+        let name = POLAR;
         let mut out =
             common_problems(name, self.candidates, self.search_ratio, self.voxel, self.lidar_height);
         if !(1..=1000).contains(&self.rings) || !(1..=3600).contains(&self.sectors) {
@@ -195,7 +201,7 @@ impl PolarParams {
 impl CartParams {
     /// The settings' problems, each with its key.
     pub fn problems(&self) -> Vec<String> {
-        let name = super::SCANCONTEXT_PP_CART;
+        let name = CARTESIAN;
         let mut out =
             common_problems(name, self.candidates, self.search_ratio, self.voxel, self.lidar_height);
         let positive = |v: f64| v.is_finite() && v > 0.0;
@@ -488,11 +494,6 @@ impl Searcher {
         }
     }
 
-    /// The `k` best rows for `query`, by (distance, row).
-    pub fn search(&self, query: &[f32], k: usize) -> Vec<PpHit> {
-        self.search_where(query, k, &|_| true)
-    }
-
     /// The `k` best rows for `query` among those `allowed` admits, by (distance, row).
     pub fn search_where(&self, query: &[f32], k: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<PpHit> {
         let wanted = self.variant.candidates().max(k);
@@ -536,6 +537,73 @@ impl Searcher {
     }
 }
 
+impl super::Searcher for Searcher {
+    fn len(&self) -> usize {
+        Searcher::len(self)
+    }
+
+    fn push(&mut self, descriptor: &[f32]) {
+        Searcher::push(self, descriptor)
+    }
+
+    fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
+        timed(|| {
+            let hits = self.search_where(query, k, allowed.unwrap_or(&|_| true)).into_iter();
+            hits.map(|(row, d, yaw)| Hit::turned(row, d, yaw)).collect()
+        })
+    }
+
+    fn set_budget(&mut self, budget: SearchBudget, entries: usize) {
+        match &mut self.variant {
+            Variant::Polar(p) => {
+                if let Some(s) = budget.candidates_and_ratio(p.sectors, entries) {
+                    (p.candidates, p.search_ratio) = s;
+                }
+            }
+            Variant::Cart(p) => {
+                if let Some(s) = budget.candidates_and_ratio(p.columns(), entries) {
+                    (p.candidates, p.search_ratio) = s;
+                }
+            }
+        }
+    }
+}
+
+/// The [`super::Computed`] methods of both contexts: the same but for their names, settings and
+/// descriptors.
+macro_rules! computed {
+    ($params:ty, $name:expr, $variant:ident, $describe:ident) => {
+        impl super::Computed for $params {
+            fn name(&self) -> &'static str {
+                $name
+            }
+
+            fn settings(&self) -> serde_json::Value {
+                serde_json::to_value(self).expect("plain data")
+            }
+
+            fn problems(&self) -> Vec<String> {
+                <$params>::problems(self)
+            }
+
+            fn len(&self) -> usize {
+                <$params>::len(self)
+            }
+
+            fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
+                Ok($describe(points, self))
+            }
+
+            fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
+                Box::new(Searcher::new(descriptors, Variant::$variant(self.clone())))
+            }
+        }
+    };
+}
+
+computed!(PolarParams, POLAR, Polar, describe_polar);
+computed!(CartParams, CARTESIAN, Cart, describe_cart);
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -560,7 +628,7 @@ mod tests {
         let db: Vec<f32> = (0..40 * p.len()).map(|_| (rng.next_f64() * 4.0).floor() as f32).collect();
         let s = Searcher::new(db.clone(), v.clone());
         let q = &db[7 * p.len()..8 * p.len()];
-        let hits = s.search(q, 3);
+        let hits = s.search_where(q, 3, &|_| true);
         assert_eq!(hits[0].0, 7);
         assert_eq!(hits[0].1, 0.0);
         let mut exact: Vec<(usize, f64)> =

@@ -28,7 +28,11 @@
 //! bound of the k-th best are ranked by the exact distance. So every budget is exhaustive. The
 //! yaw is computed for the hits only.
 
+use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, allowed_rows, timed};
 use crate::types::Point;
+
+/// The method's name.
+pub const NAME: &str = "solid";
 
 /// SOLiD settings (`[solid]` of a pipeline file). The field of view is the sensor's: the
 /// defaults are the HDL-64E's (KITTI); an HDL-32E (NCLT) is +10.67° / −30.67°, a VLP-16
@@ -242,8 +246,13 @@ impl Searcher {
         &self.params
     }
 
-    /// The `k` nearest rows to `query` by the SOLiD distance, nearest first (ties by row).
-    pub fn search(&self, query: &[f32], k: usize) -> Vec<SolidHit> {
+    /// The `k` nearest rows to `query` by the SOLiD distance, nearest first (ties by row);
+    /// among the rows `allowed` admits, every allowed row's distance.
+    pub fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> Vec<SolidHit> {
+        if allowed.is_some() {
+            let rows = allowed_rows(self.descriptors.len() / self.params.len(), allowed);
+            return ranked(query, &self.descriptors, rows, k, &self.params);
+        }
         let rings = self.params.rings;
         let q = unit_range(query, &self.params);
         let dots: Vec<f32> =
@@ -256,6 +265,53 @@ impl Searcher {
         let (_, kth, _) = order.select_nth_unstable_by(k - 1, |a, b| b.total_cmp(a));
         let cut = *kth - dot_error_bound(rings);
         ranked(query, &self.descriptors, (0..dots.len()).filter(|&row| dots[row] >= cut), k, &self.params)
+    }
+}
+
+impl super::Searcher for Searcher {
+    fn len(&self) -> usize {
+        self.descriptors.len() / self.params.len()
+    }
+
+    fn push(&mut self, descriptor: &[f32]) {
+        self.descriptors.extend_from_slice(descriptor);
+        self.keys.extend(unit_range(descriptor, &self.params));
+    }
+
+    fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
+        timed(|| {
+            let hits = Searcher::search(self, query, k, allowed).into_iter();
+            hits.map(|(row, d, shift)| Hit::turned(row, d, yaw_degrees(shift, &self.params))).collect()
+        })
+    }
+
+    /// Every entry is compared at every shift whatever the budget.
+    fn set_budget(&mut self, _budget: SearchBudget, _entries: usize) {}
+}
+
+impl super::Computed for SolidParams {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn settings(&self) -> serde_json::Value {
+        serde_json::to_value(self).expect("plain data")
+    }
+
+    fn problems(&self) -> Vec<String> {
+        SolidParams::problems(self)
+    }
+
+    fn len(&self) -> usize {
+        SolidParams::len(self)
+    }
+
+    fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
+        Ok(describe(&preprocess(points, self), self))
+    }
+
+    fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
+        Box::new(Searcher::new(descriptors, self.clone()))
     }
 }
 
@@ -302,11 +358,12 @@ mod tests {
             let mut exact: Vec<(usize, f64)> =
                 (0..500).map(|i| (i, distance(&q, &row(&db, i), &p))).collect();
             exact.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            let got: Vec<(usize, f64)> = searcher.search(&q, 7).into_iter().map(|h| (h.0, h.1)).collect();
+            let got: Vec<(usize, f64)> =
+                searcher.search(&q, 7, None).into_iter().map(|h| (h.0, h.1)).collect();
             assert_eq!(got, exact[..7]);
         }
-        assert!(searcher.search(&row(&db, 1), 0).is_empty());
-        assert_eq!(searcher.search(&row(&db, 1), 9999).len(), 500);
+        assert!(searcher.search(&row(&db, 1), 0, None).is_empty());
+        assert_eq!(searcher.search(&row(&db, 1), 9999, None).len(), 500);
     }
 
     #[test]

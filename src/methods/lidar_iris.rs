@@ -54,10 +54,14 @@
 //!   not depend on the yaw. The candidates are re-ranked by the distance above; an exhaustive
 //!   budget re-ranks every row.
 
+use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, timed};
 use crate::types::Point;
 use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 use std::sync::Arc;
+
+/// The method's name.
+pub const NAME: &str = "lidar-iris";
 
 /// Image rows: 1 m range bins to 80 m.
 pub const ROWS: usize = 80;
@@ -526,11 +530,6 @@ impl Searcher {
         self.entries.push(Entry::new(descriptor, &self.params));
     }
 
-    /// The `k` best rows for `query`, by (distance, row).
-    pub fn search(&self, query: &[f32], k: usize) -> Vec<IrisHit> {
-        self.search_where(query, k, &|_| true)
-    }
-
     /// The `k` best rows for `query` among those `allowed` admits, by (distance, row).
     pub fn search_where(&self, query: &[f32], k: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<IrisHit> {
         if k == 0 {
@@ -558,6 +557,61 @@ impl Searcher {
         hits.sort_by(|a, b| a.1.distance.total_cmp(&b.1.distance).then(a.0.cmp(&b.0)));
         hits.truncate(k);
         hits.into_iter().map(|(r, m)| (r, m.distance, m.yaw_degrees)).collect()
+    }
+}
+
+impl super::Searcher for Searcher {
+    fn len(&self) -> usize {
+        Searcher::len(self)
+    }
+
+    fn push(&mut self, descriptor: &[f32]) {
+        Searcher::push(self, descriptor)
+    }
+
+    fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
+        timed(|| {
+            let hits = self.search_where(query, k, allowed.unwrap_or(&|_| true)).into_iter();
+            hits.map(|(row, d, yaw)| Hit::turned(row, d, yaw)).collect()
+        })
+    }
+
+    /// The shifts are always the five around the phase correlation's peak.
+    fn set_budget(&mut self, budget: SearchBudget, entries: usize) {
+        if let Some(n) = budget.candidates(entries) {
+            self.params.candidates = n;
+        }
+    }
+}
+
+impl super::Computed for IrisParams {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn settings(&self) -> serde_json::Value {
+        serde_json::to_value(self).expect("plain data")
+    }
+
+    fn problems(&self) -> Vec<String> {
+        IrisParams::problems(self)
+    }
+
+    fn len(&self) -> usize {
+        IrisParams::len(self)
+    }
+
+    /// Its image, then its template and mask bit-packed: bytes.
+    fn stores_bytes(&self) -> bool {
+        true
+    }
+
+    fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
+        Ok(describe(points, self))
+    }
+
+    fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
+        Box::new(Searcher::new(descriptors, self.clone()))
     }
 }
 

@@ -18,6 +18,59 @@
 use crate::types::Point;
 use nalgebra::{DMatrix, Matrix3, SymmetricEigen, Vector3};
 
+/// The method's name.
+pub const NAME: &str = "m2dp";
+
+/// M2DP settings (`[m2dp]` of a pipeline file).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct M2dpParams {
+    /// Voxel-grid cell of the preprocessing (m); none when 0 (the reference uses the raw cloud).
+    pub voxel: f64,
+}
+
+impl Default for M2dpParams {
+    fn default() -> Self {
+        M2dpParams { voxel: 0.0 }
+    }
+}
+
+impl super::Computed for M2dpParams {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn settings(&self) -> serde_json::Value {
+        serde_json::to_value(self).expect("plain data")
+    }
+
+    fn problems(&self) -> Vec<String> {
+        if self.voxel.is_finite() && self.voxel >= 0.0 {
+            Vec::new()
+        } else {
+            vec![format!("m2dp.voxel: must be in [0, inf) m; found {}", self.voxel)]
+        }
+    }
+
+    fn len(&self) -> usize {
+        LEN
+    }
+
+    fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
+        let grid = if self.voxel > 0.0 {
+            crate::preprocess::voxel_grid(points, self.voxel)
+        } else {
+            points.to_vec()
+        };
+        Ok(describe(&grid))
+    }
+
+    /// Distances are Euclidean: exact k-NN.
+    fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
+        Box::new(super::euclidean::Euclidean::new(descriptors, LEN))
+    }
+}
+
 /// Azimuths of the projection normals.
 const AZIMUTHS: usize = 4;
 /// Elevations of the projection normals.

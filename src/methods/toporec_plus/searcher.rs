@@ -1,0 +1,575 @@
+//! The searcher: every entry's code columns and keys in sections (owned and growing, or mapped
+//! from the index's cache), candidates from the keys in one pass (blocked, AVX2), re-ranked by
+//! the distance.
+
+use super::PlusParams;
+use super::distance::{Entry, Query, columns_of, distance_to, reach};
+use super::keys::*;
+use crate::methods::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
+
+/// A hit: database row, distance, yaw of the query relative to it (degrees).
+pub type PlusHit = (usize, f64, f64);
+
+/// Entries the first step of the shape list keeps, per row of the list: their filled shares
+/// per ring are nearest the query's.
+pub(super) const COARSE_PER_CANDIDATE: usize = 10;
+
+/// Rows of each key's list, per candidate wanted.
+pub(super) const LIST_PER_CANDIDATE: usize = 4;
+
+/// The constant of the reciprocal-rank fusion: a row's score is `Σ 1 / (FUSION_K + rank)`.
+pub(super) const FUSION_K: f64 = 10.0;
+
+/// Descriptors searched in two steps: candidates by the keys, then those re-ranked by
+/// [`distance`]. Three keys rank the entries (the shape key among the entries whose filled
+/// shares per ring, its first terms, are nearest the query's; the profile key and the ring key
+/// among all entries: exact k-NN over bytes), and the candidates are the best of the rankings
+/// fused. Each key misses what another finds: the shape and ring keys the scans with a hidden
+/// sector, the profile key places whose sectors look alike in another order. The entries are
+/// kept as their code columns (a byte a code), not as descriptors.
+pub struct Searcher {
+    params: PlusParams,
+    /// Entries.
+    n: usize,
+    /// Every entry's columns and keys, by sections ([`Section`]): owned (and growing), or
+    /// mapped from a cache file.
+    store: Store,
+}
+
+/// The sections of a searcher's buffer, per entry: the code columns (u8), reach (u8); the first
+/// pass's keys ([`firsts`]), the shape key and the profile key (each [`quantized`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Section {
+    Columns,
+    Reach,
+    Firsts,
+    Shapes,
+    Profiles,
+}
+
+pub(super) const SECTIONS: usize = 5;
+pub(super) const ALL_SECTIONS: [Section; SECTIONS] =
+    [Section::Columns, Section::Reach, Section::Firsts, Section::Shapes, Section::Profiles];
+
+impl Section {
+    /// Bytes per entry.
+    fn entry_bytes(self, p: &PlusParams) -> usize {
+        match self {
+            Section::Columns => p.len(),
+            Section::Reach => 1,
+            Section::Firsts => FIRSTS * first_width(p),
+            Section::Shapes => shape_len(p),
+            Section::Profiles => profile_len(p),
+        }
+    }
+
+    /// Bytes for `n` entries: the first pass's keys in whole blocks ([`BLOCK`]).
+    fn bytes_for(self, n: usize, p: &PlusParams) -> usize {
+        match self {
+            Section::Firsts => n.div_ceil(BLOCK) * BLOCK * self.entry_bytes(p),
+            _ => n * self.entry_bytes(p),
+        }
+    }
+
+    /// Puts `bytes` (one entry's) as entry `row` of this section's `to`, which holds the
+    /// entries before it.
+    fn append(self, to: &mut Vec<u8>, row: usize, bytes: &[u8], p: &PlusParams) {
+        match self {
+            Section::Firsts => {
+                to.resize(self.bytes_for(row + 1, p), 0);
+                put_first(to, row, bytes);
+            }
+            _ => to.extend_from_slice(bytes),
+        }
+    }
+
+    /// Entry `row`'s bytes in `all` (this section of every entry).
+    fn entry_of<'a>(self, all: &'a [u8], row: usize, p: &PlusParams) -> std::borrow::Cow<'a, [u8]> {
+        let per = self.entry_bytes(p);
+        match self {
+            Section::Firsts => std::borrow::Cow::Owned(get_first(all, row, per)),
+            _ => std::borrow::Cow::Borrowed(&all[row * per..(row + 1) * per]),
+        }
+    }
+}
+
+/// The layout of a searcher's bytes ([`Searcher::bytes`]), as a cache file names it: a cache of
+/// another layout is rebuilt.
+pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-3";
+
+/// Sections start on 64-byte boundaries.
+pub(super) const SECTION_ALIGN: usize = 64;
+
+/// The byte offsets of the sections for `n` entries, and the buffer's length.
+pub(super) fn layout(n: usize, p: &PlusParams) -> ([usize; SECTIONS], usize) {
+    let mut offsets = [0; SECTIONS];
+    let mut at = 0;
+    for (o, section) in offsets.iter_mut().zip(ALL_SECTIONS) {
+        *o = at;
+        at = (at + section.bytes_for(n, p)).next_multiple_of(SECTION_ALIGN);
+    }
+    (offsets, at)
+}
+
+/// Bytes a searcher holds per entry (its sections, without their alignment).
+pub fn entry_bytes(p: &PlusParams) -> usize {
+    ALL_SECTIONS.iter().map(|s| s.entry_bytes(p)).sum()
+}
+
+/// A searcher's sections: built in memory (one growing vector each), or mapped from a cache
+/// file (read only; the OS pages it in as searches touch it).
+pub(super) enum Store {
+    Owned([Vec<u8>; SECTIONS]),
+    /// The file's bytes from `body` on, the sections at `offsets` ([`layout`]).
+    Mapped {
+        map: memmap2::Mmap,
+        body: usize,
+        offsets: [usize; SECTIONS],
+    },
+}
+
+/// Rows of a block of the first pass's keys. A block holds each key's 8-byte groups
+/// group by group, the block's rows side by side (`[key][group][row][8 bytes]`), so that one
+/// 32-byte load reads one group of four rows and one sum of absolute differences (`psadbw`)
+/// gives their four partial distances.
+pub(super) const BLOCK: usize = 4;
+
+/// Where byte `t` of a row's keys (`width` bytes a key, a multiple of 8) lies in its block.
+#[inline(always)]
+pub(super) fn first_offset(t: usize, row_in_block: usize) -> usize {
+    (t / 8) * 8 * BLOCK + row_in_block * 8 + t % 8
+}
+
+/// Writes `first` (the [`FIRSTS`] keys of one row, in a row) as row `row` of the blocked
+/// section `blocks`.
+pub(super) fn put_first(blocks: &mut [u8], row: usize, first: &[u8]) {
+    let block = &mut blocks[row / BLOCK * BLOCK * first.len()..][..BLOCK * first.len()];
+    for (t, &byte) in first.iter().enumerate() {
+        block[first_offset(t, row % BLOCK)] = byte;
+    }
+}
+
+/// Row `row`'s keys (`row_bytes` bytes) from the blocked section `blocks`.
+pub(super) fn get_first(blocks: &[u8], row: usize, row_bytes: usize) -> Vec<u8> {
+    let block = &blocks[row / BLOCK * BLOCK * row_bytes..][..BLOCK * row_bytes];
+    (0..row_bytes).map(|t| block[first_offset(t, row % BLOCK)]).collect()
+}
+
+/// For each of the [`FIRSTS`] keys of the `n` rows of `blocks` (blocked, [`BLOCK`]; `width`
+/// bytes a key, a multiple of 8), the `m[i]` rows nearest the query's (`FIRSTS × width` bytes,
+/// in a row) by the L1 distance (the sum of absolute differences), ties to the lower row, in
+/// that order: one pass over the rows.
+pub(super) fn nearest_rows_3(
+    blocks: &[u8],
+    n: usize,
+    query: &[u8],
+    width: usize,
+    m: [usize; FIRSTS],
+    allowed: &dyn Fn(usize) -> bool,
+) -> [Vec<usize>; FIRSTS] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        return unsafe { nearest_rows_3_avx2(blocks, n, query, width, m, allowed) };
+    }
+    nearest_rows_3_portable(blocks, n, query, width, m, allowed)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+pub(super) fn nearest_rows_3_avx2(
+    blocks: &[u8],
+    n: usize,
+    query: &[u8],
+    width: usize,
+    m: [usize; FIRSTS],
+    allowed: &dyn Fn(usize) -> bool,
+) -> [Vec<usize>; FIRSTS] {
+    use std::arch::x86_64::*;
+    let groups = width / 8;
+    let row_bytes = FIRSTS * width;
+    // Each query group repeated for the four rows of a block.
+    let q: Vec<__m256i> = query
+        .chunks_exact(8)
+        .map(|g| _mm256_set1_epi64x(i64::from_le_bytes(g.try_into().expect("8 bytes"))))
+        .collect();
+    let mut best = Nearest::new(m, allowed);
+    let mut bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
+    for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
+        let mut sums = [_mm256_setzero_si256(); FIRSTS];
+        let mut near = 0;
+        for (k, sum) in sums.iter_mut().enumerate() {
+            for g in k * groups..(k + 1) * groups {
+                let bytes = &block[g * 8 * BLOCK..(g + 1) * 8 * BLOCK];
+                // SAFETY: `bytes` is 32 bytes long; an unaligned load.
+                let v = unsafe { _mm256_loadu_si256(bytes.as_ptr() as *const __m256i) };
+                *sum = _mm256_add_epi64(*sum, _mm256_sad_epu8(v, q[g]));
+            }
+            near |= _mm256_movemask_pd(_mm256_castsi256_pd(_mm256_cmpgt_epi64(bounds[k], *sum)));
+        }
+        // Most blocks hold no row nearer than a list's farthest.
+        if near != 0 {
+            let sums = sums.map(|s| {
+                let mut out = [0u64; BLOCK];
+                // SAFETY: `out` holds 32 bytes; an unaligned store.
+                unsafe { _mm256_storeu_si256(out.as_mut_ptr() as *mut __m256i, s) };
+                out
+            });
+            for (i, row) in (b * BLOCK..n.min((b + 1) * BLOCK)).enumerate() {
+                best.offer(row, std::array::from_fn(|k| sums[k][i] as u32));
+            }
+            bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
+        }
+    }
+    best.rows()
+}
+
+pub(super) fn nearest_rows_3_portable(
+    blocks: &[u8],
+    n: usize,
+    query: &[u8],
+    width: usize,
+    m: [usize; FIRSTS],
+    allowed: &dyn Fn(usize) -> bool,
+) -> [Vec<usize>; FIRSTS] {
+    let row_bytes = FIRSTS * width;
+    let mut best = Nearest::new(m, allowed);
+    for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
+        for i in 0..BLOCK.min(n - b * BLOCK) {
+            let distance = |k: usize| -> u32 {
+                (k * width..(k + 1) * width)
+                    .map(|t| block[first_offset(t, i)].abs_diff(query[t]) as u32)
+                    .sum()
+            };
+            best.offer(b * BLOCK + i, std::array::from_fn(distance));
+        }
+    }
+    best.rows()
+}
+
+/// The `m[k]` smallest (distance, row) for each of the [`FIRSTS`] keys among the rows
+/// `allowed` admits (asked only of a row that would be kept), ties to the lower row. Each list
+/// gathers up to `2 m` keys below its bound, then keeps its `m` smallest (a selection, not a
+/// heap: a constant cost per key kept).
+pub(super) struct Nearest<'a> {
+    allowed: &'a dyn Fn(usize) -> bool,
+    m: [usize; FIRSTS],
+    kept: [Vec<u64>; FIRSTS],
+    /// The largest of the `m` smallest keys so far once a list has been cut to `m` (u64::MAX
+    /// before, 0 when `m` is 0): most rows are refused by one comparison with it.
+    bound: [u64; FIRSTS],
+}
+
+impl<'a> Nearest<'a> {
+    fn new(m: [usize; FIRSTS], allowed: &'a dyn Fn(usize) -> bool) -> Self {
+        Nearest {
+            allowed,
+            m,
+            kept: m.map(|m| Vec::with_capacity(2 * m)),
+            bound: m.map(|m| if m == 0 { 0 } else { u64::MAX }),
+        }
+    }
+
+    #[inline(always)]
+    fn offer(&mut self, row: usize, distances: [u32; FIRSTS]) {
+        // Whether the row is allowed: asked once, and only of a row some list would keep.
+        let mut admitted: Option<bool> = None;
+        for (k, &distance) in distances.iter().enumerate() {
+            let key = ((distance as u64) << 32) | row as u64;
+            if key < self.bound[k] && *admitted.get_or_insert_with(|| (self.allowed)(row)) {
+                self.kept[k].push(key);
+                if self.kept[k].len() == 2 * self.m[k] {
+                    self.shrink(k);
+                }
+            }
+        }
+    }
+
+    /// Keeps list `k`'s `m` smallest keys; the largest of them bounds what it takes next.
+    #[cold]
+    fn shrink(&mut self, k: usize) {
+        let (kept, m) = (&mut self.kept[k], self.m[k]);
+        kept.select_nth_unstable(m - 1);
+        kept.truncate(m);
+        self.bound[k] = kept[m - 1];
+    }
+
+    /// Per list, the distance a row must be below to be kept: rows come in order, so one at the
+    /// farthest kept distance comes after the kept row and loses the tie.
+    fn distance_bounds(&self) -> [u32; FIRSTS] {
+        self.bound.map(|b| (b >> 32) as u32)
+    }
+
+    fn rows(self) -> [Vec<usize>; FIRSTS] {
+        let mut kept = self.kept;
+        std::array::from_fn(|k| {
+            let list = &mut kept[k];
+            list.sort_unstable();
+            list.iter().take(self.m[k]).map(|&v| (v & 0xffff_ffff) as usize).collect()
+        })
+    }
+}
+
+impl Searcher {
+    /// A searcher over `descriptors` (`n × len`, row-major), made ready in place of them.
+    pub fn new(descriptors: Vec<f32>, params: PlusParams) -> Self {
+        use rayon::prelude::*;
+        let p = &params;
+        let parts: Vec<[Vec<u8>; SECTIONS]> =
+            descriptors.par_chunks_exact(p.len()).map(|d| entry(d, p)).collect();
+        drop(descriptors);
+        let mut sections: [Vec<u8>; SECTIONS] =
+            ALL_SECTIONS.map(|section| Vec::with_capacity(section.bytes_for(parts.len(), p)));
+        for (row, part) in parts.iter().enumerate() {
+            for ((to, from), section) in sections.iter_mut().zip(part).zip(ALL_SECTIONS) {
+                section.append(to, row, from, p);
+            }
+        }
+        Searcher { n: parts.len(), params, store: Store::Owned(sections) }
+    }
+
+    /// One more entry, after the others (a mapped searcher is copied into memory first).
+    pub fn push(&mut self, descriptor: &[f32]) {
+        if let Store::Mapped { .. } = self.store {
+            *self = self.subset(&(0..self.n).collect::<Vec<_>>());
+        }
+        let parts = entry(descriptor, &self.params);
+        if let Store::Owned(sections) = &mut self.store {
+            for ((to, from), section) in sections.iter_mut().zip(&parts).zip(ALL_SECTIONS) {
+                section.append(to, self.n, from, &self.params);
+            }
+        }
+        self.n += 1;
+    }
+
+    /// The searcher's bytes, its sections laid out as a cache file's body holds them
+    /// (`layout`).
+    pub fn bytes(&self) -> std::borrow::Cow<'_, [u8]> {
+        let (offsets, total) = layout(self.n, &self.params);
+        match &self.store {
+            Store::Mapped { map, body, .. } => std::borrow::Cow::Borrowed(&map[*body..*body + total]),
+            Store::Owned(_) => {
+                let mut out = vec![0u8; total];
+                for (i, section) in ALL_SECTIONS.into_iter().enumerate() {
+                    let bytes = self.section(section);
+                    out[offsets[i]..offsets[i] + bytes.len()].copy_from_slice(bytes);
+                }
+                std::borrow::Cow::Owned(out)
+            }
+        }
+    }
+
+    /// A searcher over the `n` entries laid out in `map` from byte `body` on (a cache file
+    /// written from [`Searcher::bytes`]).
+    pub fn mapped(map: memmap2::Mmap, body: usize, n: usize, params: PlusParams) -> Result<Self, String> {
+        let (offsets, total) = layout(n, &params);
+        if map.len() < body + total {
+            return Err(format!(
+                "{} bytes for {n} entries, {total} expected",
+                map.len().saturating_sub(body)
+            ));
+        }
+        Ok(Searcher { params, n, store: Store::Mapped { map, body, offsets } })
+    }
+
+    /// The entries `rows` (in that order) in a searcher of their own, copied.
+    pub fn subset(&self, rows: &[usize]) -> Self {
+        let p = &self.params;
+        let sections = ALL_SECTIONS.map(|section| {
+            let from = self.section(section);
+            let mut out = Vec::with_capacity(section.bytes_for(rows.len(), p));
+            for (to, &row) in rows.iter().enumerate() {
+                section.append(&mut out, to, &section.entry_of(from, row, p), p);
+            }
+            out
+        });
+        Searcher { params: self.params.clone(), n: rows.len(), store: Store::Owned(sections) }
+    }
+
+    /// The same entries searched with other search settings (candidates, shift range); the
+    /// descriptor settings must be this searcher's.
+    pub fn with_search(mut self, candidates: usize, search_ratio: f64) -> Self {
+        self.params.candidates = candidates;
+        self.params.search_ratio = search_ratio;
+        self
+    }
+
+    /// One section of every entry.
+    fn section(&self, section: Section) -> &[u8] {
+        let i = section as usize;
+        let len = section.bytes_for(self.n, &self.params);
+        match &self.store {
+            Store::Owned(sections) => &sections[i][..len],
+            Store::Mapped { map, body, offsets } => &map[body + offsets[i]..body + offsets[i] + len],
+        }
+    }
+
+    /// One section of entry `row`.
+    fn entry_section(&self, section: Section, row: usize) -> &[u8] {
+        let per = section.entry_bytes(&self.params);
+        &self.section(section)[row * per..(row + 1) * per]
+    }
+
+    /// Rows.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// Whether there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &PlusParams {
+        &self.params
+    }
+
+    /// Entry `row`, ready for matching.
+    fn entry(&self, row: usize) -> Entry<'_> {
+        Entry {
+            columns: self.entry_section(Section::Columns, row),
+            reach: self.entry_section(Section::Reach, row)[0] as usize,
+        }
+    }
+
+    /// The candidates for `query`: the `wanted` rows best by the reciprocal-rank fusion of three
+    /// lists of `LIST_PER_CANDIDATE × wanted` rows, one by each key (a row's score is the sum
+    /// over the lists of `1 / (FUSION_K + rank)`, ties to the lower row): the ring key's, and
+    /// the shape key's and the profile key's among the `COARSE_PER_CANDIDATE` times as many
+    /// rows nearest the query by their first terms ([`firsts`], all three read in one pass).
+    fn candidates(&self, query: &[f32], wanted: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<usize> {
+        let p = &self.params;
+        let long = LIST_PER_CANDIDATE * wanted;
+        let (shape, profile) = (quantized(&shape_key(query, p)), quantized(&profile_key(query, p)));
+        let first = firsts(&shape, &profile, &quantized(&ring_key(query, p)), p);
+        let [by_ring, coarse_shape, coarse_profile] = nearest_rows_3(
+            self.section(Section::Firsts),
+            self.n,
+            &first,
+            first_width(p),
+            [long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long],
+            allowed,
+        );
+        let refined = |section: Section, key: &[u8], mut coarse: Vec<usize>| -> Vec<usize> {
+            let all = self.section(section);
+            let entry = |row: usize| &all[row * key.len()..(row + 1) * key.len()];
+            // The rows lie anywhere in the section: each one's bytes are asked for a few rows
+            // ahead of their use, in the section's order.
+            coarse.sort_unstable();
+            let mut scored: Vec<(u32, usize)> = Vec::with_capacity(coarse.len());
+            for (i, &row) in coarse.iter().enumerate() {
+                if let Some(&ahead) = coarse.get(i + PREFETCH_ROWS) {
+                    prefetch(entry(ahead));
+                }
+                let d = key.iter().zip(entry(row)).map(|(&a, &b)| (a as i32 - b as i32).pow(2) as u32).sum();
+                scored.push((d, row));
+            }
+            scored.sort_unstable();
+            scored.into_iter().take(long).map(|(_, row)| row).collect()
+        };
+        let by_shape = refined(Section::Shapes, &shape, coarse_shape);
+        let by_profile = refined(Section::Profiles, &profile, coarse_profile);
+        let mut score: std::collections::HashMap<usize, f64> =
+            std::collections::HashMap::with_capacity(3 * long);
+        for list in [&by_ring, &by_shape, &by_profile] {
+            for (rank, &row) in list.iter().enumerate() {
+                *score.entry(row).or_default() += 1.0 / (FUSION_K + rank as f64);
+            }
+        }
+        let mut fused: Vec<(f64, usize)> = score.into_iter().map(|(row, s)| (s, row)).collect();
+        fused.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        fused.into_iter().take(wanted).map(|(_, row)| row).collect()
+    }
+
+    /// The `k` best rows for `query`, by (distance, row), with the time of each step.
+    pub fn search(&self, query: &[f32], k: usize) -> (Vec<PlusHit>, SearchTimes) {
+        self.search_where(query, k, &|_| true)
+    }
+
+    /// The `k` best rows for `query` among those `allowed` admits, by (distance, row), with the
+    /// time of each step: the rows and distances a searcher of those rows alone would give.
+    pub fn search_where(
+        &self,
+        query: &[f32],
+        k: usize,
+        allowed: &dyn Fn(usize) -> bool,
+    ) -> (Vec<PlusHit>, SearchTimes) {
+        let p = &self.params;
+        let t = std::time::Instant::now();
+        let wanted = p.candidates.max(k);
+        // With no more allowed rows than wanted, the keys' lists hold them all.
+        let rows = if wanted >= self.len() {
+            (0..self.len()).filter(|&row| allowed(row)).collect()
+        } else {
+            self.candidates(query, wanted, allowed)
+        };
+        let candidates_secs = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let q = Query::new(query, p);
+        let mut hits: Vec<PlusHit> = rows
+            .into_iter()
+            .map(|row| {
+                let (d, yaw) = distance_to(&q, self.entry(row), p);
+                (row, d, yaw)
+            })
+            .collect();
+        hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        hits.truncate(k);
+        (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
+    }
+}
+
+/// The sections' bytes of one entry.
+pub(super) fn entry(d: &[f32], p: &PlusParams) -> [Vec<u8>; SECTIONS] {
+    let mut columns = vec![0u8; p.len()];
+    columns_of(d, p, &mut columns);
+    let (shape, profile) = (quantized(&shape_key(d, p)), quantized(&profile_key(d, p)));
+    let first = firsts(&shape, &profile, &quantized(&ring_key(d, p)), p);
+    [columns, vec![reach(d, p) as u8], first, shape, profile]
+}
+
+/// Rows ahead whose bytes a scan of scattered rows asks for.
+pub(super) const PREFETCH_ROWS: usize = 8;
+
+/// Asks for `bytes` to be brought into the cache; a hint, with no effect on results.
+#[inline(always)]
+pub(super) fn prefetch(bytes: &[u8]) {
+    #[cfg(target_arch = "x86_64")]
+    for line in bytes.chunks(64) {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: prefetching reads nothing and cannot fault; the address is within `bytes`.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(line.as_ptr() as *const i8) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = bytes;
+}
+
+impl crate::methods::Searcher for Searcher {
+    fn len(&self) -> usize {
+        self.n
+    }
+
+    fn push(&mut self, descriptor: &[f32]) {
+        Searcher::push(self, descriptor)
+    }
+
+    fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
+        let (hits, times) = self.search_where(query, k, allowed.unwrap_or(&|_| true));
+        (hits.into_iter().map(|(row, d, yaw)| Hit::turned(row, d, yaw)).collect(), times)
+    }
+
+    fn set_budget(&mut self, budget: SearchBudget, entries: usize) {
+        if let Some((candidates, ratio)) = budget.candidates_and_ratio(self.params.sectors, entries) {
+            (self.params.candidates, self.params.search_ratio) = (candidates, ratio);
+        }
+    }
+
+    fn subset(&self, rows: &[usize]) -> Option<Box<dyn crate::methods::Searcher>> {
+        Some(Box::new(Searcher::subset(self, rows)))
+    }
+
+    fn bytes(&self) -> Option<std::borrow::Cow<'_, [u8]>> {
+        Some(Searcher::bytes(self))
+    }
+}

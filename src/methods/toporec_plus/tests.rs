@@ -1,0 +1,228 @@
+//! toporec-plus's unit tests: the relief by hand, turns, keys, hidden sectors, short ranges,
+//! the first pass's routes, grown and restricted searches.
+
+use super::PlusParams;
+use super::distance::*;
+use super::field::*;
+use super::keys::*;
+use super::searcher::*;
+use crate::types::Point;
+
+/// Box walls around the sensor, sampled every 20 cm with a few centimetres of noise (in
+/// general position: no two squares at the same height).
+fn scene() -> Vec<Point> {
+    let mut rng = crate::rng::SplitMix64(7);
+    let mut jitter = move || (rng.next_f64() - 0.5) * 0.04;
+    let mut pts = Vec::new();
+    let mut add_box = |cx: f64, cy: f64, w: f64, h: f64| {
+        let steps = (w / 0.2) as i32;
+        for i in 0..=steps {
+            for k in 0..=(h / 0.2) as i32 {
+                let t = i as f64 * 0.2 - w / 2.0;
+                let z = k as f64 * 0.2;
+                for q in [
+                    [cx + t, cy - w / 2.0, z],
+                    [cx + t, cy + w / 2.0, z],
+                    [cx - w / 2.0, cy + t, z],
+                    [cx + w / 2.0, cy + t, z],
+                ] {
+                    pts.push([q[0] + jitter(), q[1] + jitter(), q[2] + jitter()]);
+                }
+            }
+        }
+    };
+    add_box(12.0, 5.0, 6.0, 4.0);
+    add_box(-9.0, 14.0, 8.0, 6.0);
+    add_box(-15.0, -10.0, 5.0, 3.0);
+    add_box(4.0, -20.0, 10.0, 5.0);
+    add_box(30.0, -3.0, 4.0, 8.0);
+    pts
+}
+
+fn turned(pts: &[Point], quarter_turns: usize) -> Vec<Point> {
+    pts.iter()
+        .map(|&[x, y, z]| match quarter_turns % 4 {
+            0 => [x, y, z],
+            1 => [-y, x, z],
+            2 => [-x, -y, z],
+            _ => [y, -x, z],
+        })
+        .collect()
+}
+
+#[test]
+fn relief_is_the_height_above_where_the_class_dies() {
+    // One row of 1 m squares: peak A (5 m), a saddle (2 m), peak B (4 m), a foot (1 m),
+    // in x order A S B D. Heights enter A, B, S, D: B is born apart from A, and S joins
+    // them, so B (the younger, lower peak) dies at 2 m; S and D join A's class, which
+    // never dies and ends at the lowest square (1 m). Relief: A 5 − 1 = 4 (its
+    // persistence), B 4 − 2 = 2 (its persistence), S 2 − 1 = 1, D 1 − 1 = 0.
+    let p = PlusParams { cell: 1.0, max_radius: 10.0, ..PlusParams::default() };
+    let points = [[0.5, 0.5, 5.0], [1.5, 0.5, 2.0], [2.5, 0.5, 4.0], [3.5, 0.5, 1.0]];
+    let field = height_field(&points, &p);
+    let (order, relief) = field.relief();
+    let at = |x: f64| {
+        let k = order.iter().position(|&k| (field.centre(k as usize, p.cell).0 - x).abs() < 1e-9).unwrap();
+        relief[k]
+    };
+    assert_eq!([at(0.5), at(1.5), at(2.5), at(3.5)], [4.0, 1.0, 2.0, 0.0]);
+    // Two returns above one square: the height channel holds its highest, 5 m + 2 m, as the
+    // code round(255 · √(7 / 64)) = round(84.33) = 84; the relief channel the square's relief
+    // (5 − 5 = 0: its class ends at the lowest square, itself).
+    let two = [[0.5, 0.5, 5.0], [0.6, 0.7, 3.0]];
+    let d = describe(&two, &p).unwrap();
+    let height: Vec<f32> = d[p.rings * p.sectors..].iter().copied().filter(|&v| v > 0.0).collect();
+    assert_eq!(height, [84.0]);
+    assert!(d[..p.rings * p.sectors].iter().all(|&v| v == 0.0));
+}
+
+#[test]
+fn a_quarter_turn_is_matched_exactly_and_its_yaw_found() {
+    let p = PlusParams::default();
+    let a = describe(&scene(), &p).unwrap();
+    assert!(a.iter().any(|&v| v > 0.0));
+    for q in 1..4 {
+        let b = describe(&turned(&scene(), q), &p).unwrap();
+        // The descriptor is the original's, its sectors shifted by a quarter.
+        for row in 0..2 * p.rings {
+            for s in 0..p.sectors {
+                let shifted = (s + q * p.sectors / 4) % p.sectors;
+                assert_eq!(b[row * p.sectors + shifted], a[row * p.sectors + s]);
+            }
+        }
+        let (d, yaw) = distance(&b, &a, &p);
+        assert!(d <= 1e-12, "{q} quarter turns: distance {d}");
+        assert_eq!(yaw, 90.0 * q as f64, "{q} quarter turns");
+    }
+}
+
+#[test]
+fn keys_do_not_depend_on_quarter_turns_and_an_empty_scan_has_no_descriptor() {
+    let p = PlusParams::default();
+    let a = describe(&scene(), &p).unwrap();
+    let b = describe(&turned(&scene(), 1), &p).unwrap();
+    // The yaw-independent keys: shape, profile, ring.
+    let key = |d: &[f32]| [shape_key(d, &p), profile_key(d, &p), ring_key(d, &p)].concat();
+    let (ka, kb) = (key(&a), key(&b));
+    assert_eq!(ka.len(), shape_len(&p) + profile_len(&p) + p.rings);
+    for (x, y) in ka.iter().zip(&kb) {
+        assert!((x - y).abs() < 1e-6);
+    }
+    let far = [[100.0, 0.0, 1.0]];
+    assert_eq!(describe(&far, &p).unwrap_err(), "no return within 80 m of the sensor");
+    assert!(describe(&[], &p).is_err());
+}
+
+#[test]
+fn a_hidden_sector_is_left_out_not_counted_as_a_difference() {
+    let p = PlusParams::default();
+    let full = describe(&scene(), &p).unwrap();
+    // The boxes at x > 0, y > 0 (the first quadrant) hidden.
+    let hidden: Vec<Point> = scene().into_iter().filter(|q| !(q[0] > 0.0 && q[1] > 0.0)).collect();
+    let part = describe(&hidden, &p).unwrap();
+    let (d, yaw) = distance(&part, &full, &p);
+    let other = describe(
+        &turned(&scene(), 1).into_iter().map(|q| [q[0] * 1.7, q[1] * 0.6, q[2]]).collect::<Vec<_>>(),
+        &p,
+    )
+    .unwrap();
+    assert!(d < distance(&part, &other, &p).0, "the occluded scan is nearer its own place");
+    assert!(!(6.0..=354.0).contains(&yaw), "no turn: yaw {yaw}");
+}
+
+#[test]
+fn a_scan_cut_at_a_shorter_range_is_compared_where_both_reach() {
+    // Rings of 2 m: the scene reaches ring 16 (32 m); cut at 20 m, ring 10.
+    let p = PlusParams { max_radius: 40.0, ..PlusParams::default() };
+    let full = describe(&scene(), &p).unwrap();
+    let near: Vec<Point> = scene().into_iter().filter(|q| q[0].hypot(q[1]) <= 20.0).collect();
+    let cut = describe(&near, &p).unwrap();
+    let (r_full, r_cut) = (reach(&full, &p), reach(&cut, &p));
+    assert!(r_cut < r_full && r_cut <= 11, "reach {r_cut} of {r_full} rings");
+    let other: Vec<Point> = turned(&scene(), 1).into_iter().map(|q| [q[0] * 1.7, q[1] * 0.6, q[2]]).collect();
+    let other = describe(&other, &p).unwrap();
+    let (d, _) = distance(&cut, &full, &p);
+    assert!(d < distance(&cut, &other, &p).0, "{d}");
+}
+
+#[test]
+fn the_first_pass_is_the_same_on_every_route() {
+    // Rows of three keys of `width` codes, many of them at equal distances, in blocks (a
+    // partial last block too): the vector route and the portable loop keep the rows that
+    // sorting every row by (distance, row) puts first, in that order.
+    for (width, n) in [(24usize, 5000usize), (8, 1001), (264, 70)] {
+        let mut rng = crate::rng::SplitMix64(3);
+        let rows: Vec<Vec<u8>> =
+            (0..n).map(|_| (0..FIRSTS * width).map(|_| (rng.next_u64() % 8) as u8).collect()).collect();
+        let mut blocks = vec![0u8; n.div_ceil(BLOCK) * BLOCK * FIRSTS * width];
+        for (row, first) in rows.iter().enumerate() {
+            put_first(&mut blocks, row, first);
+            assert_eq!(&get_first(&blocks, row, FIRSTS * width), first);
+        }
+        let query = rows[17].clone();
+        let l1 = |r: usize, k: usize| -> u32 {
+            (k * width..(k + 1) * width).map(|t| rows[r][t].abs_diff(query[t]) as u32).sum()
+        };
+        let m = [30, 300, 7];
+        for allowed in [&(|_| true) as &dyn Fn(usize) -> bool, &|row: usize| row % 2 == 1] {
+            let fast = nearest_rows_3(&blocks, n, &query, width, m, allowed);
+            let plain = nearest_rows_3_portable(&blocks, n, &query, width, m, allowed);
+            assert_eq!(fast, plain, "width {width}");
+            for k in 0..FIRSTS {
+                let mut sorted: Vec<(u32, usize)> =
+                    (0..n).filter(|&r| allowed(r)).map(|r| (l1(r, k), r)).collect();
+                sorted.sort_unstable();
+                let want: Vec<usize> = sorted.into_iter().take(m[k]).map(|(_, r)| r).collect();
+                assert_eq!(fast[k], want, "width {width}, key {k}");
+            }
+        }
+        assert_eq!(nearest_rows_3(&blocks, n, &query, width, m, &|_| true)[0][0], 17);
+    }
+}
+
+#[test]
+fn a_grown_searcher_and_a_restricted_search_equal_a_searcher_of_those_rows() {
+    let p = PlusParams { candidates: 3, ..PlusParams::default() };
+    let scenes: Vec<Vec<f32>> = (0..12)
+        .map(|i| {
+            let s: Vec<Point> = scene()
+                .into_iter()
+                .map(|q| [q[0] * (1.0 + 0.05 * i as f64), q[1] - i as f64, q[2]])
+                .collect();
+            describe(&s, &p).unwrap()
+        })
+        .collect();
+    let all: Vec<f32> = scenes.concat();
+    let built = Searcher::new(all.clone(), p.clone());
+    let mut grown = Searcher::new(Vec::new(), p.clone());
+    for d in &scenes {
+        grown.push(d);
+    }
+    assert_eq!(grown.bytes(), built.bytes());
+    let query = describe(&turned(&scene(), 1), &p).unwrap();
+    // Rows 2, 5, 7 and 9 alone: the same hits as a searcher of those rows, renumbered.
+    let kept = [2usize, 5, 7, 9];
+    let alone = built.subset(&kept);
+    let (restricted, _) = grown.search_where(&query, 2, &|row| kept.contains(&row));
+    let (only, _) = alone.search(&query, 2);
+    let renumbered: Vec<PlusHit> = only.iter().map(|&(row, d, yaw)| (kept[row], d, yaw)).collect();
+    assert_eq!(restricted, renumbered);
+}
+
+#[test]
+fn search_finds_a_turned_scan_and_its_yaw() {
+    let p = PlusParams::default();
+    let scenes: Vec<Vec<Point>> = (0..6)
+        .map(|i| scene().into_iter().map(|q| [q[0] * (1.0 + 0.15 * i as f64), q[1], q[2]]).collect())
+        .collect();
+    let db: Vec<f32> = scenes.iter().flat_map(|s| describe(s, &p).unwrap()).collect();
+    // Every entry re-ranked (more candidates than entries), and two by the keys.
+    for candidates in [50, 2] {
+        let searcher = Searcher::new(db.clone(), p.clone()).with_search(candidates, 0.1);
+        for (i, s) in scenes.iter().enumerate() {
+            let q = describe(&turned(s, 2), &p).unwrap();
+            let (hits, _) = searcher.search(&q, 1);
+            assert_eq!((hits[0].0, hits[0].2), (i, 180.0), "{candidates} candidates");
+        }
+    }
+}
