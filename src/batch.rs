@@ -14,7 +14,7 @@
 use crate::describe::Describer;
 use crate::error::{Error, Result, ResultExt};
 use crate::pipeline::config::Pipeline;
-use crate::pipeline::{ScanResult, computed_ids, describe_scan};
+use crate::describe::ScanResult;
 use crate::sinks::index::partition_dir;
 use crate::sinks::index::reader::IndexReader;
 use crate::sinks::parquet::{
@@ -174,7 +174,7 @@ impl BatchDescriber {
             settings,
             dims: pipeline.persistence.dims.clone(),
             codebook_id: describer.codebook.as_ref().map(|c| c.id()),
-            computed: computed_ids(&describer),
+            computed: describer.computed_ids(),
             describer,
             pipeline,
             contexts: Mutex::new(HashMap::new()),
@@ -209,7 +209,7 @@ impl BatchDescriber {
             .collect();
         scans
             .into_par_iter()
-            .map(|(position, scan)| describe_scan(scan, position, &self.describer, &self.settings))
+            .map(|(position, scan)| self.describer.scan_rows(scan, position, &self.settings))
             .collect()
     }
 
@@ -462,6 +462,89 @@ impl BatchDescriber {
         }
         Ok(BatchOutput { scans, diagrams, descriptors })
     }
+}
+
+/// The scans of one input batch (the `batch_inputs` table, [`schema::batch_inputs`]), each
+/// with its position (its `seq`, else `offset` + its row); an error naming the column or the
+/// row for a batch that does not follow the table.
+pub fn inputs_of(b: &RecordBatch, offset: u64) -> std::result::Result<Vec<(u64, ScanInput)>, String> {
+    use arrow::array::{Array, AsArray};
+    use arrow::datatypes::{Float64Type, Int64Type, UInt64Type};
+    let table = schema::batch_inputs();
+    for column in &table.columns {
+        // A list's item may be named anything (pyarrow: item, Spark and Polars: element).
+        let same = |a: &DataType, b: &DataType| match (a, b) {
+            (DataType::List(x), DataType::List(y)) => x.data_type() == y.data_type(),
+            _ => a == b,
+        };
+        if let Some(found) = b.column_by_name(column.name)
+            && !same(found.data_type(), &column.data_type)
+        {
+            return Err(format!("column `{}`: expected {}, found {}", column.name, column.data_type, found.data_type()));
+        }
+    }
+    let column = |name: &str| b.column_by_name(name);
+    let strings = |name: &str| column(name).map(|c| c.as_string::<i32>().clone());
+    let floats = |name: &str| column(name).map(|c| c.as_primitive::<Float64Type>().clone());
+    let counts = |name: &str| column(name).map(|c| c.as_primitive::<UInt64Type>().clone());
+    let paths = strings("path").ok_or("the batch has no `path` column")?;
+    let (formats, ids, sessions) = (strings("format"), strings(C::SCAN_ID), strings(C::SESSION));
+    let seqs = counts(C::SEQ);
+    let utimes = column(C::UTIME).map(|c| c.as_primitive::<Int64Type>().clone());
+    let pose = [C::POSE_X, C::POSE_Y, C::POSE_Z, C::POSE_YAW].map(floats);
+    let content = column("content").map(|c| c.as_binary::<i32>().clone());
+    let points = column("points").map(|c| c.as_list::<i32>().clone());
+    let ranges = (counts("first_message"), counts("message_count"));
+    let get = |a: &Option<arrow::array::StringArray>, i: usize| {
+        a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i).to_string())
+    };
+    let value = |a: &Option<arrow::array::UInt64Array>, i: usize| a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
+    let file_format = |i: usize| -> std::result::Result<Option<FileFormat>, String> {
+        match get(&formats, i) {
+            None => Ok(None),
+            Some(f) => FileFormat::parse(&f)
+                .map(Some)
+                .ok_or_else(|| format!("row {i}: format {f:?}: expected nclt, kitti or mcap")),
+        }
+    };
+    let mut out = Vec::with_capacity(b.num_rows());
+    for i in 0..b.num_rows() {
+        let seq = value(&seqs, i).unwrap_or(offset + i as u64);
+        let path = PathBuf::from(paths.value(i));
+        let input = match (&content, &points) {
+            _ if get(&formats, i).as_deref() == Some("mcap") => {
+                let (Some(first), Some(count)) = (value(&ranges.0, i), value(&ranges.1, i)) else {
+                    return Err(format!("row {i}: an mcap row needs `first_message` and `message_count`"));
+                };
+                ScanInput::McapRange { path, first, count }
+            }
+            (Some(c), _) if c.is_valid(i) => {
+                ScanInput::File { path, bytes: c.value(i).to_vec(), format: file_format(i)? }
+            }
+            (_, Some(p)) if p.is_valid(i) => {
+                let values = p.value(i);
+                let values = values.as_primitive::<Float64Type>();
+                if values.len() % 3 != 0 {
+                    return Err(format!("row {i}: {} point values, not a multiple of 3", values.len()));
+                }
+                let pts = values.values().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+                let scan_id = get(&ids, i).ok_or_else(|| format!("row {i}: points need a `scan_id`"))?;
+                let session = get(&sessions, i)
+                    .unwrap_or_else(|| scan_id.split('/').next().unwrap_or_default().to_string());
+                let at = |k: usize| pose[k].as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
+                let pose = match (at(0), at(1), at(2)) {
+                    (Some(x), Some(y), Some(z)) => Some(Pose { x, y, z, yaw: at(3).unwrap_or(0.0) }),
+                    _ => None,
+                };
+                let utime = utimes.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
+                ScanInput::Points { scan_id, session, path, utime, pose, points: pts }
+            }
+            // Neither bytes nor points: the describer reads the file.
+            _ => ScanInput::Path { path, format: file_format(i)? },
+        };
+        out.push((seq, input));
+    }
+    Ok(out)
 }
 
 /// The session folder of a scan file (`<session>/velodyne_sync/<utime>.bin`,

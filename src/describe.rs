@@ -4,12 +4,18 @@
 //! all go through a [`Describer`], so a scan gets the same diagram and descriptors whichever
 //! command computes it. The persistence stage runs only when the TopoRec descriptor is wanted.
 //!
+//! [`Describer::scan_rows`] is the per-scan step of `run` and [`crate::batch`]: a scan (or the
+//! failure to read it) as its `scans` row, diagram and descriptor rows ([`ScanResult`]).
+//!
 //! A [`Describer`] never panics on a scan: a panic inside a stage is caught and becomes that
 //! scan's [`DescribeError::Internal`]. Stage times are the calling thread's CPU time, so they
 //! add up to the work done whatever the thread count and machine load.
 
 use crate::homology::{ComplexError, Diagram, alpha_persistence};
 use crate::methods::Method;
+use crate::sinks::index::writer::MethodDescriptor;
+use crate::sinks::parquet::{DescriptorRow, ScanRow, Status};
+use crate::sources::ScanFailure;
 use crate::preprocess::{Preprocess, Skip, preprocess};
 use crate::sources::Scan;
 use crate::types::Point;
@@ -223,6 +229,114 @@ impl Describer {
         d
     }
 }
+
+impl Describer {
+    /// Name and id of each computed method, in the describer's order.
+    pub fn computed_ids(&self) -> Vec<(String, String)> {
+        self.computed.iter().map(|m| (m.name.clone(), m.id())).collect()
+    }
+
+    /// One scan (or the failure to read it) as the rows of the index: its `scans` row, at
+    /// `position` in the input, made with settings `settings`, and its diagram and descriptors
+    /// (what `toporec run`'s workers and [`crate::batch`] store).
+    pub fn scan_rows(&self, item: Result<Scan, ScanFailure>, position: u64, settings: &str) -> ScanResult {
+        let scan = match item {
+            Ok(scan) => scan,
+            Err(f) => {
+                let row = ScanRow {
+                    scan_id: f.id,
+                    fingerprint: f.fingerprint.map(crate::fingerprint::hex),
+                    settings_hash: settings.to_string(),
+                    session: f.session,
+                    seq: position,
+                    source_path: f.path.display().to_string(),
+                    message_index: f.message_index,
+                    utime: f.utime,
+                    pose: None,
+                    raw_points: 0,
+                    kept_points: 0,
+                    status: Status::Error,
+                    error: Some(f.error),
+                };
+                let times = StageTimes::default();
+                return ScanResult { row, diagram: None, descriptor: None, baselines: Vec::new(), times };
+            }
+        };
+        let mut row = ScanRow {
+            scan_id: scan.id.clone(),
+            fingerprint: Some(crate::fingerprint::hex(scan.fingerprint)),
+            settings_hash: settings.to_string(),
+            session: scan.session.clone(),
+            seq: position,
+            source_path: scan.path.display().to_string(),
+            message_index: scan.message_index,
+            utime: Some(scan.utime),
+            pose: scan.pose,
+            raw_points: scan.raw_points as u64,
+            kept_points: 0,
+            status: Status::Ok,
+            error: None,
+        };
+        let d = self.describe(scan);
+        row.kept_points = d.kept_points as u64;
+        let (diagram, descriptor, baselines) = match d.outcome {
+            Ok(x) => (x.diagram, x.descriptor, x.baselines),
+            Err(e) => {
+                row.status = if matches!(e, DescribeError::Skipped(_)) { Status::Skipped } else { Status::Error };
+                row.error = Some(e.to_string());
+                (None, None, Vec::new())
+            }
+        };
+        ScanResult { row, diagram, descriptor, baselines, times: d.times }
+    }
+}
+
+/// What became of one scan: its `scans` row and what it was described by.
+#[derive(Clone, Debug)]
+pub struct ScanResult {
+    /// The `scans` row.
+    pub row: ScanRow,
+    /// The diagram (ok scans, when the TopoRec descriptor is wanted).
+    pub diagram: Option<Diagram>,
+    /// The TopoRec descriptor (ok scans, with a codebook).
+    pub descriptor: Option<Descriptor>,
+    /// One per computed method (ok scans).
+    pub baselines: Vec<Vec<f32>>,
+    /// CPU time per stage.
+    pub times: StageTimes,
+}
+
+impl ScanResult {
+    /// The scan's `descriptors` rows, one per method: TopoRec's made with the codebook
+    /// `codebook_id` (when given), then the computed methods as `(name, id)`, in the
+    /// describer's order.
+    pub fn method_descriptors(
+        &self,
+        codebook_id: Option<&str>,
+        computed: &[(String, String)],
+    ) -> Vec<MethodDescriptor> {
+        let row = &self.row;
+        let mut out = Vec::new();
+        if let (Some(id), Some(d)) = (codebook_id, &self.descriptor) {
+            let r = DescriptorRow::new(row.scan_id.clone(), row.utime, row.pose, d);
+            out.push(MethodDescriptor { method: crate::methods::TOPOREC.into(), id: id.to_string(), row: r });
+        }
+        if row.status == Status::Ok {
+            for ((method, id), values) in computed.iter().zip(&self.baselines) {
+                let r = DescriptorRow {
+                    scan_id: row.scan_id.clone(),
+                    utime: row.utime,
+                    pose: row.pose,
+                    dim_used: None,
+                    values: values.clone(),
+                };
+                out.push(MethodDescriptor { method: method.clone(), id: id.clone(), row: r });
+            }
+        }
+        out
+    }
+}
+
 
 /// Runs `f`, turning a panic into [`DescribeError::Internal`].
 fn catch<T>(label: &str, f: impl FnOnce() -> Result<T, DescribeError>) -> Result<T, DescribeError> {

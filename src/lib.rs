@@ -41,7 +41,7 @@ pub mod describe;
 pub mod diagram_csv;
 pub mod error;
 pub mod eval;
-pub mod fault;
+pub(crate) mod fault;
 pub mod fingerprint;
 pub mod fsutil;
 pub mod homology;
@@ -56,7 +56,6 @@ pub mod pipeline;
 pub mod plot;
 pub mod preprocess;
 pub mod query;
-pub mod ranges;
 pub mod rng;
 pub mod search;
 pub mod simulate;
@@ -66,3 +65,6 @@ pub mod types;
 pub mod vectorize;
 
 pub use error::{Error, Result};
+/// Whether this build has the named crash points of the kill tests (the `fault-injection`
+/// feature).
+pub const FAULT_INJECTION: bool = fault::ENABLED;

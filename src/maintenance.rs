@@ -161,10 +161,10 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
         v.notes.push(format!("{rel}: foreign (not toporec's; left alone)"));
     }
     // Search caches: current, or stale (the next query rebuilds it).
-    let caches = index.join(crate::sinks::index::searchers::FOLDER);
+    let caches = index.join(crate::sinks::index::SEARCHERS_DIR);
     for e in std::fs::read_dir(&caches).into_iter().flatten().flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let rel = format!("{}/{name}", crate::sinks::index::searchers::FOLDER);
+        let rel = format!("{}/{name}", crate::sinks::index::SEARCHERS_DIR);
         let layout = |method: &str| {
             let m = manifest.methods.get(method).and_then(|entry| entry.method(method));
             m.and_then(|m| m.as_computed().and_then(|c| c.cache_layout()))

@@ -6,7 +6,11 @@
 
 use crate::describe::DescribeError;
 use crate::error::{Error, Result, ResultExt};
-use crate::methods::Method;
+use crate::methods::{Hit, Method};
+use crate::sinks::csv;
+use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt32Array};
+use std::sync::Arc;
+use crate::sinks::index::IndexedScan;
 use crate::search::{Engine, StepTimes, step_summary};
 use crate::sources::{InputKind, Scan, ScanFailure, ScanStream, read_cloud_file};
 use rayon::prelude::*;
@@ -88,8 +92,32 @@ impl std::fmt::Display for QueryReport {
     }
 }
 
-/// The CSV header of query results (`yaw_deg`: ScanContext's yaw estimate, empty otherwise).
-pub const CSV_HEADER: &str = "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z,yaw_deg";
+/// The hits of answered queries (each query's id and its hits, best first) as a record batch
+/// of the `query` table ([`crate::sinks::schema::query_hits`]): `query`'s CSV and the Python
+/// package's Arrow table.
+pub fn hits_batch(engine: &Engine, answers: &[(&str, &[Hit])]) -> RecordBatch {
+    let rows: Vec<(&str, u32, &Hit)> = answers
+        .iter()
+        .flat_map(|(id, hits)| hits.iter().zip(1..).map(move |(h, rank)| (*id, rank, h)))
+        .collect();
+    let scans: Vec<&IndexedScan> = rows.iter().map(|r| &engine.scans[r.2.row]).collect();
+    let pose = |i: usize| -> ArrayRef {
+        Arc::new(Float64Array::from(scans.iter().map(|s| s.pose.map(|p| p[i])).collect::<Vec<_>>()))
+    };
+    let columns: Vec<ArrayRef> = vec![
+        Arc::new(StringArray::from(rows.iter().map(|r| r.0).collect::<Vec<_>>())),
+        Arc::new(UInt32Array::from(rows.iter().map(|r| r.1).collect::<Vec<_>>())),
+        Arc::new(StringArray::from(scans.iter().map(|s| s.scan_id.as_str()).collect::<Vec<_>>())),
+        Arc::new(StringArray::from(scans.iter().map(|s| s.session.as_str()).collect::<Vec<_>>())),
+        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.distance).collect::<Vec<_>>())),
+        pose(0),
+        pose(1),
+        pose(2),
+        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.yaw_degrees).collect::<Vec<_>>())),
+    ];
+    RecordBatch::try_new(crate::sinks::schema::query_hits().plain_schema(), columns)
+        .expect("the columns of the query table")
+}
 
 /// A described query: its id, descriptor and step times.
 type Answerable = (String, Vec<f32>, StepTimes);
@@ -119,7 +147,7 @@ pub fn run(
             engine.method.name
         )));
     }
-    writeln!(out, "{CSV_HEADER}").at(output_name)?;
+    writeln!(out, "{}", csv::header(&crate::sinks::schema::query_hits())).at(output_name)?;
     for input in &args.inputs {
         let mut stream = open_path(input, args.topic.as_deref())?.peekable();
         while stream.peek().is_some() {
@@ -139,6 +167,7 @@ pub fn run(
             let flat: Vec<f32> =
                 described.iter().filter_map(|r| r.as_ref().ok()).flat_map(|r| r.1.iter().copied()).collect();
             let mut found = engine.find_many(&flat, args.k).into_iter();
+            let mut answers: Vec<(&str, Vec<Hit>)> = Vec::new();
             for r in &described {
                 let (id, _, t) = match r {
                     Ok(x) => x,
@@ -151,32 +180,12 @@ pub fn run(
                 let (hits, search) = found.next().expect("one result per query");
                 report.answered += 1;
                 report.times.push(StepTimes { search: search.search, rerank: search.rerank, ..*t });
-                for (rank, f) in hits.iter().enumerate() {
-                    let s = &engine.scans[f.row];
-                    let p = s.pose.map(|p| p.map(|x| format!("{x:?}"))).unwrap_or_default();
-                    let yaw = f.yaw_degrees.map(|y| format!("{y:?}")).unwrap_or_default();
-                    writeln!(
-                        out,
-                        "{},{},{},{},{:?},{},{},{},{yaw}",
-                        csv_field(id),
-                        rank + 1,
-                        csv_field(&s.scan_id),
-                        csv_field(&s.session),
-                        f.distance,
-                        p[0],
-                        p[1],
-                        p[2]
-                    )
-                    .at(output_name)?;
-                }
+                answers.push((id, hits));
             }
+            let answers: Vec<(&str, &[Hit])> = answers.iter().map(|(id, h)| (*id, h.as_slice())).collect();
+            out.write_all(csv::rows(&hits_batch(engine, &answers)).as_bytes()).at(output_name)?;
         }
     }
     out.flush().at(output_name)?;
     Ok(report)
-}
-
-/// Quotes a CSV field when needed (RFC 4180).
-pub fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
 }

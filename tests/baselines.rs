@@ -491,7 +491,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     let out = text(&o.stdout);
     let lines: Vec<&str> = out.lines().collect();
-    assert_eq!(lines[0], toporec::query::CSV_HEADER);
+    assert_eq!(lines[0], toporec::sinks::csv::header(&toporec::sinks::schema::query_hits()));
     let row: Vec<&str> = lines[1].split(',').collect();
     assert_eq!((row[2], row[8]), (id.as_str(), "42.0"), "{out}");
     // SOLiD's range part ignores the turn; its azimuth part gives the yaw.

@@ -573,5 +573,5 @@ fn test_hooks_live_behind_the_fault_injection_feature() {
         }
     }
     // The test build has the fault points (the dev-dependency on this crate turns them on).
-    const _: () = assert!(toporec::fault::ENABLED);
+    const _: () = assert!(toporec::FAULT_INJECTION);
 }

@@ -24,7 +24,7 @@ fn sample_index(dir: &Path) -> std::path::PathBuf {
 fn rows(path: &Path) -> Vec<(String, String, String, String, String, f64, bool)> {
     let body = std::fs::read_to_string(path).unwrap();
     let mut lines = body.lines();
-    assert_eq!(lines.next(), Some(toporec::loops::CSV_HEADER));
+    assert_eq!(lines.next(), Some(toporec::sinks::csv::header(&toporec::sinks::schema::loops()).as_str()));
     lines
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
@@ -108,7 +108,7 @@ fn calibration_is_written_and_read_back() {
     let file = std::fs::File::open(&out).unwrap();
     let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).unwrap();
     let names: Vec<String> = reader.schema().fields().iter().map(|f| f.name().clone()).collect();
-    assert_eq!(names.join(","), toporec::loops::CSV_HEADER);
+    assert_eq!(names.join(","), toporec::sinks::csv::header(&toporec::sinks::schema::loops()));
     let n: usize = reader.build().unwrap().map(|b| b.unwrap().num_rows()).sum();
     // 30 s by default: a 16 s session matches nothing of its own, so day 2's scans only, per method.
     assert_eq!(n, 5 * 32, "five methods");

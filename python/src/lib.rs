@@ -7,11 +7,8 @@
 //! data crosses the boundary through the Arrow C stream interface (PyCapsules named
 //! `arrow_array_stream`), without copies.
 
-use arrow::array::{
-    ArrayRef, Float64Builder, RecordBatch, RecordBatchIterator, RecordBatchReader, StringBuilder,
-    UInt32Builder,
-};
-use arrow::datatypes::{DataType, Field, Schema, SchemaRef};
+use arrow::array::{RecordBatch, RecordBatchIterator, RecordBatchReader};
+use arrow::datatypes::SchemaRef;
 use arrow::ffi_stream::{FFI_ArrowArrayStream, RecordBatchStreamReader};
 use numpy::ndarray::{Array1, Array2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
@@ -662,68 +659,22 @@ impl QueryEngine {
     }
 }
 
-/// The query table (`toporec query`'s columns) of described queries, and the failures.
-fn answer(
-    engine: &toporec::search::Engine,
-    described: Vec<Described>,
-    k: usize,
-) -> (ArrowStream, Vec<String>) {
+/// The query table (`toporec query`'s columns, [`toporec::query::hits_batch`]) of described
+/// queries, and the failures.
+fn answer(engine: &toporec::search::Engine, described: Vec<Described>, k: usize) -> (ArrowStream, Vec<String>) {
     let flat: Vec<f32> = described.iter().flatten().flat_map(|(_, v)| v.iter().copied()).collect();
     let mut found = engine.find_many(&flat, k).into_iter();
-    let (mut query, mut rank, mut scan, mut session) =
-        (StringBuilder::new(), UInt32Builder::new(), StringBuilder::new(), StringBuilder::new());
-    let mut distance = Float64Builder::new();
-    let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
-    let mut yaw = Float64Builder::new();
+    let mut answered = Vec::new();
     let mut failures = Vec::new();
-    for d in described {
-        let (id, _) = match d {
-            Ok(x) => x,
-            Err(e) => {
-                failures.push(e);
-                continue;
-            }
-        };
-        let (hits, _) = found.next().expect("one result per query");
-        for (r, f) in hits.iter().enumerate() {
-            let s = &engine.scans[f.row];
-            query.append_value(&id);
-            rank.append_value(r as u32 + 1);
-            scan.append_value(&s.scan_id);
-            session.append_value(&s.session);
-            distance.append_value(f.distance);
-            for (i, b) in pose.iter_mut().enumerate() {
-                b.append_option(s.pose.map(|p| p[i]));
-            }
-            yaw.append_option(f.yaw_degrees);
+    for d in &described {
+        match d {
+            Ok((id, _)) => answered.push((id.as_str(), found.next().expect("one result per query").0)),
+            Err(e) => failures.push(e.clone()),
         }
     }
-    let f = |name: &str, t: DataType, nullable: bool| Field::new(name, t, nullable);
-    let schema = Arc::new(Schema::new(vec![
-        f("query_id", DataType::Utf8, false),
-        f("rank", DataType::UInt32, false),
-        f("scan_id", DataType::Utf8, false),
-        f("session", DataType::Utf8, false),
-        f("distance", DataType::Float64, false),
-        f("pose_x", DataType::Float64, true),
-        f("pose_y", DataType::Float64, true),
-        f("pose_z", DataType::Float64, true),
-        f("yaw_deg", DataType::Float64, true),
-    ]));
-    let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
-    let columns: Vec<ArrayRef> = vec![
-        Arc::new(query.finish()),
-        Arc::new(rank.finish()),
-        Arc::new(scan.finish()),
-        Arc::new(session.finish()),
-        Arc::new(distance.finish()),
-        px,
-        py,
-        pz,
-        Arc::new(yaw.finish()),
-    ];
-    let batch = RecordBatch::try_new(schema.clone(), columns).expect("columns of the schema");
-    (ArrowStream::new(schema, vec![batch]), failures)
+    let answers: Vec<(&str, &[toporec::methods::Hit])> = answered.iter().map(|(id, h)| (*id, h.as_slice())).collect();
+    let batch = toporec::query::hits_batch(engine, &answers);
+    (ArrowStream::new(batch.schema(), vec![batch]), failures)
 }
 
 /// Describes batches of scans for one index (`toporec.describe_batch`).
@@ -764,7 +715,7 @@ impl BatchDescriber {
         let out = py.detach(move || -> PyResult<toporec::batch::BatchOutput> {
             let mut inputs = Vec::new();
             for b in &batches {
-                inputs.extend(batch_inputs(b, inputs.len() as u64)?);
+                inputs.extend(toporec::batch::inputs_of(b, inputs.len() as u64).map_err(value_error)?);
             }
             match &write_to {
                 Some((folder, name)) => inner.describe_into(inputs, folder, name),
@@ -781,104 +732,11 @@ impl BatchDescriber {
     }
 }
 
-/// The scans of one input batch (see [`BatchDescriber::describe`]); `offset`: rows before it.
-fn batch_inputs(b: &RecordBatch, offset: u64) -> PyResult<Vec<(u64, toporec::batch::ScanInput)>> {
-    use arrow::array::{Array, AsArray};
-    use arrow::datatypes::{Float64Type, Int64Type, UInt64Type};
-    use toporec::batch::{FileFormat, ScanInput};
-    let column = |name: &str| b.column_by_name(name);
-    let strings = |name: &str| -> PyResult<Option<arrow::array::StringArray>> {
-        match column(name) {
-            None => Ok(None),
-            Some(c) => c.as_string_opt::<i32>().cloned().map(Some).ok_or_else(|| {
-                value_error(format!("column `{name}`: expected utf8, found {}", c.data_type()))
-            }),
-        }
-    };
-    let floats = |name: &str| column(name).and_then(|c| c.as_primitive_opt::<Float64Type>().cloned());
-    let paths = strings("path")?.ok_or_else(|| value_error("the batch has no `path` column"))?;
-    let (formats, ids, sessions) = (strings("format")?, strings("scan_id")?, strings("session")?);
-    let seqs = column("seq").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned());
-    let utimes = column("utime").and_then(|c| c.as_primitive_opt::<Int64Type>().cloned());
-    let pose: Vec<_> = ["pose_x", "pose_y", "pose_z", "pose_yaw"].iter().map(|n| floats(n)).collect();
-    let content = column("content").map(|c| {
-        c.as_binary_opt::<i32>()
-            .cloned()
-            .ok_or_else(|| value_error(format!("column `content`: expected binary, found {}", c.data_type())))
-    });
-    let points = column("points").map(|c| {
-        c.as_list_opt::<i32>().cloned().ok_or_else(|| {
-            value_error(format!("column `points`: expected list<float64>, found {}", c.data_type()))
-        })
-    });
-    let content = content.transpose()?;
-    let points = points.transpose()?;
-    let ranges = (
-        column("first_message").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned()),
-        column("message_count").and_then(|c| c.as_primitive_opt::<UInt64Type>().cloned()),
-    );
-    let get = |a: &Option<arrow::array::StringArray>, i: usize| {
-        a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i).to_string())
-    };
-    let file_format = |i: usize| -> PyResult<Option<FileFormat>> {
-        match get(&formats, i) {
-            None => Ok(None),
-            Some(f) => FileFormat::parse(&f)
-                .map(Some)
-                .ok_or_else(|| value_error(format!("row {i}: format {f:?}: expected nclt, kitti or mcap"))),
-        }
-    };
-    let mut out = Vec::with_capacity(b.num_rows());
-    for i in 0..b.num_rows() {
-        let seq = seqs.as_ref().filter(|s| s.is_valid(i)).map_or(offset + i as u64, |s| s.value(i));
-        let path = PathBuf::from(paths.value(i));
-        let input = match (&content, &points) {
-            _ if get(&formats, i).as_deref() == Some("mcap") => {
-                let value = |a: &Option<arrow::array::UInt64Array>| {
-                    a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i))
-                };
-                let (Some(first), Some(count)) = (value(&ranges.0), value(&ranges.1)) else {
-                    return Err(value_error(format!(
-                        "row {i}: an mcap row needs `first_message` and `message_count`"
-                    )));
-                };
-                ScanInput::McapRange { path, first, count }
-            }
-            (Some(c), _) if c.is_valid(i) => {
-                ScanInput::File { path, bytes: c.value(i).to_vec(), format: file_format(i)? }
-            }
-            (_, Some(p)) if p.is_valid(i) => {
-                let values = p.value(i);
-                let values = values
-                    .as_primitive_opt::<Float64Type>()
-                    .ok_or_else(|| value_error("column `points`: expected list<float64>"))?;
-                if values.len() % 3 != 0 {
-                    return Err(value_error(format!(
-                        "row {i}: {} point values, not a multiple of 3",
-                        values.len()
-                    )));
-                }
-                let pts = values.values().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-                let scan_id =
-                    get(&ids, i).ok_or_else(|| value_error(format!("row {i}: points need a `scan_id`")))?;
-                let session = get(&sessions, i)
-                    .unwrap_or_else(|| scan_id.split('/').next().unwrap_or_default().to_string());
-                let value = |k: usize| pose[k].as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
-                let pose = match (value(0), value(1), value(2)) {
-                    (Some(x), Some(y), Some(z)) => {
-                        Some(toporec::sources::Pose { x, y, z, yaw: value(3).unwrap_or(0.0) })
-                    }
-                    _ => None,
-                };
-                let utime = utimes.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
-                ScanInput::Points { scan_id, session, path, utime, pose, points: pts }
-            }
-            // Neither bytes nor points: the engine reads the file.
-            _ => ScanInput::Path { path, format: file_format(i)? },
-        };
-        out.push((seq, input));
-    }
-    Ok(out)
+/// The schema of the batches `describe_batch` takes (the `batch_inputs` table), as an empty
+/// Arrow stream.
+#[pyfunction]
+fn batch_input_schema() -> ArrowStream {
+    ArrowStream::new(toporec::sinks::schema::batch_inputs().plain_schema(), Vec::new())
 }
 
 #[pymodule]
@@ -907,5 +765,6 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<LoopDetector>()?;
     m.add_function(wrap_pyfunction!(read_points, m)?)?;
     m.add_class::<BatchDescriber>()?;
+    m.add_function(wrap_pyfunction!(batch_input_schema, m)?)?;
     Ok(())
 }

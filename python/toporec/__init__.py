@@ -380,22 +380,8 @@ def fit(
 
 _describers: Dict[str, Any] = {}
 
-_INPUT_TYPES = {
-    "path": pa.string(),
-    "content": pa.binary(),
-    "format": pa.string(),
-    "points": pa.list_(pa.float64()),
-    "scan_id": pa.string(),
-    "session": pa.string(),
-    "seq": pa.uint64(),
-    "utime": pa.int64(),
-    "pose_x": pa.float64(),
-    "pose_y": pa.float64(),
-    "pose_z": pa.float64(),
-    "pose_yaw": pa.float64(),
-    "first_message": pa.uint64(),
-    "message_count": pa.uint64(),
-}
+# The input contract of describe_batch, as the library declares it (schemas/batch_inputs.json).
+_INPUT_TYPES = {f.name: f.type for f in pa.RecordBatchReader.from_stream(_toporec.batch_input_schema()).schema}
 
 
 def describe_batch(

@@ -2,6 +2,7 @@
 //! struct or enum of the same name (`From`), so the library, the Python package and the Spark
 //! job share those without depending on the command-line framework.
 
+use super::ranges;
 use std::path::PathBuf;
 use toporec::methods::TOPOREC;
 use toporec::vectorize::codebook::DimSelection;
@@ -16,7 +17,7 @@ pub struct QueryArgs {
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// Neighbours per query: [1, ∞), clamped to the database size.
-    #[arg(short, default_value_t = 25, value_parser = toporec::ranges::count)]
+    #[arg(short, default_value_t = 25, value_parser = ranges::count)]
     pub k: usize,
     /// The descriptor method to search with (one the index holds; `toporec info` lists them).
     #[arg(long, default_value = TOPOREC)]
@@ -59,20 +60,20 @@ pub struct PlacesArgs {
     #[arg(long)]
     pub within_session: bool,
     /// Revisit thresholds R (m), each in (0, ∞).
-    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50", value_parser = toporec::ranges::positive)]
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50", value_parser = ranges::positive)]
     pub thresholds: Vec<f64>,
     /// Largest N of Recall@N: [1, ∞), clamped to the database size.
-    #[arg(long, default_value_t = 25, value_parser = toporec::ranges::count)]
+    #[arg(long, default_value_t = 25, value_parser = ranges::count)]
     pub max_n: usize,
     /// Keep a map scan only if farther than this (m, in (0, ∞)) from the last kept (RING).
-    #[arg(long, value_parser = toporec::ranges::positive)]
+    #[arg(long, value_parser = ranges::positive)]
     pub map_every: Option<f64>,
     /// Same for query scans.
-    #[arg(long, value_parser = toporec::ranges::positive)]
+    #[arg(long, value_parser = ranges::positive)]
     pub query_every: Option<f64>,
     /// Ignore database scans of the query's session closer in time than this (s, [0, ∞)); a
     /// query never retrieves itself.
-    #[arg(long, default_value_t = 0.0, value_parser = toporec::ranges::non_negative)]
+    #[arg(long, default_value_t = 0.0, value_parser = ranges::non_negative)]
     pub min_time_gap: f64,
     /// Conditions applied to each raw query scan before each method describes it
     /// (repeatable): as-recorded, yaw[=DEG], occlusion[=DEG], drop[=F], beams[=N],
@@ -83,7 +84,7 @@ pub struct PlacesArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Loop closure: an accepted top-1 within this many metres is a true positive, (0, ∞).
-    #[arg(long, default_value_t = 5.0, value_parser = toporec::ranges::positive)]
+    #[arg(long, default_value_t = 5.0, value_parser = ranges::positive)]
     pub revisit_radius: f64,
     /// Descriptor methods to compare (repeatable; default: every method both indexes hold).
     #[arg(long = "method")]
@@ -109,13 +110,13 @@ pub struct PerturbationArgs {
     #[arg(long)]
     pub index: PathBuf,
     /// Share of the scans used as queries: (0, 1].
-    #[arg(long, default_value_t = 0.2, value_parser = toporec::ranges::fraction)]
+    #[arg(long, default_value_t = 0.2, value_parser = ranges::fraction)]
     pub fraction: f64,
     /// Seed of the choice and of the jitter.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Largest N of Recall@N: [1, ∞), clamped to the database size.
-    #[arg(long, default_value_t = 25, value_parser = toporec::ranges::count)]
+    #[arg(long, default_value_t = 25, value_parser = ranges::count)]
     pub max_n: usize,
     /// Descriptor methods to compare (repeatable; default: every method the index holds that
     /// can describe a scan, i.e. not imported ones).
@@ -143,7 +144,7 @@ pub struct RevectorizeArgs {
     #[command(flatten)]
     pub fit: CodebookArgs,
     /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = toporec::ranges::count)]
+    #[arg(long, short, value_parser = ranges::count)]
     pub threads: Option<usize>,
 }
 
@@ -151,7 +152,7 @@ pub struct RevectorizeArgs {
 #[derive(clap::Args, Clone, Debug)]
 pub struct CodebookArgs {
     /// Centres per codebook (the descriptor length per part): [1, 100000].
-    #[arg(long, short, default_value_t = 50, value_parser = toporec::ranges::centres)]
+    #[arg(long, short, default_value_t = 50, value_parser = ranges::centres)]
     pub b: usize,
     /// `paper` (H2, else H1, else H0) or a list like `0,1,2` (one codebook per dimension).
     #[arg(long, default_value = "paper", value_parser = DimSelection::parse)]
@@ -166,7 +167,7 @@ pub struct CodebookArgs {
     #[arg(long, value_enum, default_value = "minibatch")]
     pub kmeans: Algorithm,
     /// Points kept (uniform sample) per codebook for fitting: [1, ∞).
-    #[arg(long, default_value_t = 100_000, value_parser = toporec::ranges::count)]
+    #[arg(long, default_value_t = 100_000, value_parser = ranges::count)]
     pub sample_size: usize,
     /// Seed of sampling and k-means.
     #[arg(long, default_value_t = 0)]
@@ -242,14 +243,14 @@ pub struct LoopsArgs {
     #[arg(long = "method")]
     pub methods: Vec<String>,
     /// Same-session scans closer in time than this are not loops (seconds, ≥ 0).
-    #[arg(long, default_value_t = 30.0, value_parser = toporec::ranges::non_negative)]
+    #[arg(long, default_value_t = 30.0, value_parser = ranges::non_negative)]
     pub exclude_seconds: f64,
     /// Same-session scans this many positions apart or fewer are not loops (instead of
     /// --exclude-seconds).
     #[arg(long, conflicts_with = "exclude_seconds")]
     pub exclude_scans: Option<usize>,
     /// Matches with a descriptor distance below this are loops.
-    #[arg(long, value_parser = toporec::ranges::finite)]
+    #[arg(long, value_parser = ranges::finite)]
     pub threshold: Option<f64>,
     /// The thresholds of a calibration file (`--calibrate` writes it).
     #[arg(long, conflicts_with = "threshold")]
@@ -259,24 +260,24 @@ pub struct LoopsArgs {
     #[arg(long, conflicts_with_all = ["threshold", "threshold_from"])]
     pub calibrate: bool,
     /// The precision a calibrated threshold reaches, (0, 1].
-    #[arg(long, default_value_t = 0.99, value_parser = toporec::ranges::fraction)]
+    #[arg(long, default_value_t = 0.99, value_parser = ranges::fraction)]
     pub target_precision: f64,
     /// A match is true when its scans' poses are this close (m, > 0).
-    #[arg(long, default_value_t = 5.0, value_parser = toporec::ranges::positive)]
+    #[arg(long, default_value_t = 5.0, value_parser = ranges::positive)]
     pub revisit_radius: f64,
     /// A match farther than the revisit radius but within this (m) is neither true nor false:
     /// left out of the scores (LoGG3D-Net's 3 m / 20 m band). Default: false beyond the radius.
-    #[arg(long, value_parser = toporec::ranges::positive)]
+    #[arg(long, value_parser = ranges::positive)]
     pub false_beyond: Option<f64>,
     /// Check each match below the threshold by aligning the two raw scans (point-to-plane ICP,
     /// read again from the index's source files); keep those that pass the limits.
     #[arg(long)]
     pub verify: bool,
     /// `--verify`: the least share of the query's voxels the alignment pairs, [0, 1].
-    #[arg(long, default_value_t = 0.5, value_parser = toporec::ranges::fraction, requires = "verify")]
+    #[arg(long, default_value_t = 0.5, value_parser = ranges::fraction, requires = "verify")]
     pub min_fitness: f64,
     /// `--verify`: the largest point-to-plane RMSE of the alignment (m, > 0).
-    #[arg(long, default_value_t = 0.15, value_parser = toporec::ranges::positive, requires = "verify")]
+    #[arg(long, default_value_t = 0.15, value_parser = ranges::positive, requires = "verify")]
     pub max_rmse: f64,
     /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines (with `--verify` and one --method).
     #[arg(long)]
@@ -302,59 +303,59 @@ pub struct SimulateArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_value = "nclt")]
     pub format: Vec<Format>,
     /// Sessions (days) driving the same loop: [1, 1000].
-    #[arg(long, default_value_t = 2, value_parser = |s: &str| toporec::ranges::count_within(s, 1, 1000))]
+    #[arg(long, default_value_t = 2, value_parser = |s: &str| ranges::count_within(s, 1, 1000))]
     pub sessions: usize,
     /// Seed of the town, routes and noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Scans per session, [1, ∞) (default: one loop).
-    #[arg(long, value_parser = toporec::ranges::count)]
+    #[arg(long, value_parser = ranges::count)]
     pub scans: Option<usize>,
     /// Sensor model.
     #[arg(long, value_enum, default_value = "hdl32")]
     pub sensor: SensorModel,
     /// Azimuth resolution (degrees): [0.01, 10].
-    #[arg(long, default_value_t = 0.2, value_parser = toporec::ranges::azimuth_resolution)]
+    #[arg(long, default_value_t = 0.2, value_parser = ranges::azimuth_resolution)]
     pub azimuth_res: f64,
     /// Driving speed (m/s): (0, ∞).
-    #[arg(long, default_value_t = 10.0, value_parser = toporec::ranges::positive)]
+    #[arg(long, default_value_t = 10.0, value_parser = ranges::positive)]
     pub speed: f64,
     /// Scan rate (Hz): (0, ∞).
-    #[arg(long, default_value_t = 10.0, value_parser = toporec::ranges::positive)]
+    #[arg(long, default_value_t = 10.0, value_parser = ranges::positive)]
     pub rate: f64,
     /// Blocks per side of the town: [1, 50].
-    #[arg(long, default_value_t = 3, value_parser = toporec::ranges::blocks)]
+    #[arg(long, default_value_t = 3, value_parser = ranges::blocks)]
     pub blocks: usize,
     /// Street spacing (m): (20, 10000].
-    #[arg(long, default_value_t = 60.0, value_parser = toporec::ranges::block_size)]
+    #[arg(long, default_value_t = 60.0, value_parser = ranges::block_size)]
     pub block_size: f64,
     /// Ground slope along x and y (dz/dx,dz/dy), each in [-1, 1].
-    #[arg(long, value_delimiter = ',', default_value = "0,0", value_parser = |s: &str| toporec::ranges::within(s, -1.0, 1.0))]
+    #[arg(long, value_delimiter = ',', default_value = "0,0", value_parser = |s: &str| ranges::within(s, -1.0, 1.0))]
     pub slope: Vec<f64>,
     /// Odd sessions drive the loop in the opposite direction.
     #[arg(long)]
     pub reverse: bool,
     /// Laps of the loop per session, [1, 1000]: even laps (2nd, 4th…) the other way, each lap
     /// `--lap-offset` metres further right, the parked cars moved between laps.
-    #[arg(long, default_value_t = 1, value_parser = |s: &str| toporec::ranges::count_within(s, 1, 1000))]
+    #[arg(long, default_value_t = 1, value_parser = |s: &str| ranges::count_within(s, 1, 1000))]
     pub laps: usize,
     /// Lateral offset of each lap from the one before (m), [-20, 20].
-    #[arg(long, default_value_t = 0.0, value_parser = |s: &str| toporec::ranges::within(s, -20.0, 20.0))]
+    #[arg(long, default_value_t = 0.0, value_parser = |s: &str| ranges::within(s, -20.0, 20.0))]
     pub lap_offset: f64,
     /// Probability that a return is lost: [0, 1).
-    #[arg(long, default_value_t = 0.08, value_parser = toporec::ranges::probability)]
+    #[arg(long, default_value_t = 0.08, value_parser = ranges::probability)]
     pub dropout: f64,
     /// Maximum range (m): (0, 10000].
-    #[arg(long, default_value_t = 100.0, value_parser = |s: &str| toporec::ranges::within(s, f64::MIN_POSITIVE, 10_000.0))]
+    #[arg(long, default_value_t = 100.0, value_parser = |s: &str| ranges::within(s, f64::MIN_POSITIVE, 10_000.0))]
     pub max_range: f64,
     /// Range noise σ (m): [0, ∞).
-    #[arg(long, default_value_t = 0.02, value_parser = toporec::ranges::non_negative)]
+    #[arg(long, default_value_t = 0.02, value_parser = ranges::non_negative)]
     pub range_noise: f64,
     /// Sensor height above the ground (m): [-100, 100].
-    #[arg(long, default_value_t = 1.9, value_parser = |s: &str| toporec::ranges::within(s, -100.0, 100.0))]
+    #[arg(long, default_value_t = 1.9, value_parser = |s: &str| ranges::within(s, -100.0, 100.0))]
     pub height: f64,
     /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = toporec::ranges::count)]
+    #[arg(long, short, value_parser = ranges::count)]
     pub threads: Option<usize>,
 }
 

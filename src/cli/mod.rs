@@ -4,6 +4,7 @@
 //! output pipe ends a command quietly.
 
 mod args;
+mod ranges;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
@@ -126,7 +127,7 @@ struct RunArgs {
     #[arg(default_value = "pipelines/sample.toml")]
     pipeline: PathBuf,
     /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = toporec::ranges::count)]
+    #[arg(long, short, value_parser = ranges::count)]
     threads: Option<usize>,
     /// Write the index here instead of the file's `output.index`.
     #[arg(long)]
@@ -148,7 +149,7 @@ struct RunArgs {
     #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
     commit_every: u64,
     /// Commit after this many seconds: (0, ∞).
-    #[arg(long, default_value_t = 60.0, value_parser = toporec::ranges::positive)]
+    #[arg(long, default_value_t = 60.0, value_parser = ranges::positive)]
     commit_seconds: f64,
     /// Index only shard I of N (I from 0: `0/4` .. `3/4`), then merge it into the index; the
     /// shards of one job may run at once. Needs the index's codebook (`toporec fit --pipeline`).

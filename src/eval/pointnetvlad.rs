@@ -15,6 +15,7 @@
 //! * a dataset's figure is the plain mean over its run pairs.
 
 use super::metrics::{Denominator, first_hit, one_percent_k, recall};
+use super::report::DatasetRecall;
 use crate::error::{Error, Result};
 use crate::search::{Engine, Loaded, load_method};
 use crate::sinks::index::IndexedScan;
@@ -109,22 +110,6 @@ fn is_query(p: [f64; 3], regions: Option<&[[f64; 2]]>) -> bool {
                 && (c[1] - REGION_HALF_WIDTH < p[1] && p[1] < c[1] + REGION_HALF_WIDTH)
         })
     })
-}
-
-/// One method on one dataset: the mean over run pairs.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, schemars::JsonSchema)]
-pub struct DatasetRecall {
-    /// The dataset.
-    pub dataset: &'static str,
-    /// Run pairs averaged over.
-    pub pairs: usize,
-    /// Run pairs without a query with a true match (left out, as they would divide by zero in
-    /// the reference).
-    pub pairs_without_queries: usize,
-    /// Mean Recall@N, N = 1..=25, in %.
-    pub recall_at_n: Vec<f64>,
-    /// Mean Recall@1 %, in %.
-    pub recall_at_one_percent: f64,
 }
 
 /// The protocol on one method's descriptors.

@@ -4,11 +4,26 @@
 //! reading reports has a contract.
 
 use super::metrics::{LoopClosure, Recall};
-use super::pointnetvlad::DatasetRecall;
 use schemars::JsonSchema;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+
+/// One method on one dataset: the mean over run pairs.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, schemars::JsonSchema)]
+pub struct DatasetRecall {
+    /// The dataset.
+    pub dataset: &'static str,
+    /// Run pairs averaged over.
+    pub pairs: usize,
+    /// Run pairs without a query with a true match (left out, as they would divide by zero in
+    /// the reference).
+    pub pairs_without_queries: usize,
+    /// Mean Recall@N, N = 1..=25, in %.
+    pub recall_at_n: Vec<f64>,
+    /// Mean Recall@1 %, in %.
+    pub recall_at_one_percent: f64,
+}
 
 /// A `report.json`: one of the three protocols (its `protocol` field says which).
 #[derive(Clone, Debug, Serialize, JsonSchema)]

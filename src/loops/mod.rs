@@ -642,57 +642,19 @@ pub fn calibration_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}.calibration.json"))
 }
 
-/// The CSV header of the rows (the Parquet file's columns, in order).
-pub const CSV_HEADER: &str = "method,query_scan,query_session,matched_scan,matched_session,distance,yaw_degrees,rank2_distance,true_distance_m,accepted,query_vertex,matched_vertex,verified,icp_fitness,icp_rmse,rel_x,rel_y,rel_z,rel_roll_deg,rel_pitch_deg,rel_yaw_deg";
-
-/// Writes the rows to `path`: CSV when it ends in `.csv`, else Parquet (zstd), atomically.
-pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
-    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
-        let mut file = crate::fsutil::AtomicFile::create(path)?;
-        let opt = |v: Option<f64>| v.map_or_else(String::new, |v| format!("{v:?}"));
-        let mut text = String::from(CSV_HEADER);
-        text.push('\n');
-        for r in rows {
-            let c = r.check;
-            let rel = |i: usize| opt(c.map(|c| c.relative[i]).filter(|v| v.is_finite()));
-            text.push_str(&format!(
-                "{},{},{},{},{},{:?},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-                crate::sinks::csv::field(&r.method),
-                crate::sinks::csv::field(&r.query_scan),
-                crate::sinks::csv::field(&r.query_session),
-                crate::sinks::csv::field(&r.matched_scan),
-                crate::sinks::csv::field(&r.matched_session),
-                r.distance,
-                opt(r.yaw_degrees),
-                opt(r.rank2_distance),
-                opt(r.true_distance_m),
-                r.accepted,
-                r.query_vertex,
-                r.matched_vertex,
-                c.map_or_else(String::new, |c| c.passed.to_string()),
-                opt(c.map(|c| c.fitness)),
-                opt(c.map(|c| c.rmse).filter(|v| v.is_finite())),
-                rel(0),
-                rel(1),
-                rel(2),
-                rel(3),
-                rel(4),
-                rel(5)
-            ));
-        }
-        file.write_all(text.as_bytes()).at(path)?;
-        file.commit()?;
-        return Ok(());
-    }
+/// The rows as a record batch of the `loops` table ([`crate::sinks::schema::loops`]).
+pub fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
     use arrow::array::{ArrayRef, BooleanArray, Float64Array, StringArray, UInt64Array};
-    let schema = loops_schema();
     let strings = |f: &dyn Fn(&LoopRow) -> &str| -> ArrayRef {
         Arc::new(StringArray::from(rows.iter().map(f).collect::<Vec<_>>()))
     };
     let floats = |f: &dyn Fn(&LoopRow) -> Option<f64>| -> ArrayRef {
         Arc::new(Float64Array::from(rows.iter().map(f).collect::<Vec<_>>()))
     };
-    let columns: Vec<ArrayRef> = vec![
+    let vertices = |f: &dyn Fn(&LoopRow) -> usize| -> ArrayRef {
+        Arc::new(UInt64Array::from(rows.iter().map(|r| f(r) as u64).collect::<Vec<_>>()))
+    };
+    let mut columns: Vec<ArrayRef> = vec![
         strings(&|r| &r.method),
         strings(&|r| &r.query_scan),
         strings(&|r| &r.query_session),
@@ -703,51 +665,34 @@ pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
         floats(&|r| r.rank2_distance),
         floats(&|r| r.true_distance_m),
         Arc::new(BooleanArray::from(rows.iter().map(|r| r.accepted).collect::<Vec<_>>())),
-        Arc::new(UInt64Array::from(rows.iter().map(|r| r.query_vertex as u64).collect::<Vec<_>>())),
-        Arc::new(UInt64Array::from(rows.iter().map(|r| r.matched_vertex as u64).collect::<Vec<_>>())),
+        vertices(&|r| r.query_vertex),
+        vertices(&|r| r.matched_vertex),
         Arc::new(BooleanArray::from(rows.iter().map(|r| r.check.map(|c| c.passed)).collect::<Vec<_>>())),
         floats(&|r| r.check.map(|c| c.fitness)),
         floats(&|r| r.check.map(|c| c.rmse).filter(|v| v.is_finite())),
     ];
-    let mut columns = columns;
     for i in 0..6 {
         columns.push(floats(&|r| r.check.map(|c| c.relative[i]).filter(|v| v.is_finite())));
     }
-    let batch = arrow::record_batch::RecordBatch::try_new(schema.clone(), columns).at(path)?;
-    let mut file = crate::sinks::parquet::TableFile::with_schema(path, schema)?;
+    arrow::record_batch::RecordBatch::try_new(crate::sinks::schema::loops().plain_schema(), columns)
+        .expect("the columns of the loops table")
+}
+
+/// Writes the rows to `path`: CSV when it ends in `.csv`, else Parquet (zstd), atomically.
+pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
+    let batch = rows_batch(rows);
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
+        let mut file = crate::fsutil::AtomicFile::create(path)?;
+        let header = crate::sinks::csv::header(&crate::sinks::schema::loops());
+        file.write_all(format!("{header}\n{}", crate::sinks::csv::rows(&batch)).as_bytes()).at(path)?;
+        file.commit()?;
+        return Ok(());
+    }
+    let mut file = crate::sinks::parquet::TableFile::with_schema(path, batch.schema())?;
     file.write_batch(&batch)?;
     let (staged, _) = file.finish()?;
     staged.publish()?;
     Ok(())
-}
-
-/// The columns of `loops.parquet` (their order is [`CSV_HEADER`]'s).
-pub fn loops_schema() -> Arc<arrow::datatypes::Schema> {
-    use arrow::datatypes::{DataType, Field, Schema};
-    let f = |name: &str, t: DataType, nullable: bool| Field::new(name, t, nullable);
-    Arc::new(Schema::new(vec![
-        f("method", DataType::Utf8, false),
-        f("query_scan", DataType::Utf8, false),
-        f("query_session", DataType::Utf8, false),
-        f("matched_scan", DataType::Utf8, false),
-        f("matched_session", DataType::Utf8, false),
-        f("distance", DataType::Float64, false),
-        f("yaw_degrees", DataType::Float64, true),
-        f("rank2_distance", DataType::Float64, true),
-        f("true_distance_m", DataType::Float64, true),
-        f("accepted", DataType::Boolean, false),
-        f("query_vertex", DataType::UInt64, false),
-        f("matched_vertex", DataType::UInt64, false),
-        f("verified", DataType::Boolean, true),
-        f("icp_fitness", DataType::Float64, true),
-        f("icp_rmse", DataType::Float64, true),
-        f("rel_x", DataType::Float64, true),
-        f("rel_y", DataType::Float64, true),
-        f("rel_z", DataType::Float64, true),
-        f("rel_roll_deg", DataType::Float64, true),
-        f("rel_pitch_deg", DataType::Float64, true),
-        f("rel_yaw_deg", DataType::Float64, true),
-    ]))
 }
 
 #[cfg(test)]

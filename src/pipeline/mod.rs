@@ -23,17 +23,18 @@ pub mod config;
 mod progress;
 pub mod shard;
 mod stored;
+mod summary;
 
 pub use stored::{fit_on_stored, stored_descriptors};
+pub use summary::RunSummary;
 
-use crate::describe::{DescribeError, Describer, StageTimes};
+use crate::describe::{Describer, ScanResult, StageTimes};
 use crate::error::{Error, Result};
-use crate::homology::Diagram;
 use crate::sinks::index::IndexWriter;
-use crate::sinks::index::writer::{CommittedScan, MethodDescriptor};
-use crate::sinks::parquet::{DescriptorRow, ScanRow, Status};
+use crate::sinks::index::writer::CommittedScan;
+use crate::sinks::parquet::Status;
 use crate::sources::{Scan, ScanFailure};
-use crate::vectorize::codebook::{Codebook, Descriptor};
+use crate::vectorize::codebook::Codebook;
 use config::{Pipeline, Vectorize};
 use cpu_time::ThreadTime;
 use crossbeam_channel::{Receiver, Sender, bounded};
@@ -41,7 +42,7 @@ use progress::Progress;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Runtime options (everything else is in the pipeline file).
 #[derive(Clone, Debug)]
@@ -86,174 +87,6 @@ impl RunOptions {
             commit_seconds: 60.0,
             shard: None,
         }
-    }
-}
-
-/// What a run did.
-#[derive(Clone, Debug, Default)]
-pub struct RunSummary {
-    /// The index folder.
-    pub index: PathBuf,
-    /// Scans the sources yielded (every one, up to date or not).
-    pub read: u64,
-    /// Of those, ok (indexed).
-    pub indexed: u64,
-    /// Of those, skipped, by reason.
-    pub skipped: BTreeMap<String, u64>,
-    /// Of those, failed.
-    pub errors: u64,
-    /// First error messages (at most 10).
-    pub first_errors: Vec<String>,
-    /// Scans already in the index from the same bytes and settings: not computed.
-    pub up_to_date: u64,
-    /// Scans new to the index.
-    pub added: u64,
-    /// Scans whose bytes changed: recomputed, their old rows replaced.
-    pub replaced: u64,
-    /// Indexed scans the sources no longer yield, removed (`--prune`).
-    pub pruned: u64,
-    /// Indexed scans the sources no longer yield, kept (no `--prune`).
-    pub not_in_sources: u64,
-    /// Indexed scans of inputs that could not be read whole this run: kept, never pruned.
-    pub not_read: u64,
-    /// Scans the sources yielded twice under one id (the later ones are left out).
-    pub duplicates: u64,
-    /// Scans read without a pose, by reason.
-    pub no_pose: BTreeMap<String, u64>,
-    /// Scans that went through preprocessing and persistence.
-    pub computed: u64,
-    /// Descriptors made from stored diagrams (after a codebook fit, or a resumed run).
-    pub descriptors_from_stored: u64,
-    /// Commits.
-    pub commits: u64,
-    /// Wall time.
-    pub wall: Duration,
-    /// CPU seconds per stage (worker stages summed over threads).
-    pub stages: BTreeMap<&'static str, f64>,
-    /// Codebook id used.
-    pub codebook_id: String,
-    /// Descriptor length.
-    pub descriptor_len: usize,
-    /// The descriptor methods (`toporec` first when computed) with their lengths.
-    pub methods: Vec<(String, usize)>,
-    /// Worker threads.
-    pub threads: usize,
-}
-
-impl RunSummary {
-    /// Whether some scans failed.
-    pub fn partial(&self) -> bool {
-        self.errors > 0
-    }
-
-    /// The summary as JSON (`toporec run --summary-json`): counts, wall seconds and CPU
-    /// seconds per stage.
-    pub fn to_json(&self) -> serde_json::Value {
-        serde_json::json!({
-            "index": self.index,
-            "scans": {
-                "read": self.read,
-                "indexed": self.indexed,
-                "skipped": self.skipped,
-                "errors": self.errors,
-                "up_to_date": self.up_to_date,
-                "added": self.added,
-                "replaced": self.replaced,
-                "pruned": self.pruned,
-                "not_in_sources": self.not_in_sources,
-                "not_read": self.not_read,
-                "duplicates": self.duplicates,
-                "without_pose": self.no_pose,
-                "computed": self.computed,
-                "descriptors_from_stored": self.descriptors_from_stored,
-            },
-            "first_errors": self.first_errors,
-            "commits": self.commits,
-            "codebook_id": self.codebook_id,
-            "descriptor_length": self.descriptor_len,
-            "methods": self.methods.iter().map(|(m, len)| serde_json::json!({"method": m, "length": len})).collect::<Vec<_>>(),
-            "threads": self.threads,
-            "wall_seconds": self.wall.as_secs_f64(),
-            "cpu_seconds": self.stages,
-        })
-    }
-
-    /// Counts one scan by its status.
-    fn count(&mut self, status: Status, error: Option<&str>) {
-        self.read += 1;
-        match status {
-            Status::Ok => self.indexed += 1,
-            Status::Skipped => {
-                *self.skipped.entry("too few points after preprocessing".into()).or_default() += 1
-            }
-            Status::Error => {
-                self.errors += 1;
-                if self.first_errors.len() < 10 {
-                    self.first_errors.push(error.unwrap_or_default().to_string());
-                }
-            }
-        }
-    }
-}
-
-impl std::fmt::Display for RunSummary {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let secs = self.wall.as_secs_f64();
-        let skipped: u64 = self.skipped.values().sum();
-        // Relative to the working folder when inside it: the path the user typed.
-        let cwd = std::env::current_dir().unwrap_or_default();
-        writeln!(f, "index: {}", self.index.strip_prefix(&cwd).unwrap_or(&self.index).display())?;
-        writeln!(
-            f,
-            "scans: {} read, {} indexed, {skipped} skipped, {} errors",
-            self.read, self.indexed, self.errors
-        )?;
-        for (reason, n) in &self.skipped {
-            writeln!(f, "  skipped ({reason}): {n}")?;
-        }
-        for e in &self.first_errors {
-            writeln!(f, "  error: {e}")?;
-        }
-        for (reason, n) in &self.no_pose {
-            writeln!(f, "  without a pose ({reason}): {n}")?;
-        }
-        writeln!(
-            f,
-            "changes: {} up to date, {} added, {} replaced, {} pruned ({} computed, {} commits)",
-            self.up_to_date, self.added, self.replaced, self.pruned, self.computed, self.commits
-        )?;
-        if self.not_in_sources > 0 {
-            writeln!(
-                f,
-                "  {} indexed scans are not in this run's sources: kept (`--prune` removes them)",
-                self.not_in_sources
-            )?;
-        }
-        if self.not_read > 0 {
-            writeln!(
-                f,
-                "  {} indexed scans belong to inputs that could not be read: kept (never pruned)",
-                self.not_read
-            )?;
-        }
-        if self.duplicates > 0 {
-            writeln!(f, "  {} scans came twice under one id: the later ones were left out", self.duplicates)?;
-        }
-        let methods: Vec<String> = self
-            .methods
-            .iter()
-            .map(|(m, len)| {
-                if m == crate::methods::TOPOREC {
-                    format!("{m} (length {len}, codebook {})", self.codebook_id)
-                } else {
-                    format!("{m} (length {len})")
-                }
-            })
-            .collect();
-        writeln!(f, "descriptors: {}", methods.join(", "))?;
-        writeln!(f, "wall time: {secs:.2} s, {:.1} scans/s", self.read as f64 / secs.max(1e-9))?;
-        let stages: Vec<String> = self.stages.iter().map(|(k, v)| format!("{k} {v:.2} s")).collect();
-        write!(f, "cpu time: {}", stages.join(", "))
     }
 }
 
@@ -436,57 +269,6 @@ struct Job {
 struct Outcome {
     seq: u64,
     scan: ScanResult,
-}
-
-/// What became of one scan: its `scans` row and what it was described by.
-#[derive(Clone, Debug)]
-pub struct ScanResult {
-    /// The `scans` row.
-    pub row: ScanRow,
-    /// The diagram (ok scans, when the TopoRec descriptor is wanted).
-    pub diagram: Option<Diagram>,
-    /// The TopoRec descriptor (ok scans, with a codebook).
-    pub descriptor: Option<Descriptor>,
-    /// One per computed method (ok scans).
-    pub baselines: Vec<Vec<f32>>,
-    /// CPU time per stage.
-    pub times: StageTimes,
-}
-
-impl ScanResult {
-    /// The scan's `descriptors` rows, one per method: TopoRec's made with the codebook
-    /// `codebook_id` (when given), then the computed methods as `(name, id)`, in the
-    /// describer's order.
-    pub fn method_descriptors(
-        &self,
-        codebook_id: Option<&str>,
-        computed: &[(String, String)],
-    ) -> Vec<MethodDescriptor> {
-        let row = &self.row;
-        let mut out = Vec::new();
-        if let (Some(id), Some(d)) = (codebook_id, &self.descriptor) {
-            let r = DescriptorRow::new(row.scan_id.clone(), row.utime, row.pose, d);
-            out.push(MethodDescriptor { method: crate::methods::TOPOREC.into(), id: id.to_string(), row: r });
-        }
-        if row.status == Status::Ok {
-            for ((method, id), values) in computed.iter().zip(&self.baselines) {
-                let r = DescriptorRow {
-                    scan_id: row.scan_id.clone(),
-                    utime: row.utime,
-                    pose: row.pose,
-                    dim_used: None,
-                    values: values.clone(),
-                };
-                out.push(MethodDescriptor { method: method.clone(), id: id.clone(), row: r });
-            }
-        }
-        out
-    }
-}
-
-/// Name and id of each computed method of `describer`, in its order.
-pub fn computed_ids(describer: &Describer) -> Vec<(String, String)> {
-    describer.computed.iter().map(|m| (m.name.clone(), m.id())).collect()
 }
 
 /// What the index holds for a scan, as the source thread needs it.
@@ -707,65 +489,7 @@ fn read_sources(
 
 /// A worker's step: one scan through the [`Describer`], as a `scans` row and its results.
 fn describe(job: Job, describer: &Describer, settings: &str) -> Outcome {
-    Outcome { seq: job.seq, scan: describe_scan(job.item, job.position, describer, settings) }
-}
-
-/// One scan (or the failure to read it) through the [`Describer`]: its `scans` row, at
-/// `position` in the input, made with settings `settings`, and its results.
-pub fn describe_scan(
-    item: std::result::Result<Scan, ScanFailure>,
-    position: u64,
-    describer: &Describer,
-    settings: &str,
-) -> ScanResult {
-    let scan = match item {
-        Ok(scan) => scan,
-        Err(f) => {
-            let row = ScanRow {
-                scan_id: f.id,
-                fingerprint: f.fingerprint.map(crate::fingerprint::hex),
-                settings_hash: settings.to_string(),
-                session: f.session,
-                seq: position,
-                source_path: f.path.display().to_string(),
-                message_index: f.message_index,
-                utime: f.utime,
-                pose: None,
-                raw_points: 0,
-                kept_points: 0,
-                status: Status::Error,
-                error: Some(f.error),
-            };
-            let times = StageTimes::default();
-            return ScanResult { row, diagram: None, descriptor: None, baselines: Vec::new(), times };
-        }
-    };
-    let mut row = ScanRow {
-        scan_id: scan.id.clone(),
-        fingerprint: Some(crate::fingerprint::hex(scan.fingerprint)),
-        settings_hash: settings.to_string(),
-        session: scan.session.clone(),
-        seq: position,
-        source_path: scan.path.display().to_string(),
-        message_index: scan.message_index,
-        utime: Some(scan.utime),
-        pose: scan.pose,
-        raw_points: scan.raw_points as u64,
-        kept_points: 0,
-        status: Status::Ok,
-        error: None,
-    };
-    let d = describer.describe(scan);
-    row.kept_points = d.kept_points as u64;
-    let (diagram, descriptor, baselines) = match d.outcome {
-        Ok(x) => (x.diagram, x.descriptor, x.baselines),
-        Err(e) => {
-            row.status = if matches!(e, DescribeError::Skipped(_)) { Status::Skipped } else { Status::Error };
-            row.error = Some(e.to_string());
-            (None, None, Vec::new())
-        }
-    };
-    ScanResult { row, diagram, descriptor, baselines, times: d.times }
+    Outcome { seq: job.seq, scan: describer.scan_rows(job.item, job.position, settings) }
 }
 
 /// The writer's side of pass 1: puts outcomes back in input order and writes them.
@@ -796,7 +520,7 @@ impl<'a> OrderedWriter<'a> {
             writer,
             summary,
             codebook_id: describer.codebook.as_ref().map(|c| c.id()),
-            computed: computed_ids(describer),
+            computed: describer.computed_ids(),
             dims,
             opts,
             pending: BTreeMap::new(),

@@ -1,9 +1,15 @@
-//! The index's tables, declared once: column names, Arrow types, nullability, meaning.
-//! `schemas/*.json` is rendered from here ([`render_json`]) and a test keeps them equal.
-//! Every table is partitioned Hive style by `session` (`<table>/session=<name>/part-N.parquet`;
-//! descriptors by method too, `descriptors/method=<m>/session=<name>/`): partition columns come
-//! from the path, as Spark, DuckDB, DataFusion, Polars and pyarrow expect, and are not repeated
-//! inside the files.
+//! Every table toporec reads or writes, declared once: column names, Arrow types, nullability,
+//! meaning. `schemas/*.json` is rendered from here ([`render_json`]) and a test keeps them equal.
+//!
+//! * The index's tables ([`scans`], [`diagrams`], [`descriptors`]) are partitioned Hive style
+//!   by `session` (`<table>/session=<name>/part-N.parquet`; descriptors by method too,
+//!   `descriptors/method=<m>/session=<name>/`): partition columns come from the path, as Spark,
+//!   DuckDB, DataFusion, Polars and pyarrow expect, and are not repeated inside the files.
+//! * The tables of commands: `query`'s hits ([`query_hits`]: CSV, and Arrow from Python) and
+//!   `loops`' rows ([`loops`]: Parquet or CSV); their CSV is rendered from the same record
+//!   batch ([`super::csv`]).
+//! * The input contract of [`crate::batch`] ([`batch_inputs`]): the Arrow batches the Python
+//!   package and the distributed engines hand over.
 
 use arrow::datatypes::{DataType, Field, Schema};
 use std::sync::Arc;
@@ -96,14 +102,25 @@ pub struct Column {
     pub doc: &'static str,
 }
 
-/// A table of the index.
+/// A table.
 pub struct Table {
-    /// Folder name under the index.
+    /// Its name: the folder under the index, or the table's name in `schemas/`.
     pub name: &'static str,
     /// What a row is.
     pub doc: &'static str,
+    /// Where its rows are: in the index, partitioned by session, or elsewhere (said in words).
+    pub layout: Layout,
     /// Columns (without the `session` partition column).
     pub columns: Vec<Column>,
+}
+
+/// Where a table's rows are.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// In the index: `<name>/session=<session>/part-<n>.parquet` (zstd).
+    Index,
+    /// Elsewhere, as the text says.
+    Other(&'static str),
 }
 
 fn col(name: &'static str, data_type: DataType, nullable: bool, doc: &'static str) -> Column {
@@ -117,6 +134,7 @@ pub fn scans() -> Table {
     Table {
         name: tables::SCANS,
         doc: "One row per scan read, whatever happened to it.",
+        layout: Layout::Index,
         columns: vec![
             col(
                 C::SCAN_ID,
@@ -164,6 +182,7 @@ pub fn diagrams() -> Table {
     Table {
         name: tables::DIAGRAMS,
         doc: "One row per persistence pair of an ok scan (zero-length pairs dropped, as GUDHI).",
+        layout: Layout::Index,
         columns: vec![
             col(C::SCAN_ID, Utf8, false, "the scan"),
             col(C::DIM, UInt8, false, "homology dimension 0, 1 or 2"),
@@ -190,6 +209,7 @@ fn descriptors_of(b: usize, values: DataType) -> Table {
     let item = Arc::new(Field::new("item", values, false));
     Table {
         name: tables::DESCRIPTORS,
+        layout: Layout::Index,
         doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, ScanContext, Scan Context++, M2DP, SOLiD, LiDAR-Iris, toporec-plus or an imported one.",
         columns: vec![
             col(C::SCAN_ID, Utf8, false, "the scan"),
@@ -219,7 +239,111 @@ fn descriptors_of(b: usize, values: DataType) -> Table {
     }
 }
 
+/// `query`'s hits: one row per query and rank (CSV from `toporec query`, Arrow from Python's
+/// `Index.query`).
+pub fn query_hits() -> Table {
+    use DataType::*;
+    Table {
+        name: "query",
+        doc: "One row per query scan and rank: its k best database scans.",
+        layout: Layout::Other("CSV from `toporec query` (stdout or -o); Arrow from the Python package's Index.query"),
+        columns: vec![
+            col("query_id", Utf8, false, "the query scan's id"),
+            col("rank", UInt32, false, "1 for the best database scan"),
+            col(columns::SCAN_ID, Utf8, false, "the database scan"),
+            col(columns::SESSION, Utf8, false, "its session"),
+            col("distance", Float64, false, "the method's distance (Euclidean for vectors)"),
+            col(columns::POSE_X, Float64, true, "the database scan's ground-truth x (m)"),
+            col(columns::POSE_Y, Float64, true, "its y (m)"),
+            col(columns::POSE_Z, Float64, true, "its z (m)"),
+            col(
+                "yaw_deg",
+                Float64,
+                true,
+                "the query's yaw relative to the database scan (degrees, [0, 360)), for the methods that estimate one",
+            ),
+        ],
+    }
+}
+
+/// `loops`' rows: one per scan with an allowed earlier scan (its best match).
+pub fn loops() -> Table {
+    use DataType::*;
+    let check = "the geometric check (`--verify`) of a match below the threshold";
+    Table {
+        name: "loops",
+        doc: "One row per scan's best allowed earlier match (the loops only, unless --all).",
+        layout: Layout::Other("one file from `toporec loops -o`: Parquet (zstd), or CSV when it ends in .csv"),
+        columns: vec![
+            col("method", Utf8, false, "the descriptor method"),
+            col("query_scan", Utf8, false, "the scan"),
+            col("query_session", Utf8, false, "its session"),
+            col("matched_scan", Utf8, false, "the earlier scan it matches"),
+            col("matched_session", Utf8, false, "its session"),
+            col("distance", Float64, false, "descriptor distance"),
+            col("yaw_degrees", Float64, true, "the query's yaw relative to the match (degrees), for methods that give one"),
+            col("rank2_distance", Float64, true, "the second-best allowed match's distance"),
+            col("true_distance_m", Float64, true, "the distance between the two scans' poses (m), when both have one"),
+            col("accepted", Boolean, false, "below the threshold (and, with --verify, aligned): a loop"),
+            col("query_vertex", UInt64, false, "the query's position in the walking order (its g2o vertex)"),
+            col("matched_vertex", UInt64, false, "the matched scan's"),
+            col("verified", Boolean, true, check),
+            col("icp_fitness", Float64, true, "ICP: the share of the query's points with a partner within the last stage's distance"),
+            col("icp_rmse", Float64, true, "ICP: the root mean square of their point-to-plane distances (m)"),
+            col("rel_x", Float64, true, "ICP: the query's pose in the match's sensor frame, x (m)"),
+            col("rel_y", Float64, true, "y (m)"),
+            col("rel_z", Float64, true, "z (m)"),
+            col("rel_roll_deg", Float64, true, "roll (degrees)"),
+            col("rel_pitch_deg", Float64, true, "pitch (degrees)"),
+            col("rel_yaw_deg", Float64, true, "yaw (degrees)"),
+        ],
+    }
+}
+
+/// The input batches of [`crate::batch`]: one row per scan (or MCAP message range). Only
+/// `path` is required; a row carries the file's bytes (`content`), its points (`points`), or
+/// neither (the file is read from `path`).
+pub fn batch_inputs() -> Table {
+    use DataType::*;
+    let points = List(Arc::new(Field::new("item", Float64, true)));
+    Table {
+        name: "batch_inputs",
+        doc: "One row per scan handed over to toporec::batch (or one MCAP message range).",
+        layout: Layout::Other(
+            "Arrow record batches given to the Python package's describe_batch and the Spark job (mapInArrow)",
+        ),
+        columns: vec![
+            col("path", Utf8, false, "the scan file (names the scan and its session by the sources' layouts)"),
+            col("content", Binary, true, "the file's bytes"),
+            col("points", points, true, "x, y, z of every point in the sensor frame (m), flattened"),
+            col("format", Utf8, true, "nclt | kitti | mcap; from the path's layout when absent"),
+            col(columns::SCAN_ID, Utf8, true, "the scan id (required with points)"),
+            col(columns::SESSION, Utf8, true, "its session (with points; default: the scan id's first part)"),
+            col(columns::SEQ, UInt64, true, "position in the job's input order (default: the row's)"),
+            col(columns::UTIME, Int64, true, "timestamp, µs (with points)"),
+            col(columns::POSE_X, Float64, true, "ground-truth x (m, with points)"),
+            col(columns::POSE_Y, Float64, true, "ground-truth y (m)"),
+            col(columns::POSE_Z, Float64, true, "ground-truth z (m)"),
+            col(columns::POSE_YAW, Float64, true, "ground-truth heading (rad)"),
+            col("first_message", UInt64, true, "mcap rows: the first message index of the range"),
+            col("message_count", UInt64, true, "mcap rows: how many messages"),
+        ],
+    }
+}
+
 impl Table {
+    /// The column named `name`.
+    pub fn column(&self, name: &str) -> Option<&Column> {
+        self.columns.iter().find(|c| c.name == name)
+    }
+
+    /// The Arrow schema of the columns, without metadata.
+    pub fn plain_schema(&self) -> Arc<Schema> {
+        Arc::new(Schema::new(
+            self.columns.iter().map(|c| Field::new(c.name, c.data_type.clone(), c.nullable)).collect::<Vec<_>>(),
+        ))
+    }
+
     /// The Arrow schema with toporec's key-value metadata.
     pub fn arrow_schema(&self, extra: &[(&str, String)]) -> Arc<Schema> {
         let fields: Vec<Field> =
@@ -237,6 +361,7 @@ impl Table {
 fn type_name(t: &DataType) -> String {
     match t {
         DataType::FixedSizeList(item, _) => format!("fixed_size_list<{}>[b]", type_name(item.data_type())),
+        DataType::List(item) => format!("list<{}>", type_name(item.data_type())),
         other => other.to_string().to_lowercase(),
     }
 }
@@ -248,18 +373,26 @@ pub fn render_json(t: &Table) -> String {
         .iter()
         .map(|c| serde_json::json!({"name": c.name, "type": type_name(&c.data_type), "nullable": c.nullable, "description": c.doc}))
         .collect();
-    let v = serde_json::json!({
-        "table": t.name,
-        "description": t.doc,
-        "schema_version": SCHEMA_VERSION,
-        "layout": format!("{}/session=<session>/part-<n>.parquet (zstd)", t.name),
-        "partition_columns": [{"name": "session", "type": "utf8", "description": "NCLT date folder, KITTI sequence, or MCAP file stem (from the path)"}],
-        "columns": columns,
-    });
+    let v = match t.layout {
+        Layout::Index => serde_json::json!({
+            "table": t.name,
+            "description": t.doc,
+            "schema_version": SCHEMA_VERSION,
+            "layout": format!("{}/session=<session>/part-<n>.parquet (zstd)", t.name),
+            "partition_columns": [{"name": "session", "type": "utf8", "description": "NCLT date folder, KITTI sequence, or MCAP file stem (from the path)"}],
+            "columns": columns,
+        }),
+        Layout::Other(layout) => serde_json::json!({
+            "table": t.name,
+            "description": t.doc,
+            "layout": layout,
+            "columns": columns,
+        }),
+    };
     serde_json::to_string_pretty(&v).expect("JSON") + "\n"
 }
 
 /// All tables (descriptors with a placeholder length).
 pub fn all() -> Vec<Table> {
-    vec![scans(), diagrams(), descriptors(1)]
+    vec![scans(), diagrams(), descriptors(1), query_hits(), loops(), batch_inputs()]
 }

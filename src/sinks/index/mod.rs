@@ -42,6 +42,8 @@ pub const LOCK_FILE: &str = ".lock";
 pub const STAGING_DIR: &str = ".staging";
 /// The folder of a sharded run's per-shard indexes.
 pub const SHARDS_DIR: &str = "shards";
+/// The folder of the search caches ([`searchers`]).
+pub const SEARCHERS_DIR: &str = "searchers";
 /// The extension of a staged file.
 const STAGED_EXTENSION: &str = "staged";
 

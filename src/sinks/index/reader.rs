@@ -74,7 +74,7 @@ impl IndexReader {
         let mut manifest = Manifest::load(&root.join(MANIFEST_FILE))?;
         if let Some(m) = &manifest
             && super::recovery::pending(root, m)
-            && let Some(recovered) = super::writer::recover_for_reader(root)
+            && let Some(recovered) = super::recovery::recover_for_reader(root)
         {
             manifest = Some(recovered);
         }

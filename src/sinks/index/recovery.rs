@@ -1,4 +1,8 @@
-//! Completing a commit that a kill interrupted, and telling toporec's own files from the rest.
+//! The writer's lock, completing a commit that a kill interrupted, and telling toporec's own
+//! files from the rest: what the writer and the readers of an index both use.
+//!
+//! One writer at a time holds `.lock` (an advisory file lock, [`take_lock`]); the file names
+//! the holder (process, host, time) so that another writer can say who is at work.
 //!
 //! A commit writes its manifest first — the commit point, naming every file of the new
 //! generation at its place in the table folders — then renames its staged files from
@@ -21,6 +25,7 @@ use super::{
     is_staged_name, staged_path,
 };
 use crate::error::{Error, Result, ResultExt};
+use std::time::{Duration, Instant};
 use crate::fsutil::is_temp_name;
 use crate::sinks::schema::tables;
 use std::collections::HashSet;
@@ -130,7 +135,7 @@ pub fn foreign(root: &Path) -> Vec<String> {
         LOCK_FILE,
         STAGING_DIR,
         SHARDS_DIR,
-        super::searchers::FOLDER,
+        super::SEARCHERS_DIR,
     ];
     let mut out = Vec::new();
     for e in std::fs::read_dir(root).into_iter().flatten().flatten() {
@@ -214,5 +219,108 @@ fn remove_empty_partitions(dir: &Path) {
         if e.file_type().is_dir() && (name.starts_with("session=") || name.starts_with("method=")) {
             let _ = std::fs::remove_dir(e.path());
         }
+    }
+}
+
+/// Said by a lock's holder while it completes a commit for a reader: held for milliseconds.
+const RECOVERING: &str = "completing a commit";
+
+/// Takes the writer's lock, or explains who holds it. A reader completing a commit holds it
+/// for milliseconds: it is waited for; so is a holder whose name is not yet written (between
+/// taking the lock and writing it, the lock file is empty).
+pub(super) fn take_lock(root: &Path, wait: bool) -> Result<std::fs::File> {
+    use std::io::{Read, Seek, Write};
+    let path = root.join(LOCK_FILE);
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .at(&path)?;
+    let patience = Instant::now();
+    loop {
+        let attempt = if wait { file.lock().map_err(std::fs::TryLockError::Error) } else { file.try_lock() };
+        match attempt {
+            Ok(()) => break,
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let mut holder = String::new();
+                let _ = file.rewind();
+                let _ = file.read_to_string(&mut holder);
+                let holder = holder.trim();
+                let transient = holder.is_empty() || holder.ends_with(RECOVERING);
+                if transient && patience.elapsed() < Duration::from_secs(10) {
+                    std::thread::sleep(Duration::from_millis(10));
+                    continue;
+                }
+                let holder =
+                    if holder.is_empty() { "another process".to_string() } else { holder.to_string() };
+                return Err(Error::Locked { path: root.to_owned(), holder });
+            }
+            Err(std::fs::TryLockError::Error(e)) => return Err(e).at(&path),
+        }
+    }
+    write_holder(&mut file, "").at(&path)?;
+    let _ = file.flush();
+    Ok(file)
+}
+
+/// Writes `pid N (host H) since T` and `note` into the held lock file.
+fn write_holder(file: &mut std::fs::File, note: &str) -> std::io::Result<()> {
+    use std::io::{Seek, Write};
+    let host = gethostname::gethostname().to_string_lossy().into_owned();
+    let since = chrono::Utc::now().format("%Y-%m-%dT%H:%M:%SZ");
+    file.set_len(0)?;
+    file.rewind()?;
+    writeln!(file, "pid {} (host {host}) since {since}{note}", std::process::id())?;
+    file.flush()
+}
+
+/// Completes a half-done commit for a reader ([`recovery::pending`]), when the writer's lock
+/// can be taken at once (else a writer is at work, and completes it itself). Returns the
+/// manifest read under the lock when it did.
+pub fn recover_for_reader(root: &Path) -> Option<Manifest> {
+    let path = root.join(LOCK_FILE);
+    let mut file = std::fs::OpenOptions::new().read(true).write(true).open(&path).ok()?;
+    file.try_lock().ok()?;
+    write_holder(&mut file, &format!(", {RECOVERING}")).ok()?;
+    let manifest = Manifest::load(&root.join(MANIFEST_FILE)).ok()??;
+    match recover(root, &manifest) {
+        Ok(_) => Some(manifest),
+        Err(e) => {
+            tracing::warn!("{}: could not complete its last commit: {e}", root.display());
+            None
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_holder_that_has_not_written_its_name_yet_is_waited_for() {
+        let dir = std::env::temp_dir().join(format!("toporec-lock-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(crate::sinks::index::LOCK_FILE);
+        let held = std::fs::File::create(&path).unwrap();
+        held.try_lock().unwrap();
+        // The lock is held with an empty file, as in the moment before its holder writes its
+        // name, then released.
+        let release = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(200));
+            drop(held);
+        });
+        let taken = take_lock(&dir, false);
+        release.join().unwrap();
+        assert!(taken.is_ok(), "{:?}", taken.err());
+        drop(taken);
+        // A named holder is refused at once, with its name.
+        let mut named = std::fs::OpenOptions::new().read(true).write(true).open(&path).unwrap();
+        named.try_lock().unwrap();
+        write_holder(&mut named, "").unwrap();
+        let refused = take_lock(&dir, false).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(refused.contains(&format!("pid {}", std::process::id())), "{refused}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -23,8 +23,6 @@ use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// The folder of the caches, inside the index.
-pub const FOLDER: &str = "searchers";
 /// A cache file's extension.
 pub const EXTENSION: &str = "searcher";
 const MAGIC: &[u8; 16] = b"toporec-search\0\0";
@@ -35,7 +33,7 @@ const PAGE: usize = 4096;
 
 /// The cache file of `method` in `index`.
 pub fn path(index: &Path, method: &str) -> PathBuf {
-    index.join(FOLDER).join(format!("{method}.{EXTENSION}"))
+    index.join(super::SEARCHERS_DIR).join(format!("{method}.{EXTENSION}"))
 }
 
 /// What a cache was built from.

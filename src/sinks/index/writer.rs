@@ -25,9 +25,9 @@
 
 use super::manifest::{Counts, FileEntry, MANIFEST_VERSION, Manifest, MethodEntry, file_checksum};
 use super::reader::{read_scans, scan_ids};
-use super::recovery;
+use super::recovery::{self, take_lock};
 use super::{
-    CODEBOOK_FILE, LOCK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path,
+    CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path,
 };
 use crate::error::{Error, Result, ResultExt};
 use crate::fsutil::StagedFile;
@@ -44,7 +44,6 @@ use std::time::{Duration, Instant};
 
 /// What a reader that completes a commit writes into the lock file after its holder line: a
 /// writer that finds the lock held so waits for it (milliseconds) instead of failing.
-const RECOVERING: &str = "completing a commit";
 
 /// What the index holds for one committed scan.
 #[derive(Clone, Debug, PartialEq)]
@@ -864,75 +863,6 @@ fn count(c: &mut Counts, status: Status, delta: i64) {
     }
 }
 
-/// Takes the writer's lock, or explains who holds it. A reader completing a commit holds it
-/// for milliseconds: it is waited for; so is a holder whose name is not yet written (between
-/// taking the lock and writing it, the lock file is empty).
-fn take_lock(root: &Path, wait: bool) -> Result<std::fs::File> {
-    use std::io::{Read, Seek, Write};
-    let path = root.join(LOCK_FILE);
-    let mut file = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .open(&path)
-        .at(&path)?;
-    let patience = Instant::now();
-    loop {
-        let attempt = if wait { file.lock().map_err(std::fs::TryLockError::Error) } else { file.try_lock() };
-        match attempt {
-            Ok(()) => break,
-            Err(std::fs::TryLockError::WouldBlock) => {
-                let mut holder = String::new();
-                let _ = file.rewind();
-                let _ = file.read_to_string(&mut holder);
-                let holder = holder.trim();
-                let transient = holder.is_empty() || holder.ends_with(RECOVERING);
-                if transient && patience.elapsed() < Duration::from_secs(10) {
-                    std::thread::sleep(Duration::from_millis(10));
-                    continue;
-                }
-                let holder =
-                    if holder.is_empty() { "another process".to_string() } else { holder.to_string() };
-                return Err(Error::Locked { path: root.to_owned(), holder });
-            }
-            Err(std::fs::TryLockError::Error(e)) => return Err(e).at(&path),
-        }
-    }
-    write_holder(&mut file, "").at(&path)?;
-    let _ = file.flush();
-    Ok(file)
-}
-
-/// Writes `pid N (host H) since T` and `note` into the held lock file.
-fn write_holder(file: &mut std::fs::File, note: &str) -> std::io::Result<()> {
-    use std::io::{Seek, Write};
-    let host = gethostname::gethostname().to_string_lossy().into_owned();
-    let since = chrono::Utc::now().format("%Y-%m-%dT%H:%M:%SZ");
-    file.set_len(0)?;
-    file.rewind()?;
-    writeln!(file, "pid {} (host {host}) since {since}{note}", std::process::id())?;
-    file.flush()
-}
-
-/// Completes a half-done commit for a reader ([`recovery::pending`]), when the writer's lock
-/// can be taken at once (else a writer is at work, and completes it itself). Returns the
-/// manifest read under the lock when it did.
-pub fn recover_for_reader(root: &Path) -> Option<Manifest> {
-    let path = root.join(LOCK_FILE);
-    let mut file = std::fs::OpenOptions::new().read(true).write(true).open(&path).ok()?;
-    file.try_lock().ok()?;
-    write_holder(&mut file, &format!(", {RECOVERING}")).ok()?;
-    let manifest = Manifest::load(&root.join(MANIFEST_FILE)).ok()??;
-    match recovery::recover(root, &manifest) {
-        Ok(_) => Some(manifest),
-        Err(e) => {
-            tracing::warn!("{}: could not complete its last commit: {e}", root.display());
-            None
-        }
-    }
-}
-
 /// What the index at `root` with `manifest` holds for each committed scan.
 pub fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
     let mut out = HashMap::new();
@@ -977,35 +907,4 @@ fn rewrite_without(
     }
     let (file, rows) = out.finish()?;
     Ok((rows > 0).then_some((file, rows)))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_holder_that_has_not_written_its_name_yet_is_waited_for() {
-        let dir = std::env::temp_dir().join(format!("toporec-lock-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join(crate::sinks::index::LOCK_FILE);
-        let held = std::fs::File::create(&path).unwrap();
-        held.try_lock().unwrap();
-        // The lock is held with an empty file, as in the moment before its holder writes its
-        // name, then released.
-        let release = std::thread::spawn(move || {
-            std::thread::sleep(Duration::from_millis(200));
-            drop(held);
-        });
-        let taken = take_lock(&dir, false);
-        release.join().unwrap();
-        assert!(taken.is_ok(), "{:?}", taken.err());
-        drop(taken);
-        // A named holder is refused at once, with its name.
-        let mut named = std::fs::OpenOptions::new().read(true).write(true).open(&path).unwrap();
-        named.try_lock().unwrap();
-        write_holder(&mut named, "").unwrap();
-        let refused = take_lock(&dir, false).err().map(|e| e.to_string()).unwrap_or_default();
-        assert!(refused.contains(&format!("pid {}", std::process::id())), "{refused}");
-        let _ = std::fs::remove_dir_all(&dir);
-    }
 }
