@@ -12,9 +12,9 @@
 //! becomes an `error` (or `skipped`) row, never a failed batch.
 
 use crate::describe::Describer;
+use crate::describe::ScanResult;
 use crate::error::{Error, Result, ResultExt};
 use crate::pipeline::config::Pipeline;
-use crate::describe::ScanResult;
 use crate::sinks::index::partition_dir;
 use crate::sinks::index::reader::IndexReader;
 use crate::sinks::parquet::{
@@ -36,7 +36,7 @@ use std::sync::{Arc, Mutex};
 
 /// Inputs per rayon thread that [`BatchDescriber::describe_into`] describes before writing
 /// their diagrams: enough to keep the threads busy, few enough to keep memory flat.
-pub const STREAM_CHUNK: usize = 16;
+pub(crate) const STREAM_CHUNK: usize = 16;
 
 /// The file formats a batch may carry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -294,7 +294,7 @@ impl BatchDescriber {
                     let key = (d.method.clone(), session.to_owned());
                     let file = open_file(&mut descriptor_files, key, || {
                         let at = path(schema::tables::DESCRIPTORS, Some(&d.method), session);
-                        DescriptorsFile::create(&at, session, &d.method, d.row.values.len(), &d.id)
+                        DescriptorsFile::create(&at, &d.method, d.row.values.len(), &d.id)
                     })?;
                     file.push(d.row)?;
                 }
@@ -480,7 +480,12 @@ pub fn inputs_of(b: &RecordBatch, offset: u64) -> std::result::Result<Vec<(u64, 
         if let Some(found) = b.column_by_name(column.name)
             && !same(found.data_type(), &column.data_type)
         {
-            return Err(format!("column `{}`: expected {}, found {}", column.name, column.data_type, found.data_type()));
+            return Err(format!(
+                "column `{}`: expected {}, found {}",
+                column.name,
+                column.data_type,
+                found.data_type()
+            ));
         }
     }
     let column = |name: &str| b.column_by_name(name);
@@ -498,7 +503,9 @@ pub fn inputs_of(b: &RecordBatch, offset: u64) -> std::result::Result<Vec<(u64, 
     let get = |a: &Option<arrow::array::StringArray>, i: usize| {
         a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i).to_string())
     };
-    let value = |a: &Option<arrow::array::UInt64Array>, i: usize| a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i));
+    let value = |a: &Option<arrow::array::UInt64Array>, i: usize| {
+        a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i))
+    };
     let file_format = |i: usize| -> std::result::Result<Option<FileFormat>, String> {
         match get(&formats, i) {
             None => Ok(None),

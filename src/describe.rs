@@ -13,11 +13,11 @@
 
 use crate::homology::{ComplexError, Diagram, alpha_persistence};
 use crate::methods::Method;
+use crate::preprocess::{Preprocess, Skip, preprocess};
 use crate::sinks::index::writer::MethodDescriptor;
 use crate::sinks::parquet::{DescriptorRow, ScanRow, Status};
-use crate::sources::ScanFailure;
-use crate::preprocess::{Preprocess, Skip, preprocess};
 use crate::sources::Scan;
+use crate::sources::ScanFailure;
 use crate::types::Point;
 use crate::vectorize::codebook::{Codebook, Descriptor};
 use cpu_time::ThreadTime;
@@ -282,7 +282,8 @@ impl Describer {
         let (diagram, descriptor, baselines) = match d.outcome {
             Ok(x) => (x.diagram, x.descriptor, x.baselines),
             Err(e) => {
-                row.status = if matches!(e, DescribeError::Skipped(_)) { Status::Skipped } else { Status::Error };
+                row.status =
+                    if matches!(e, DescribeError::Skipped(_)) { Status::Skipped } else { Status::Error };
                 row.error = Some(e.to_string());
                 (None, None, Vec::new())
             }
@@ -336,7 +337,6 @@ impl ScanResult {
         out
     }
 }
-
 
 /// Runs `f`, turning a panic into [`DescribeError::Internal`].
 fn catch<T>(label: &str, f: impl FnOnce() -> Result<T, DescribeError>) -> Result<T, DescribeError> {

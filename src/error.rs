@@ -211,7 +211,7 @@ impl Error {
 }
 
 /// Errors that become an [`Error`] once the file they concern is known.
-pub trait FileError {
+pub(crate) trait FileError {
     /// The error about `path`.
     fn at(self, path: &Path) -> Error;
 }
@@ -241,7 +241,7 @@ impl FileError for ::mcap::McapError {
 }
 
 /// `.at(path)` on results: names the file in the error.
-pub trait ResultExt<T> {
+pub(crate) trait ResultExt<T> {
     /// The error, if any, as an [`Error`] about `path`.
     fn at(self, path: &Path) -> Result<T>;
 }

@@ -20,7 +20,7 @@
 
 /// Passes the fault point `name` (see the module doc).
 #[inline]
-pub fn point(name: &str) {
+pub(crate) fn point(name: &str) {
     #[cfg(feature = "fault-injection")]
     enabled::point(name);
     #[cfg(not(feature = "fault-injection"))]
@@ -29,7 +29,7 @@ pub fn point(name: &str) {
 
 /// Sleeps for `TOPOREC_COMMIT_PAUSE_MS`, when set (see the module doc).
 #[inline]
-pub fn commit_pause() {
+pub(crate) fn commit_pause() {
     #[cfg(feature = "fault-injection")]
     enabled::commit_pause();
 }
@@ -37,7 +37,7 @@ pub fn commit_pause() {
 /// The most cells a Delaunay triangulation may hold: `limit`, or `TOPOREC_CELL_LIMIT` when
 /// set (tests reach the limit with small clouds).
 #[inline]
-pub fn cell_limit(limit: usize) -> usize {
+pub(crate) fn cell_limit(limit: usize) -> usize {
     #[cfg(feature = "fault-injection")]
     if let Some(v) = std::env::var("TOPOREC_CELL_LIMIT").ok().and_then(|v| v.parse().ok()) {
         return v;
@@ -46,7 +46,7 @@ pub fn cell_limit(limit: usize) -> usize {
 }
 
 /// Whether this build has the fault points (`toporec --version` says so too).
-pub const ENABLED: bool = cfg!(feature = "fault-injection");
+pub(crate) const ENABLED: bool = cfg!(feature = "fault-injection");
 
 #[cfg(feature = "fault-injection")]
 mod enabled {
@@ -55,7 +55,7 @@ mod enabled {
 
     static PASSED: AtomicU64 = AtomicU64::new(0);
 
-    pub fn point(name: &str) {
+    pub(crate) fn point(name: &str) {
         let Ok(wanted) = std::env::var("TOPOREC_FAULT") else { return };
         let (point, nth) = match wanted.split_once('@') {
             Some((p, n)) => (p.to_string(), n.parse().unwrap_or(1)),
@@ -74,7 +74,7 @@ mod enabled {
         }
     }
 
-    pub fn commit_pause() {
+    pub(crate) fn commit_pause() {
         if let Some(ms) = std::env::var("TOPOREC_COMMIT_PAUSE_MS").ok().and_then(|v| v.parse().ok()) {
             std::thread::sleep(std::time::Duration::from_millis(ms));
         }

@@ -18,16 +18,16 @@ pub fn hex(fingerprint: u64) -> String {
 
 /// An xxh3-64 computed over bytes that arrive in pieces (a scan cut from a packet stream).
 #[derive(Default)]
-pub struct Streaming(XxHash3_64);
+pub(crate) struct Streaming(XxHash3_64);
 
 impl Streaming {
     /// Adds bytes.
-    pub fn write(&mut self, bytes: &[u8]) {
+    pub(crate) fn write(&mut self, bytes: &[u8]) {
         self.0.write(bytes);
     }
 
     /// The fingerprint of everything written since the last reset, and a reset.
-    pub fn take(&mut self) -> u64 {
+    pub(crate) fn take(&mut self) -> u64 {
         let h = self.0.finish();
         self.0 = XxHash3_64::default();
         h

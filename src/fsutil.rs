@@ -11,13 +11,13 @@ use std::path::{Path, PathBuf};
 /// The temporary name used while `path` is being written: hidden (a leading dot, so Hive
 /// readers such as Spark, pyarrow and DuckDB's `*.parquet` globs skip it), in the same folder
 /// (so the rename is atomic), and marked with the writer's pid.
-pub fn temp_path(path: &Path) -> PathBuf {
+pub(crate) fn temp_path(path: &Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.partial-{}", std::process::id()))
 }
 
 /// Whether a file name is a temporary name of [`temp_path`] (an interrupted writer's leftover).
-pub fn is_temp_name(name: &str) -> bool {
+pub(crate) fn is_temp_name(name: &str) -> bool {
     name.starts_with('.') && name.contains(".partial-")
 }
 
@@ -159,7 +159,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// Creates the folder of `path` if needed.
-pub fn create_parent(path: &Path) -> Result<()> {
+pub(crate) fn create_parent(path: &Path) -> Result<()> {
     match path.parent().filter(|d| !d.as_os_str().is_empty()) {
         Some(dir) => std::fs::create_dir_all(dir).at(dir),
         None => Ok(()),
@@ -167,7 +167,7 @@ pub fn create_parent(path: &Path) -> Result<()> {
 }
 
 /// Syncs the folder holding `path`, so a rename into it survives a power loss.
-pub fn sync_parent(path: &Path) -> Result<()> {
+pub(crate) fn sync_parent(path: &Path) -> Result<()> {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     File::open(dir).and_then(|d| d.sync_all()).at(dir)
 }

@@ -148,7 +148,7 @@ fn check_name(name: &str) -> Result<()> {
 type Rows = Vec<(String, Vec<f32>)>;
 
 /// Reads the rows of a `.parquet`, `.npy` or `.csv` file.
-pub fn read_vectors(path: &Path, ids: Option<&Path>) -> Result<Rows> {
+pub(crate) fn read_vectors(path: &Path, ids: Option<&Path>) -> Result<Rows> {
     let ext = path.extension().map(|e| e.to_string_lossy().to_lowercase()).unwrap_or_default();
     match (ext.as_str(), ids) {
         ("npy", Some(ids)) => read_npy(path, ids),

@@ -35,6 +35,7 @@
 //! [`fsutil`] (atomic files), [`rng`]. The `toporec` binary is a thin command line over this
 //! library.
 #![deny(missing_docs)]
+#![warn(unreachable_pub)]
 
 pub mod batch;
 pub mod describe;
@@ -65,6 +66,19 @@ pub mod types;
 pub mod vectorize;
 
 pub use error::{Error, Result};
+
+// The names a user of the library (and the Python package, the benches) starts from.
+pub use batch::{BatchDescriber, BatchOutput, ScanInput};
+pub use describe::Describer;
+pub use homology::{Diagram, alpha_persistence};
+pub use loops::{Detector, Exclusion};
+pub use methods::{Computed, Hit, Method, REGISTRY, SearchBudget, Searcher};
+pub use pipeline::config::Pipeline;
+pub use pipeline::{RunOptions, RunSummary};
+pub use search::Engine;
+pub use sinks::index::{IndexReader, IndexWriter};
+pub use sources::{Scan, ScanStream};
+pub use vectorize::codebook::Codebook;
 /// Whether this build has the named crash points of the kill tests (the `fault-injection`
 /// feature).
 pub const FAULT_INJECTION: bool = fault::ENABLED;

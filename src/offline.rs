@@ -85,7 +85,7 @@ pub struct VectorizeArgs {
 }
 
 /// Diagrams from CSV files (id = the path) or index folders (id = the scan id), streamed.
-pub fn diagram_inputs(paths: &[PathBuf]) -> impl Iterator<Item = Result<(String, Diagram)>> + '_ {
+pub(crate) fn diagram_inputs(paths: &[PathBuf]) -> impl Iterator<Item = Result<(String, Diagram)>> + '_ {
     paths.iter().flat_map(|path| -> Box<dyn Iterator<Item = Result<(String, Diagram)>>> {
         if path.is_dir() {
             match IndexReader::open(path).and_then(|r| r.diagrams()) {
@@ -134,7 +134,7 @@ pub fn vectorize(args: &VectorizeArgs, stdout: &mut dyn Write) -> Result<(Codebo
 
 /// A descriptors table with the index's schema (id = scan id or CSV path; utime and pose null).
 fn to_parquet(args: &VectorizeArgs, codebook: &Codebook, out: &Path) -> Result<u64> {
-    let mut file = DescriptorsFile::create(out, "", crate::methods::TOPOREC, codebook.len(), &codebook.id())?;
+    let mut file = DescriptorsFile::create(out, crate::methods::TOPOREC, codebook.len(), &codebook.id())?;
     let mut rows = 0;
     for item in diagram_inputs(&args.diagrams) {
         let (id, diagram) = item?;

@@ -139,7 +139,7 @@ impl Figure for Curves<'_> {
 }
 
 /// Recall@N curves, one line per named series (values for N = 1, 2, …, in percent).
-pub fn recall_curves(stem: &Path, title: &str, series: &[(String, Vec<f64>)]) -> Result<Vec<PathBuf>> {
+pub(crate) fn recall_curves(stem: &Path, title: &str, series: &[(String, Vec<f64>)]) -> Result<Vec<PathBuf>> {
     render(stem, (800, 560), &Curves { title, series })
 }
 

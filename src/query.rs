@@ -7,15 +7,15 @@
 use crate::describe::DescribeError;
 use crate::error::{Error, Result, ResultExt};
 use crate::methods::{Hit, Method};
-use crate::sinks::csv;
-use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt32Array};
-use std::sync::Arc;
-use crate::sinks::index::IndexedScan;
 use crate::search::{Engine, StepTimes, step_summary};
+use crate::sinks::csv;
+use crate::sinks::index::IndexedScan;
 use crate::sources::{InputKind, Scan, ScanFailure, ScanStream, read_cloud_file};
+use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt32Array};
 use rayon::prelude::*;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Arguments of `toporec query`.
 #[derive(Clone, Debug)]

@@ -38,6 +38,6 @@ impl SplitMix64 {
 }
 
 /// FNV-1a, 64 bits: stable seeds from scan ids and short content ids (not cryptographic).
-pub fn fnv1a64(bytes: &[u8]) -> u64 {
+pub(crate) fn fnv1a64(bytes: &[u8]) -> u64 {
     bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
 }

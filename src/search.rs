@@ -319,7 +319,7 @@ fn methods_of(reader: &IndexReader) -> Result<Vec<Method>> {
 /// One method's descriptors of an index (only `sessions`, when not empty), checked to have
 /// been made by one codebook or parameter set, of one length; rows with non-finite values are
 /// left out with a warning.
-pub fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Loaded> {
+pub(crate) fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Loaded> {
     IndexReader::read_consistent(index, |reader| load_method_from(reader, method, sessions))
 }
 
@@ -387,15 +387,13 @@ fn load_method_from(reader: &IndexReader, method: &str, sessions: &[String]) -> 
     Ok(Loaded { method: m, id, length, codebook, scans })
 }
 
-/// An index's codebook and its TopoRec descriptors (only `sessions`, when not empty).
-pub fn load_descriptors(index: &Path, sessions: &[String]) -> Result<(Codebook, Vec<IndexedScan>)> {
-    let loaded = load_method(index, TOPOREC, sessions)?;
-    Ok((loaded.codebook.expect("TopoRec has a codebook"), loaded.scans))
-}
-
 /// Mean and p95 (ms) of each step of a method's per-query times: every step, or (`search_only`)
 /// those of the search.
-pub fn step_stats(method: &Method, times: &[StepTimes], search_only: bool) -> Vec<(&'static str, f64, f64)> {
+pub(crate) fn step_stats(
+    method: &Method,
+    times: &[StepTimes],
+    search_only: bool,
+) -> Vec<(&'static str, f64, f64)> {
     let steps = |t: &StepTimes| if search_only { t.search_steps(method) } else { t.steps(method) };
     let names: Vec<&'static str> = steps(&StepTimes::default()).into_iter().map(|s| s.0).collect();
     names
@@ -409,7 +407,7 @@ pub fn step_stats(method: &Method, times: &[StepTimes], search_only: bool) -> Ve
 }
 
 /// `step mean / p95, …` of a method's per-query times (see [`step_stats`]).
-pub fn step_summary(method: &Method, times: &[StepTimes], search_only: bool) -> String {
+pub(crate) fn step_summary(method: &Method, times: &[StepTimes], search_only: bool) -> String {
     step_stats(method, times, search_only)
         .iter()
         .map(|(name, mean, p95)| format!("{name} {mean:.3} / {p95:.3}"))
@@ -418,7 +416,7 @@ pub fn step_summary(method: &Method, times: &[StepTimes], search_only: bool) -> 
 }
 
 /// Mean and 95th percentile (nearest rank) of a sample, in milliseconds.
-pub fn mean_p95_ms(v: &[f64]) -> (f64, f64) {
+pub(crate) fn mean_p95_ms(v: &[f64]) -> (f64, f64) {
     if v.is_empty() {
         return (0.0, 0.0);
     }

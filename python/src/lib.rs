@@ -343,8 +343,8 @@ fn run(
     index: Option<PathBuf>,
     full: bool,
 ) -> PyResult<String> {
-    let p = toporec::pipeline::config::Pipeline::load(&pipeline).map_err(value_error)?;
-    let mut opts = toporec::pipeline::RunOptions::new(threads.max(1));
+    let p = toporec::Pipeline::load(&pipeline).map_err(value_error)?;
+    let mut opts = toporec::RunOptions::new(threads.max(1));
     opts.progress = false;
     opts.index = index;
     opts.full = full;
@@ -363,7 +363,7 @@ fn fit_sample(
     fraction: f64,
     threads: usize,
 ) -> PyResult<(String, u64)> {
-    let p = toporec::pipeline::config::Pipeline::load(&pipeline).map_err(value_error)?;
+    let p = toporec::Pipeline::load(&pipeline).map_err(value_error)?;
     let index = index.unwrap_or_else(|| p.index.clone());
     let (codebook, scans) = py
         .detach(|| toporec::pipeline::shard::fit_sample(&p, &index, fraction, threads))
@@ -391,7 +391,7 @@ fn merge_written(py: Python<'_>, index: PathBuf, folder: PathBuf) -> PyResult<u6
         .ok_or_else(|| {
             toporec::Error::index(&index, "no manifest: fit its codebook first (`toporec fit --pipeline`)")
         })?;
-        let mut writer = toporec::sinks::index::IndexWriter::open_waiting(&index, &manifest.settings_hash)?;
+        let mut writer = toporec::IndexWriter::open_waiting(&index, &manifest.settings_hash)?;
         let taken = writer.absorb(&folder)?;
         writer.commit()?;
         Ok(taken)
@@ -448,9 +448,7 @@ fn import_stream(capsule: &Bound<'_, PyCapsule>) -> PyResult<(SchemaRef, Vec<Rec
 fn index_table(py: Python<'_>, index: PathBuf, table: &str, method: Option<String>) -> PyResult<ArrowStream> {
     let (schema, batches) = py
         .detach(|| {
-            toporec::sinks::index::reader::IndexReader::read_consistent(&index, |reader| {
-                reader.table(table, method.as_deref())
-            })
+            toporec::IndexReader::read_consistent(&index, |reader| reader.table(table, method.as_deref()))
         })
         .map_err(toporec_error)?;
     Ok(ArrowStream::new(schema, batches))
@@ -459,7 +457,7 @@ fn index_table(py: Python<'_>, index: PathBuf, table: &str, method: Option<Strin
 /// The descriptor methods an index holds.
 #[pyfunction]
 fn index_methods(py: Python<'_>, index: PathBuf) -> PyResult<Vec<String>> {
-    py.detach(|| toporec::sinks::index::reader::IndexReader::open(&index)?.methods()).map_err(toporec_error)
+    py.detach(|| toporec::IndexReader::open(&index)?.methods()).map_err(toporec_error)
 }
 
 /// What an index holds (`toporec info --json`), as JSON text.
@@ -494,7 +492,7 @@ fn read_points<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArr
 /// The online loop detector of one method.
 #[pyclass(module = "toporec._toporec")]
 struct LoopDetector {
-    inner: std::sync::Mutex<toporec::loops::Detector>,
+    inner: std::sync::Mutex<toporec::Detector>,
 }
 
 #[pymethods]
@@ -516,15 +514,15 @@ impl LoopDetector {
                 .map_err(toporec_error)?,
             None => {
                 let settings: serde_json::Value = serde_json::from_str(settings).map_err(value_error)?;
-                toporec::methods::Method::from_settings(method, &settings).map_err(value_error)?
+                toporec::Method::from_settings(method, &settings).map_err(value_error)?
             }
         };
         if !(exclude_seconds.is_finite() && exclude_seconds >= 0.0) {
             return Err(value_error(format!("exclude_seconds {exclude_seconds}: must be finite and >= 0")));
         }
         let exclusion = match exclude_scans {
-            Some(n) => toporec::loops::Exclusion::Scans(n),
-            None => toporec::loops::Exclusion::Seconds(exclude_seconds),
+            Some(n) => toporec::Exclusion::Scans(n),
+            None => toporec::Exclusion::Seconds(exclude_seconds),
         };
         let threshold = match threshold.or_else(|| toporec::loops::default_threshold(&m)) {
             Some(t) => t,
@@ -535,7 +533,7 @@ impl LoopDetector {
                 )));
             }
         };
-        let inner = toporec::loops::Detector::new(m, exclusion, threshold).map_err(value_error)?;
+        let inner = toporec::Detector::new(m, exclusion, threshold).map_err(value_error)?;
         Ok(LoopDetector { inner: std::sync::Mutex::new(inner) })
     }
 
@@ -583,7 +581,7 @@ impl LoopDetector {
 /// Answers queries against one method of an index.
 #[pyclass(module = "toporec._toporec")]
 struct QueryEngine {
-    engine: Arc<toporec::search::Engine>,
+    engine: Arc<toporec::Engine>,
 }
 
 /// One query: its id and descriptor, or why it has none.
@@ -594,8 +592,7 @@ impl QueryEngine {
     #[new]
     #[pyo3(signature = (index, method, sessions))]
     fn new(py: Python<'_>, index: PathBuf, method: &str, sessions: Vec<String>) -> PyResult<Self> {
-        let engine =
-            py.detach(|| toporec::search::Engine::open(&index, &sessions, method)).map_err(toporec_error)?;
+        let engine = py.detach(|| toporec::Engine::open(&index, &sessions, method)).map_err(toporec_error)?;
         Ok(QueryEngine { engine: Arc::new(engine) })
     }
 
@@ -620,12 +617,8 @@ impl QueryEngine {
             let described: Vec<Described> = scans
                 .into_par_iter()
                 .map(|(id, points)| {
-                    let scan = toporec::sources::Scan::of_points(
-                        id.clone(),
-                        "query".into(),
-                        PathBuf::from(&id),
-                        points,
-                    );
+                    let scan =
+                        toporec::Scan::of_points(id.clone(), "query".into(), PathBuf::from(&id), points);
                     engine.describe_scan(scan).map(|(v, _)| (id, v)).map_err(|e| e.to_string())
                 })
                 .collect();
@@ -661,7 +654,7 @@ impl QueryEngine {
 
 /// The query table (`toporec query`'s columns, [`toporec::query::hits_batch`]) of described
 /// queries, and the failures.
-fn answer(engine: &toporec::search::Engine, described: Vec<Described>, k: usize) -> (ArrowStream, Vec<String>) {
+fn answer(engine: &toporec::Engine, described: Vec<Described>, k: usize) -> (ArrowStream, Vec<String>) {
     let flat: Vec<f32> = described.iter().flatten().flat_map(|(_, v)| v.iter().copied()).collect();
     let mut found = engine.find_many(&flat, k).into_iter();
     let mut answered = Vec::new();
@@ -672,7 +665,7 @@ fn answer(engine: &toporec::search::Engine, described: Vec<Described>, k: usize)
             Err(e) => failures.push(e.clone()),
         }
     }
-    let answers: Vec<(&str, &[toporec::methods::Hit])> = answered.iter().map(|(id, h)| (*id, h.as_slice())).collect();
+    let answers: Vec<(&str, &[toporec::Hit])> = answered.iter().map(|(id, h)| (*id, h.as_slice())).collect();
     let batch = toporec::query::hits_batch(engine, &answers);
     (ArrowStream::new(batch.schema(), vec![batch]), failures)
 }
@@ -680,15 +673,14 @@ fn answer(engine: &toporec::search::Engine, described: Vec<Described>, k: usize)
 /// Describes batches of scans for one index (`toporec.describe_batch`).
 #[pyclass(module = "toporec._toporec")]
 struct BatchDescriber {
-    inner: Arc<toporec::batch::BatchDescriber>,
+    inner: Arc<toporec::BatchDescriber>,
 }
 
 #[pymethods]
 impl BatchDescriber {
     #[new]
     fn new(py: Python<'_>, index: PathBuf) -> PyResult<Self> {
-        let inner =
-            py.detach(|| toporec::batch::BatchDescriber::from_index(&index)).map_err(toporec_error)?;
+        let inner = py.detach(|| toporec::BatchDescriber::from_index(&index)).map_err(toporec_error)?;
         Ok(BatchDescriber { inner: Arc::new(inner) })
     }
 
@@ -712,7 +704,7 @@ impl BatchDescriber {
     ) -> PyResult<(ArrowStream, ArrowStream, Vec<(String, ArrowStream)>)> {
         let (_, batches) = import_stream(&stream)?;
         let inner = self.inner.clone();
-        let out = py.detach(move || -> PyResult<toporec::batch::BatchOutput> {
+        let out = py.detach(move || -> PyResult<toporec::BatchOutput> {
             let mut inputs = Vec::new();
             for b in &batches {
                 inputs.extend(toporec::batch::inputs_of(b, inputs.len() as u64).map_err(value_error)?);

@@ -153,7 +153,7 @@ pub fn loop_closure(top1_distance: &[f64], top1_within: &[bool], has_revisit: &[
 
 /// The area under a precision–recall curve (0–1): the precision of each point times the recall
 /// it adds over the point before (from recall 0), as average precision is computed.
-pub fn pr_auc(curve: &[PrPoint]) -> f64 {
+pub(crate) fn pr_auc(curve: &[PrPoint]) -> f64 {
     let mut last_recall = 0.0;
     let mut area = 0.0;
     for p in curve {
@@ -167,7 +167,7 @@ pub fn pr_auc(curve: &[PrPoint]) -> f64 {
 /// first point, the least recall) and the recall at 100 % precision — Ferrarini, Waheed,
 /// Waheed, Ehsan, Milford and McDonald-Maier, *Exploring performance bounds of visual place
 /// recognition using extended precision*, IEEE RA-L 5(2), 2020. 0 for an empty curve.
-pub fn extended_precision(lc: &LoopClosure) -> f64 {
+pub(crate) fn extended_precision(lc: &LoopClosure) -> f64 {
     lc.curve.first().map_or(0.0, |first| (first.precision + lc.recall_at_full_precision) / 2.0)
 }
 

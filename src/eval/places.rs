@@ -105,11 +105,11 @@ pub enum Protocol {
 /// The scans `--db-scan` or `--query-scan` choose: those whose id matches one of the globs
 /// (`*`: any run of characters, `/` included; `?`: one; `[…]`: one of), every scan when none
 /// is given.
-pub struct Chooser(Option<globset::GlobSet>);
+pub(crate) struct Chooser(Option<globset::GlobSet>);
 
 impl Chooser {
     /// The chooser of `patterns`, given with `flag`; an error names a pattern that is no glob.
-    pub fn new(flag: &str, patterns: &[String]) -> Result<Self> {
+    pub(crate) fn new(flag: &str, patterns: &[String]) -> Result<Self> {
         if patterns.is_empty() {
             return Ok(Chooser(None));
         }
@@ -122,7 +122,7 @@ impl Chooser {
     }
 
     /// Whether the scan `id` is chosen.
-    pub fn chosen(&self, id: &str) -> bool {
+    pub(crate) fn chosen(&self, id: &str) -> bool {
         self.0.as_ref().is_none_or(|s| s.is_match(id))
     }
 }

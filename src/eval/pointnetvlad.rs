@@ -24,7 +24,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 /// Oxford runs of the test sets: indices into the sorted run folders.
-pub const OXFORD_RUNS: [usize; 23] =
+pub(crate) const OXFORD_RUNS: [usize; 23] =
     [5, 6, 7, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 22, 24, 31, 32, 33, 38, 39, 43, 44];
 /// Oxford test regions (northing, easting).
 const OXFORD_REGIONS: [[f64; 2]; 4] = [
@@ -44,9 +44,9 @@ type Regions = &'static [[f64; 2]];
 /// Half-width of a test region (m).
 const REGION_HALF_WIDTH: f64 = 150.0;
 /// A database submap within this distance (m, inclusive) of a query is a true match.
-pub const MATCH_RADIUS: f64 = 25.0;
+pub(crate) const MATCH_RADIUS: f64 = 25.0;
 /// Neighbours retrieved per query (and the largest N of Recall@N).
-pub const NEIGHBOURS: usize = 25;
+pub(crate) const NEIGHBOURS: usize = 25;
 
 /// One dataset of the benchmark: its runs (sessions) and query regions (`None`: every submap is
 /// a query).
@@ -113,7 +113,7 @@ fn is_query(p: [f64; 3], regions: Option<&[[f64; 2]]>) -> bool {
 }
 
 /// The protocol on one method's descriptors.
-pub fn evaluate_method(
+pub(crate) fn evaluate_method(
     index: &Path,
     method: &str,
     sets: &[Dataset],

@@ -60,7 +60,7 @@ pub struct StepTiming {
 
 /// Step → its time per query (the steps a method has: `persistence`, `describe`, `search`,
 /// `candidates`, `rerank`, …).
-pub type Timing = BTreeMap<String, StepTiming>;
+pub(crate) type Timing = BTreeMap<String, StepTiming>;
 
 /// `eval places`.
 #[derive(Clone, Debug, Serialize, JsonSchema)]
@@ -225,7 +225,7 @@ pub struct Top1 {
 }
 
 /// `(query, top1, descriptor distance, metres to the top-1, metres to the nearest)`.
-pub type Top1Row = (String, Option<String>, Option<f64>, Option<f64>, Option<f64>);
+pub(crate) type Top1Row = (String, Option<String>, Option<f64>, Option<f64>, Option<f64>);
 
 /// `eval perturbation`.
 #[derive(Clone, Debug, Serialize, JsonSchema)]

@@ -13,7 +13,7 @@ use super::spatial_sort::brio_order;
 use std::collections::HashMap;
 
 /// Marker for the outside cell (the infinite part of the triangulation) in coface arrays.
-pub const OUTSIDE: u32 = u32::MAX;
+pub(crate) const OUTSIDE: u32 = u32::MAX;
 
 /// Error building a complex.
 #[derive(Clone, Debug, thiserror::Error, PartialEq)]

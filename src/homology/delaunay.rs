@@ -20,11 +20,11 @@
 use super::exact::Point;
 
 /// The infinite vertex.
-pub const INFINITE: u32 = u32::MAX;
+pub(crate) const INFINITE: u32 = u32::MAX;
 const NO_CELL: u32 = u32::MAX;
 
 /// Predicates over the input points for cells of `K` vertices.
-pub trait Geometry<const K: usize> {
+pub(crate) trait Geometry<const K: usize> {
     /// Sign of the orientation of a finite cell (> 0 positive).
     fn orient(&self, v: &[u32; K]) -> f64;
     /// Whether `p` lies strictly inside the circumsphere of the positive finite cell `v`.
@@ -36,7 +36,7 @@ pub trait Geometry<const K: usize> {
 
 /// One cell: its vertices and its neighbours (`n[i]` across the facet opposite `v[i]`).
 #[derive(Clone, Copy, Debug)]
-pub struct Cell<const K: usize> {
+pub(crate) struct Cell<const K: usize> {
     /// Vertices ([`INFINITE`] for the infinite vertex; `v[0] == DEAD` for a free slot).
     pub v: [u32; K],
     /// Neighbour links, `cell << 2 | mirror` (see [`link`]): the neighbour and the slot of the
@@ -52,20 +52,20 @@ pub fn link(c: u32, mirror: usize) -> u32 {
 
 /// The cell of a neighbour link.
 #[inline]
-pub fn link_cell(l: u32) -> u32 {
+pub(crate) fn link_cell(l: u32) -> u32 {
     l >> 2
 }
 
 /// The mirror slot of a neighbour link.
 #[inline]
-pub fn link_mirror(l: u32) -> usize {
+pub(crate) fn link_mirror(l: u32) -> usize {
     (l & 3) as usize
 }
 
 const DEAD: u32 = u32::MAX - 1;
 
 /// A Delaunay triangulation with cells of `K` vertices.
-pub struct Triangulation<const K: usize> {
+pub(crate) struct Triangulation<const K: usize> {
     /// Every cell slot (free slots included, see [`Triangulation::is_alive`]).
     pub cells: Vec<Cell<K>>,
     free: Vec<u32>,
@@ -86,11 +86,11 @@ pub struct Triangulation<const K: usize> {
 }
 
 /// Most cells of a triangulation: links keep a cell id in 30 bits.
-pub const MAX_CELLS: usize = 1 << 30;
+pub(crate) const MAX_CELLS: usize = 1 << 30;
 
 /// A triangulation that would need more than its cell limit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct CellLimit(pub usize);
+pub(crate) struct CellLimit(pub usize);
 
 struct BoundaryFacet<const K: usize> {
     verts: [u32; K],
@@ -104,7 +104,7 @@ struct BoundaryFacet<const K: usize> {
 impl<const K: usize> Triangulation<K> {
     /// Starts a triangulation of vertices `0..vertices` with the positive simplex `first`
     /// and its `K` infinite cells.
-    pub fn new<G: Geometry<K>>(g: &G, mut first: [u32; K], vertices: usize, capacity: usize) -> Self {
+    pub(crate) fn new<G: Geometry<K>>(g: &G, mut first: [u32; K], vertices: usize, capacity: usize) -> Self {
         if g.orient(&first) < 0.0 {
             first.swap(0, 1);
         }
@@ -164,13 +164,13 @@ impl<const K: usize> Triangulation<K> {
     }
 
     /// Whether cell slot `c` holds a live cell.
-    pub fn is_alive(&self, c: usize) -> bool {
+    pub(crate) fn is_alive(&self, c: usize) -> bool {
         self.cells[c].v[0] != DEAD
     }
 
     /// Whether cell `c` has the infinite vertex.
     #[inline]
-    pub fn is_infinite(&self, c: u32) -> bool {
+    pub(crate) fn is_infinite(&self, c: u32) -> bool {
         has_infinite(&self.cells[c as usize].v)
     }
 
@@ -245,7 +245,7 @@ impl<const K: usize> Triangulation<K> {
 
     /// Inserts point `p` (not a duplicate of an inserted point). Fails, leaving the
     /// triangulation unusable, when it would need more cells than its limit.
-    pub fn insert<G: Geometry<K>>(&mut self, g: &G, p: u32) -> Result<(), CellLimit> {
+    pub(crate) fn insert<G: Geometry<K>>(&mut self, g: &G, p: u32) -> Result<(), CellLimit> {
         let start = self.locate(g, p);
         self.stamp += 1;
         let (conflict, outside) = (2 * self.stamp, 2 * self.stamp + 1);
@@ -340,7 +340,7 @@ impl<const K: usize> Triangulation<K> {
 
 /// Whether a cell holds the infinite vertex (branch-free: the walk asks this at every step).
 #[inline]
-pub fn has_infinite<const K: usize>(v: &[u32; K]) -> bool {
+pub(crate) fn has_infinite<const K: usize>(v: &[u32; K]) -> bool {
     v.iter().fold(false, |any, &x| any | (x == INFINITE))
 }
 
@@ -491,7 +491,7 @@ fn ridge_key<const K: usize>(v: &[u32; K], i: usize, j: usize) -> u64 {
 }
 
 /// Predicates for a full-dimensional point set in R³.
-pub struct Geometry3<'a> {
+pub(crate) struct Geometry3<'a> {
     /// The points.
     pub pts: &'a [Point],
 }
@@ -599,7 +599,7 @@ fn insphere_exact(a: &Point, b: &Point, c: &Point, d: &Point, e: &Point) -> f64 
 }
 
 /// A point off the plane of `a b c` (which must not be collinear).
-pub fn planar_lift(a: &Point, b: &Point, c: &Point) -> Option<Point> {
+pub(crate) fn planar_lift(a: &Point, b: &Point, c: &Point) -> Option<Point> {
     let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
     let w = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
     let n = [u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]];
@@ -625,7 +625,7 @@ fn in_circle_coplanar(a: &Point, b: &Point, c: &Point, e: &Point, q: &Point) -> 
 }
 
 /// Predicates for co-planar points in R³ (a 2-dimensional triangulation in their plane).
-pub struct GeometryPlanar<'a> {
+pub(crate) struct GeometryPlanar<'a> {
     /// The points (all on one plane).
     pub pts: &'a [Point],
     /// A point off that plane; orientation and in-circle tests are taken relative to it.

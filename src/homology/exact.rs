@@ -19,7 +19,7 @@ const EPS: f64 = f64::EPSILON * 0.5;
 
 /// A squared radius in `f64` with a bound on its relative error.
 #[derive(Clone, Copy, Debug)]
-pub struct Radius2 {
+pub(crate) struct Radius2 {
     /// The value, rounded.
     pub value: f64,
     /// `|value - exact| <= rel_err * value`.
@@ -52,7 +52,7 @@ fn add(a: &Point, b: &Point) -> Point {
 }
 
 /// Squared radius of the smallest circumsphere of a simplex given by 2, 3 or 4 vertices.
-pub fn radius2(v: &[Point]) -> Radius2 {
+pub(crate) fn radius2(v: &[Point]) -> Radius2 {
     match v.len() {
         2 => {
             let a = sub(&v[1], &v[0]);
@@ -86,7 +86,7 @@ pub fn radius2(v: &[Point]) -> Radius2 {
 /// `d = a·(b×c)` and `N = |a|²(b×c) + |b|²(c×a) + |c|²(a×b)` (centre offset `N / 2d`),
 /// `λ_1..λ_3 = N·(b×c), N·(c×a), N·(a×b)` over `2d²` and `λ_0 = 2d² − N·(b×c + c×a + a×b)`
 /// over `2d²`: the quantities of the radius itself, so the four tests are nearly free.
-pub fn tet_circumsphere(v: &[Point; 4]) -> (Radius2, [Option<bool>; 4]) {
+pub(crate) fn tet_circumsphere(v: &[Point; 4]) -> (Radius2, [Option<bool>; 4]) {
     let a = sub(&v[1], &v[0]);
     let b = sub(&v[2], &v[0]);
     let c = sub(&v[3], &v[0]);
@@ -134,17 +134,10 @@ fn cross_abs(a: &Point, b: &Point) -> Point {
     [a[1] * b[2] + a[2] * b[1], a[2] * b[0] + a[0] * b[2], a[0] * b[1] + a[1] * b[0]]
 }
 
-/// `true` iff `w` lies on or outside the diametral sphere of the edge `p q`
-/// (GUDHI counts a point on the sphere as Gabriel).
-#[inline]
-pub fn edge_gabriel(p: &Point, q: &Point, w: &Point) -> bool {
-    !edge_obtuse(p, q, w)
-}
-
 /// `true` iff `w` lies strictly inside the diametral sphere of the edge `p q` (the angle at
 /// `w` is obtuse). The f64 filter decides without branching; the exact test is out of line.
 #[inline]
-pub fn edge_obtuse(p: &Point, q: &Point, w: &Point) -> bool {
+pub(crate) fn edge_obtuse(p: &Point, q: &Point, w: &Point) -> bool {
     let a = sub(p, w);
     let b = sub(q, w);
     let d = dot(&a, &b);
@@ -165,7 +158,7 @@ fn edge_obtuse_exact(p: &Point, q: &Point, w: &Point) -> bool {
 
 /// `true` iff `w` lies on or outside the smallest circumsphere of the triangle `p q r`.
 #[inline]
-pub fn triangle_gabriel(p: &Point, q: &Point, r: &Point, w_point: &Point) -> bool {
+pub(crate) fn triangle_gabriel(p: &Point, q: &Point, r: &Point, w_point: &Point) -> bool {
     // inside  <=>  |w'|² |n|² - (M × n)·w' < 0  with a = q-p, b = r-p, w' = w-p,
     // n = a × b, M = |a|² b - |b|² a (the circumcentre offset is (M × n) / (2|n|²)).
     let a = sub(q, p);
@@ -204,7 +197,7 @@ pub fn triangle_gabriel(p: &Point, q: &Point, r: &Point, w_point: &Point) -> boo
 }
 
 /// Exact comparison of the squared circumradii of two simplices (2 to 4 vertices each).
-pub fn compare_radius2_exact(va: &[Point], vb: &[Point]) -> Ordering {
+pub(crate) fn compare_radius2_exact(va: &[Point], vb: &[Point]) -> Ordering {
     let mut all: Vec<Point> = Vec::with_capacity(va.len() + vb.len());
     all.extend_from_slice(va);
     all.extend_from_slice(vb);
@@ -216,7 +209,7 @@ pub fn compare_radius2_exact(va: &[Point], vb: &[Point]) -> Ordering {
 
 /// The squared circumradius of a simplex (2 to 4 vertices), computed exactly and rounded to
 /// the nearest double (ties to even) — the value GUDHI's `precision='exact'` reports.
-pub fn radius2_correctly_rounded(v: &[Point]) -> f64 {
+pub(crate) fn radius2_correctly_rounded(v: &[Point]) -> f64 {
     let e = Exact::new(v);
     let (num, den) = exact_radius2(&e, 0, v.len());
     round_ratio(&num, &den, 2 * e.emin)
@@ -439,9 +432,9 @@ mod tests {
     #[test]
     fn gabriel_tests_on_the_boundary_count_as_gabriel() {
         let (p, q) = ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0]);
-        assert!(edge_gabriel(&p, &q, &[1.0, 1.0, 0.0]), "on the diametral sphere");
-        assert!(!edge_gabriel(&p, &q, &[1.0, 0.5, 0.0]));
-        assert!(edge_gabriel(&p, &q, &[1.0, 1.5, 0.0]));
+        assert!(!edge_obtuse(&p, &q, &[1.0, 1.0, 0.0]), "on the diametral sphere");
+        assert!(edge_obtuse(&p, &q, &[1.0, 0.5, 0.0]));
+        assert!(!edge_obtuse(&p, &q, &[1.0, 1.5, 0.0]));
         let (a, b, c) = ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]);
         // Smallest circumsphere: centre (1, 1, 0), radius² 2.
         assert!(triangle_gabriel(&a, &b, &c, &[2.0, 2.0, 0.0]), "on the sphere");

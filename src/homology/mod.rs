@@ -13,7 +13,7 @@ pub mod delaunay;
 pub mod exact;
 pub mod filtration;
 pub mod persistence;
-pub mod spatial_sort;
+pub(crate) mod spatial_sort;
 
 pub use complex::{ComplexError, DelaunayComplex};
 pub use exact::Point;
@@ -95,7 +95,7 @@ impl Diagram {
 
 /// Distinct points must be at least this far apart, relative to the cloud's extent, as a
 /// power of two: beyond, the filtered predicates could underflow.
-pub const MIN_SPACING_EXPONENT: i32 = -100;
+pub(crate) const MIN_SPACING_EXPONENT: i32 = -100;
 
 /// The binary exponent `e` with `x = m · 2^e`, `m` in [1/2, 1) (`x` > 0, subnormals included).
 fn exponent(x: f64) -> i32 {

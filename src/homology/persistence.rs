@@ -19,7 +19,7 @@ use std::cmp::Ordering;
 
 /// The simplex whose entrance kills a class: where the class "is" in space.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Killer {
+pub(crate) enum Killer {
     /// An edge (H0: it merges two components).
     Edge(u32),
     /// A triangle (H1: it fills a loop).
@@ -39,7 +39,7 @@ pub fn persistence(f: &Filtration) -> Diagram {
 
 /// Every pair of `f` (zero-length pairs dropped, as in [`persistence`]) with the simplex that
 /// kills it, in the order the passes find them.
-pub fn located_pairs(f: &Filtration) -> Vec<(Pair, Killer)> {
+pub(crate) fn located_pairs(f: &Filtration) -> Vec<(Pair, Killer)> {
     let mut out = Vec::new();
     pairs_of(f, |pair, killer| out.push((pair, killer)));
     out

@@ -10,7 +10,7 @@ const BITS: u32 = 21;
 const MIN_ROUND: usize = 64;
 
 /// Returns the point indices in BRIO + Hilbert order. Deterministic for a given input.
-pub fn brio_order(points: &[Point]) -> Vec<u32> {
+pub(crate) fn brio_order(points: &[Point]) -> Vec<u32> {
     let n = points.len();
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];

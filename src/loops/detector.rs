@@ -190,7 +190,7 @@ pub fn method_of_index(index: &std::path::Path, name: &str) -> crate::Result<Met
 /// Whether an earlier scan (session, position in its session, time) may be matched with a
 /// later one: always from another session; from the same session, when farther apart than the
 /// exclusion (a scan without a time is never excluded by seconds).
-pub fn allowed_by(
+pub(crate) fn allowed_by(
     exclusion: Exclusion,
     query: (u32, usize, Option<i64>),
     row: (u32, usize, Option<i64>),

@@ -105,7 +105,7 @@ pub enum Exclusion {
 }
 
 /// The scans' walking order: by timestamp (none last), then session and scan id.
-pub fn time_order(scans: &[IndexedScan]) -> Vec<usize> {
+pub(crate) fn time_order(scans: &[IndexedScan]) -> Vec<usize> {
     let mut order: Vec<usize> = (0..scans.len()).collect();
     order.sort_by(|&a, &b| {
         let (x, y) = (&scans[a], &scans[b]);
@@ -200,15 +200,11 @@ impl<'a> Allowed<'a> {
     }
 }
 
-/// Every scan's best allowed earlier matches (up to two), in time order; `queries[i]` is the
-/// descriptor of `engine.scans[i]`, and `rule` is over `engine.scans`. The scans are searched
-/// in one structure holding them in time order, each query restricted to its allowed rows: the
-/// matches a [`Detector`] given the scans in that order finds.
-pub fn best_matches(engine: &Engine, queries: &[Vec<f32>], rule: &Allowed) -> Matches {
-    best_matches_counted(engine, queries, rule, None)
-}
-
-/// [`best_matches`], counting the scans searched on `bar`.
+/// Every scan's best allowed earlier matches (up to two), in time order, counting the scans
+/// searched on `bar`; `queries[i]` is the descriptor of `engine.scans[i]`, and `rule` is over
+/// `engine.scans`. The scans are searched in one structure holding them in time order, each
+/// query restricted to its allowed rows: the matches a [`Detector`] given the scans in that
+/// order finds.
 fn best_matches_counted(
     engine: &Engine,
     queries: &[Vec<f32>],
@@ -274,7 +270,7 @@ pub(crate) fn distance3(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 /// A calibrated threshold.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Calibration {
+pub(crate) struct Calibration {
     /// The method.
     pub method: String,
     /// What made its descriptors (codebook or method id): a threshold holds for those only.
@@ -637,13 +633,13 @@ fn query_descriptors(index: &Path, engine: &Engine) -> Result<Vec<Vec<f32>>> {
 }
 
 /// Where `--calibrate` writes its thresholds: beside the output, `<stem>.calibration.json`.
-pub fn calibration_path(out: &Path) -> PathBuf {
+pub(crate) fn calibration_path(out: &Path) -> PathBuf {
     let stem = out.file_stem().map_or_else(|| "loops".into(), |s| s.to_string_lossy().into_owned());
     out.with_file_name(format!("{stem}.calibration.json"))
 }
 
 /// The rows as a record batch of the `loops` table ([`crate::sinks::schema::loops`]).
-pub fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
+pub(crate) fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
     use arrow::array::{ArrayRef, BooleanArray, Float64Array, StringArray, UInt64Array};
     let strings = |f: &dyn Fn(&LoopRow) -> &str| -> ArrayRef {
         Arc::new(StringArray::from(rows.iter().map(f).collect::<Vec<_>>()))
@@ -679,7 +675,7 @@ pub fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
 }
 
 /// Writes the rows to `path`: CSV when it ends in `.csv`, else Parquet (zstd), atomically.
-pub fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
+pub(crate) fn write_rows(path: &Path, rows: &[LoopRow]) -> Result<()> {
     let batch = rows_batch(rows);
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
         let mut file = crate::fsutil::AtomicFile::create(path)?;

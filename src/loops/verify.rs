@@ -193,7 +193,7 @@ fn relative(pose: &Isometry3<f64>) -> [f64; 6] {
 /// to the query's (their positions in the walking order), the query's pose in the match's
 /// frame as x y z qx qy qz qw, and the upper triangle of a diagonal information matrix
 /// (translation 1/σ² with σ the RMSE, at least 5 cm; rotation 1/σ² with σ = 0.5°).
-pub fn write_g2o(path: &Path, rows: &[LoopRow]) -> Result<()> {
+pub(crate) fn write_g2o(path: &Path, rows: &[LoopRow]) -> Result<()> {
     let mut text = String::new();
     for r in rows.iter().filter(|r| r.accepted) {
         let Some(c) = r.check.filter(|c| c.passed) else { continue };

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
 /// A neighbour: database row and Euclidean distance.
-pub type Neighbour = (usize, f64);
+pub(crate) type Neighbour = (usize, f64);
 
 enum Tree {
     K4(ImmutableKdTree<f64, 4>),
@@ -35,7 +35,7 @@ pub struct Database {
 }
 
 /// Descriptors up to this length use the k-d tree.
-pub const KD_TREE_MAX_B: usize = 16;
+pub(crate) const KD_TREE_MAX_B: usize = 16;
 
 fn padded<const K: usize>(v: &[f32]) -> [f64; K] {
     let mut out = [0.0; K];
@@ -214,7 +214,7 @@ const MATRIX_BLOCK: usize = 64;
 /// Exact Euclidean search that grows: built over a database ([`Database`]'s routes), or
 /// scanning its rows once it has grown or when some rows are ruled out (squared distances in
 /// f64, as [`Database::brute_force`]).
-pub struct Euclidean {
+pub(crate) struct Euclidean {
     dim: usize,
     store: Store,
 }
@@ -226,7 +226,7 @@ enum Store {
 
 impl Euclidean {
     /// A searcher over `vectors` (`n × dim`, row-major).
-    pub fn new(vectors: Vec<f32>, dim: usize) -> Self {
+    pub(crate) fn new(vectors: Vec<f32>, dim: usize) -> Self {
         let dim = dim.max(1);
         let store = if vectors.is_empty() {
             Store::Plain(vectors)
@@ -244,7 +244,7 @@ impl Euclidean {
     }
 
     /// The `k` nearest rows (among those `allowed` admits) with their distances.
-    pub fn nearest(&self, q: &[f32], k: usize, allowed: Allowed<'_>) -> Vec<Neighbour> {
+    pub(crate) fn nearest(&self, q: &[f32], k: usize, allowed: Allowed<'_>) -> Vec<Neighbour> {
         if let (Store::Indexed(db), None) = (&self.store, allowed) {
             return db.search(q, k);
         }

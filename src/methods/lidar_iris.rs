@@ -61,7 +61,7 @@ use rustfft::{Fft, FftPlanner};
 use std::sync::Arc;
 
 /// The method's name.
-pub const NAME: &str = "lidar-iris";
+pub(crate) const NAME: &str = "lidar-iris";
 
 /// Image rows: 1 m range bins to 80 m.
 pub const ROWS: usize = 80;
@@ -74,9 +74,9 @@ const WORDS: usize = COLUMNS.div_ceil(64);
 /// The bits of the last word of a row that belong to it.
 const LAST_WORD_BITS: u64 = (1u64 << (COLUMNS - 64 * (WORDS - 1))) - 1;
 /// A template bit is set where its part of the filter output exceeds this.
-pub const SIGN_MARGIN: f64 = 1e-6;
+pub(crate) const SIGN_MARGIN: f64 = 1e-6;
 /// A mask bit is set where the filter output's magnitude is below this.
-pub const MASK_BELOW: f64 = 1e-4;
+pub(crate) const MASK_BELOW: f64 = 1e-4;
 
 /// LiDAR-Iris settings (`[lidar-iris]` of a pipeline file); the defaults are the reference's.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -487,7 +487,7 @@ pub fn compare(query: &[f32], candidate: &[f32], p: &IrisParams) -> Match {
 }
 
 /// A hit of a search: row, distance, yaw of the query relative to the row (degrees).
-pub type IrisHit = (usize, f64, f64);
+pub(crate) type IrisHit = (usize, f64, f64);
 
 /// LiDAR-Iris descriptors searched by row key, then re-ranked by [`compare`]'s distance.
 /// It grows by [`Searcher::push`].

@@ -19,12 +19,12 @@ use crate::types::Point;
 use nalgebra::{DMatrix, Matrix3, SymmetricEigen, Vector3};
 
 /// The method's name.
-pub const NAME: &str = "m2dp";
+pub(crate) const NAME: &str = "m2dp";
 
 /// M2DP settings (`[m2dp]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct M2dpParams {
+pub(crate) struct M2dpParams {
     /// Voxel-grid cell of the preprocessing (m); none when 0 (the reference uses the raw cloud).
     pub voxel: f64,
 }
@@ -80,7 +80,7 @@ const ANGULAR: usize = 16;
 /// Radial bins per plane.
 const RADIAL: usize = 8;
 /// Descriptor length: 64 + 128.
-pub const LEN: usize = AZIMUTHS * ELEVATIONS + ANGULAR * RADIAL;
+pub(crate) const LEN: usize = AZIMUTHS * ELEVATIONS + ANGULAR * RADIAL;
 
 /// The cloud's principal axes, as the rows of a matrix: decreasing variance, each signed so
 /// that its largest-magnitude component is positive.

@@ -33,7 +33,7 @@ use std::sync::Arc;
 /// The name of the TopoRec paper's descriptor (alpha persistence + ATOL).
 pub const TOPOREC: &str = "toporec";
 /// The kind name of imported methods in the manifest.
-pub const IMPORTED: &str = "imported";
+pub(crate) const IMPORTED: &str = "imported";
 
 /// A descriptor method computed from raw scans: its parameters, and all that `run`, `query`,
 /// `eval`, `loops` and the online detector ask of it.
@@ -151,7 +151,7 @@ impl Registered {
 
     /// The method with the settings of its pipeline-file section, unchecked; an error when
     /// they do not parse (the deserializer's message).
-    pub fn from_toml(&self, section: toml::Value) -> Result<Method, String> {
+    pub(crate) fn method_from_toml(&self, section: toml::Value) -> Result<Method, String> {
         (self.from_toml)(section).map(Method::computed)
     }
 }
@@ -163,7 +163,7 @@ pub fn computed_names() -> Vec<&'static str> {
 
 /// Whether the descriptors of the method named `name` are stored as bytes (`uint8`): a
 /// computed method's own answer ([`Computed::stores_bytes`]); `float32` for the others.
-pub fn stores_bytes(name: &str) -> bool {
+pub(crate) fn stores_bytes(name: &str) -> bool {
     Registered::of(name).is_some_and(|r| (r.default)().stores_bytes())
 }
 

@@ -22,7 +22,7 @@ use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
 use crate::types::Point;
 
 /// The method's name.
-pub const NAME: &str = "scancontext";
+pub(crate) const NAME: &str = "scancontext";
 
 /// ScanContext settings (`[scancontext]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -232,7 +232,7 @@ pub fn yaw_degrees(shift: usize, p: &ScanContextParams) -> f64 {
 
 /// A hit of a ScanContext search: database row, ScanContext distance, and the column shift
 /// that attains it (the yaw is [`yaw_degrees`] of it).
-pub type ScHit = (usize, f64, usize);
+pub(crate) type ScHit = (usize, f64, usize);
 
 /// ScanContexts searched as the reference does: the ring keys' nearest neighbours (exact,
 /// Euclidean) are the candidates, re-ranked by the ScanContext distance. For Recall@N the

@@ -45,9 +45,9 @@ use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, timed};
 use crate::types::Point;
 
 /// The name of Scan Context++'s polar context.
-pub const POLAR: &str = "scancontext-pp";
+pub(crate) const POLAR: &str = "scancontext-pp";
 /// The name of Scan Context++'s Cartesian context.
-pub const CARTESIAN: &str = "scancontext-pp-cart";
+pub(crate) const CARTESIAN: &str = "scancontext-pp-cart";
 
 /// Scan Context++ polar-context settings (`[scancontext-pp]` of a pipeline file).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -448,7 +448,7 @@ fn squared_distance(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// A hit of a search: row, distance, yaw of the query relative to the row (degrees).
-pub type PpHit = (usize, f64, f64);
+pub(crate) type PpHit = (usize, f64, f64);
 
 /// Scan Context++ descriptors searched as the reference does: the rows whose keys lie
 /// nearest the query's (Euclidean, in float32; the nearest of a row's copies, or of the

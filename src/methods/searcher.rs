@@ -104,7 +104,7 @@ pub enum SearchBudget {
 }
 
 /// The shift range of a matched budget, in sectors each side (ScanContext's default).
-pub const MATCHED_SHIFTS: usize = 3;
+pub(crate) const MATCHED_SHIFTS: usize = 3;
 
 impl std::str::FromStr for SearchBudget {
     type Err = String;
@@ -154,7 +154,7 @@ impl SearchBudget {
 }
 
 /// The `k` smallest of `scored` by (distance, row): selected in linear time, then sorted.
-pub fn k_best(mut scored: Vec<(usize, f64)>, k: usize) -> Vec<(usize, f64)> {
+pub(crate) fn k_best(mut scored: Vec<(usize, f64)>, k: usize) -> Vec<(usize, f64)> {
     let order = |a: &(usize, f64), b: &(usize, f64)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
     if k == 0 {
         return Vec::new();
@@ -168,7 +168,7 @@ pub fn k_best(mut scored: Vec<(usize, f64)>, k: usize) -> Vec<(usize, f64)> {
 }
 
 /// The rows `0..n` that `allowed` admits.
-pub fn allowed_rows(n: usize, allowed: Allowed<'_>) -> impl Iterator<Item = usize> + '_ {
+pub(crate) fn allowed_rows(n: usize, allowed: Allowed<'_>) -> impl Iterator<Item = usize> + '_ {
     (0..n).filter(move |&r| allowed.is_none_or(|a| a(r)))
 }
 

@@ -32,7 +32,7 @@ use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, allowed_rows, tim
 use crate::types::Point;
 
 /// The method's name.
-pub const NAME: &str = "solid";
+pub(crate) const NAME: &str = "solid";
 
 /// SOLiD settings (`[solid]` of a pipeline file). The field of view is the sensor's: the
 /// defaults are the HDL-64E's (KITTI); an HDL-32E (NCLT) is +10.67° / −30.67°, a VLP-16
@@ -208,7 +208,7 @@ pub fn yaw_degrees(shift: usize, p: &SolidParams) -> f64 {
 }
 
 /// A hit of a SOLiD search: database row, SOLiD distance, yaw shift.
-pub type SolidHit = (usize, f64, usize);
+pub(crate) type SolidHit = (usize, f64, usize);
 
 /// SOLiD descriptors searched by their unit range parts: every entry's float32 dot product
 /// with the query's (the cosine), then the entries within the dot products' rounding bound of

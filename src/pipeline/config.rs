@@ -442,7 +442,7 @@ impl Parser {
         root.seen.push(entry.name);
         match root.table.get(entry.name) {
             None => entry.default_method(),
-            Some(v) => entry.from_toml(v.clone()).unwrap_or_else(|e| {
+            Some(v) => entry.method_from_toml(v.clone()).unwrap_or_else(|e| {
                 self.errors.push(format!("{}: {e}", entry.name));
                 entry.default_method()
             }),
@@ -522,7 +522,7 @@ pub fn clean(path: &Path) -> PathBuf {
 }
 
 /// Diagram dimensions a descriptor reads.
-pub fn dims_needed(dims: &DimSelection) -> Vec<u8> {
+pub(crate) fn dims_needed(dims: &DimSelection) -> Vec<u8> {
     match dims {
         DimSelection::Paper => vec![0, 1, 2],
         DimSelection::Dims(d) => d.clone(),

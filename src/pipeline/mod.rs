@@ -25,7 +25,7 @@ pub mod shard;
 mod stored;
 mod summary;
 
-pub use stored::{fit_on_stored, stored_descriptors};
+pub(crate) use stored::{fit_on_stored, stored_descriptors};
 pub use summary::RunSummary;
 
 use crate::describe::{Describer, ScanResult, StageTimes};

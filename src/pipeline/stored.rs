@@ -108,11 +108,11 @@ fn diagram_files(writer: &IndexWriter) -> Vec<PathBuf> {
 
 /// Pairs of stored diagrams kept in memory between a fit and the descriptors made with it
 /// (24 bytes each: 1.2 GB at most).
-pub const CACHE_PAIRS: usize = 50_000_000;
+pub(crate) const CACHE_PAIRS: usize = 50_000_000;
 
 /// The diagrams a codebook read, kept for the descriptors (in file order), when they fit in
 /// [`CACHE_PAIRS`]: the scans' pairs in the dimensions that codebook reads.
-pub struct Cached(Vec<(String, Diagram)>);
+pub(crate) struct Cached(Vec<(String, Diagram)>);
 
 /// A file's fitter and, while the budget holds, the diagrams it was fed.
 type Fitting = (CodebookFitter, Option<Vec<(String, Diagram)>>);
@@ -121,7 +121,7 @@ type Fitting = (CodebookFitter, Option<Vec<(String, Diagram)>>);
 /// depends only on which diagrams the index holds (not on their order), so a run resumed after
 /// a crash, or one with another thread count, fits the same codebook. With `keep`, the
 /// diagrams read are returned too, when they fit in memory.
-pub fn fit_on_stored(
+pub(crate) fn fit_on_stored(
     writer: &IndexWriter,
     spec: &CodebookSpec,
     threads: usize,
@@ -193,7 +193,7 @@ type Made = (Vec<(String, DescriptorRow)>, f64);
 /// before its descriptors were committed, a new codebook), made from their stored diagrams and
 /// committed every `opts.commit_every` scans. Returns the CPU seconds spent vectorizing and
 /// reading back (decoding, writing), and the number made.
-pub fn stored_descriptors(
+pub(crate) fn stored_descriptors(
     writer: &mut IndexWriter,
     codebook: &Codebook,
     threads: usize,

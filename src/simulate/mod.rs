@@ -242,7 +242,7 @@ impl SimulateArgs {
 }
 
 /// Session names: dates from 2026-01-01 on (NCLT names sessions by date).
-pub fn session_name(session: usize) -> String {
+pub(crate) fn session_name(session: usize) -> String {
     format!("2026-{:02}-{:02}", 1 + session / 28 % 12, 1 + session % 28)
 }
 
@@ -253,7 +253,7 @@ fn session_base_utime(session: usize) -> i64 {
 
 /// The closed route: a rectangle along street centre lines (around the inner blocks when
 /// there are at least 3 per side).
-pub fn route_corners(t: &TownParams) -> [[f64; 2]; 4] {
+pub(crate) fn route_corners(t: &TownParams) -> [[f64; 2]; 4] {
     let b = t.block_size;
     let (lo, hi) = if t.blocks >= 3 { (b, (t.blocks - 1) as f64 * b) } else { (0.0, t.blocks as f64 * b) };
     [[lo, lo], [hi, lo], [hi, hi], [lo, hi]]
@@ -289,7 +289,7 @@ fn along_route(corners: &[[f64; 2]; 4], s: f64, lateral: f64, reverse: bool) -> 
 }
 
 /// Loop length (m).
-pub fn route_length(t: &TownParams) -> f64 {
+pub(crate) fn route_length(t: &TownParams) -> f64 {
     let c = route_corners(t);
     (0..4).map(|i| (c[(i + 1) % 4][0] - c[i][0]).hypot(c[(i + 1) % 4][1] - c[i][1])).sum()
 }

@@ -138,7 +138,7 @@ const DIAGRAM_PAGE_ROWS: usize = 1024;
 
 /// One Parquet file being written (atomically: it appears under its name only once
 /// complete, footer included).
-pub struct TableFile {
+pub(crate) struct TableFile {
     path: PathBuf,
     writer: ArrowWriter<AtomicFile>,
     schema: Arc<Schema>,
@@ -147,7 +147,7 @@ pub struct TableFile {
 
 impl TableFile {
     /// Creates `path` (its folder too) for `table`.
-    pub fn create(path: &Path, table: &Table, extra_meta: &[(&str, String)]) -> Result<Self> {
+    pub(crate) fn create(path: &Path, table: &Table, extra_meta: &[(&str, String)]) -> Result<Self> {
         let schema = table.arrow_schema(extra_meta);
         let file = AtomicFile::create(path)?;
         let writer = ArrowWriter::try_new(file, schema.clone(), Some(properties(&schema))).at(path)?;
@@ -161,26 +161,26 @@ impl TableFile {
     }
 
     /// Creates `path` with a given schema (a table being rewritten).
-    pub fn with_schema(path: &Path, schema: Arc<Schema>) -> Result<Self> {
+    pub(crate) fn with_schema(path: &Path, schema: Arc<Schema>) -> Result<Self> {
         let file = AtomicFile::create(path)?;
         let writer = ArrowWriter::try_new(file, schema.clone(), Some(properties(&schema))).at(path)?;
         Ok(TableFile { path: path.to_owned(), writer, schema, rows: 0 })
     }
 
     /// The file's schema.
-    pub fn schema(&self) -> &Arc<Schema> {
+    pub(crate) fn schema(&self) -> &Arc<Schema> {
         &self.schema
     }
 
     /// Writes a batch of this file's schema.
-    pub fn write_batch(&mut self, batch: &RecordBatch) -> Result<()> {
+    pub(crate) fn write_batch(&mut self, batch: &RecordBatch) -> Result<()> {
         self.rows += batch.num_rows() as u64;
         self.writer.write(batch).at(&self.path)
     }
 
     /// Closes the file (footer written), complete under its temporary name; returns it and its
     /// row count.
-    pub fn finish(self) -> Result<(StagedFile, u64)> {
+    pub(crate) fn finish(self) -> Result<(StagedFile, u64)> {
         let file = self.writer.into_inner().at(&self.path)?;
         Ok((file.finish()?, self.rows))
     }
@@ -190,19 +190,19 @@ impl TableFile {
 const BATCH_ROWS: usize = 8192;
 
 /// Writer of one `scans` file.
-pub struct ScansFile {
+pub(crate) struct ScansFile {
     file: TableFile,
     rows: Vec<ScanRow>,
 }
 
 impl ScansFile {
     /// Creates the file.
-    pub fn create(path: &Path) -> Result<Self> {
+    pub(crate) fn create(path: &Path) -> Result<Self> {
         Ok(ScansFile { file: TableFile::create(path, &schema::scans(), &[])?, rows: Vec::new() })
     }
 
     /// Adds a row.
-    pub fn push(&mut self, row: ScanRow) -> Result<()> {
+    pub(crate) fn push(&mut self, row: ScanRow) -> Result<()> {
         self.rows.push(row);
         if self.rows.len() >= BATCH_ROWS { self.flush() } else { Ok(()) }
     }
@@ -217,14 +217,14 @@ impl ScansFile {
     }
 
     /// Flushes and closes (see [`TableFile::finish`]).
-    pub fn finish(mut self) -> Result<(StagedFile, u64)> {
+    pub(crate) fn finish(mut self) -> Result<(StagedFile, u64)> {
         self.flush()?;
         self.file.finish()
     }
 }
 
 /// Writer of one `diagrams` file.
-pub struct DiagramsFile {
+pub(crate) struct DiagramsFile {
     file: TableFile,
     columns: DiagramColumns,
     pending: usize,
@@ -232,7 +232,7 @@ pub struct DiagramsFile {
 
 impl DiagramsFile {
     /// Creates the file.
-    pub fn create(path: &Path) -> Result<Self> {
+    pub(crate) fn create(path: &Path) -> Result<Self> {
         Ok(DiagramsFile {
             file: TableFile::create(path, &schema::diagrams(), &[])?,
             columns: DiagramColumns::default(),
@@ -241,7 +241,7 @@ impl DiagramsFile {
     }
 
     /// Adds one scan's pairs in dimensions `dims`.
-    pub fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> Result<()> {
+    pub(crate) fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> Result<()> {
         self.pending += self.columns.push(scan_id, diagram, dims);
         if self.pending >= 8 * BATCH_ROWS { self.flush() } else { Ok(()) }
     }
@@ -256,16 +256,15 @@ impl DiagramsFile {
     }
 
     /// Flushes and closes (see [`TableFile::finish`]).
-    pub fn finish(mut self) -> Result<(StagedFile, u64)> {
+    pub(crate) fn finish(mut self) -> Result<(StagedFile, u64)> {
         self.flush()?;
         self.file.finish()
     }
 }
 
 /// Writer of one `descriptors` file.
-pub struct DescriptorsFile {
+pub(crate) struct DescriptorsFile {
     file: TableFile,
-    session: String,
     b: usize,
     codebook_id: String,
     /// Whether the values are bytes (stored as uint8).
@@ -274,16 +273,15 @@ pub struct DescriptorsFile {
 }
 
 impl DescriptorsFile {
-    /// Creates the file for descriptors of `method` and `session`, of length `b`, made with
-    /// codebook (or method id) `codebook_id`.
-    pub fn create(path: &Path, session: &str, method: &str, b: usize, codebook_id: &str) -> Result<Self> {
+    /// Creates the file for descriptors of `method`, of length `b`, made with codebook (or
+    /// method id) `codebook_id`.
+    pub(crate) fn create(path: &Path, method: &str, b: usize, codebook_id: &str) -> Result<Self> {
         let meta = [
             (schema::meta::CODEBOOK_ID, codebook_id.to_string()),
             (schema::meta::METHOD, method.to_string()),
         ];
         Ok(DescriptorsFile {
             file: TableFile::create(path, &schema::descriptors_for(method, b), &meta)?,
-            session: session.to_string(),
             b,
             codebook_id: codebook_id.to_string(),
             bytes: crate::methods::stores_bytes(method),
@@ -291,13 +289,8 @@ impl DescriptorsFile {
         })
     }
 
-    /// The session of its rows.
-    pub fn session(&self) -> &str {
-        &self.session
-    }
-
     /// Adds a row.
-    pub fn push(&mut self, row: DescriptorRow) -> Result<()> {
+    pub(crate) fn push(&mut self, row: DescriptorRow) -> Result<()> {
         if row.values.len() != self.b {
             return Err(Error::table(
                 &self.file.path,
@@ -330,14 +323,14 @@ impl DescriptorsFile {
     }
 
     /// Flushes and closes (see [`TableFile::finish`]).
-    pub fn finish(mut self) -> Result<(StagedFile, u64)> {
+    pub(crate) fn finish(mut self) -> Result<(StagedFile, u64)> {
         self.flush()?;
         self.file.finish()
     }
 }
 
 /// The `scans` columns of `rows`, in the schema's order ([`schema::scans`]).
-pub fn scan_columns(rows: &[ScanRow]) -> Vec<ArrayRef> {
+pub(crate) fn scan_columns(rows: &[ScanRow]) -> Vec<ArrayRef> {
     let s = |f: &dyn Fn(&ScanRow) -> Option<String>| {
         let mut b = StringBuilder::new();
         rows.iter().for_each(|r| b.append_option(f(r)));
@@ -377,7 +370,7 @@ pub fn scan_columns(rows: &[ScanRow]) -> Vec<ArrayRef> {
 
 /// The `diagrams` columns, built a scan at a time ([`schema::diagrams`]).
 #[derive(Default)]
-pub struct DiagramColumns {
+pub(crate) struct DiagramColumns {
     ids: StringBuilder,
     dims: UInt8Builder,
     births: Float64Builder,
@@ -386,7 +379,7 @@ pub struct DiagramColumns {
 
 impl DiagramColumns {
     /// Adds one scan's pairs in dimensions `dims`; returns how many.
-    pub fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> usize {
+    pub(crate) fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> usize {
         let mut added = 0;
         for p in diagram.pairs().iter().filter(|p| dims.contains(&p.dim)) {
             self.ids.append_value(scan_id);
@@ -399,7 +392,7 @@ impl DiagramColumns {
     }
 
     /// The columns of every pair added since the last call.
-    pub fn finish(&mut self) -> Vec<ArrayRef> {
+    pub(crate) fn finish(&mut self) -> Vec<ArrayRef> {
         vec![
             Arc::new(self.ids.finish()),
             Arc::new(self.dims.finish()),
@@ -410,14 +403,19 @@ impl DiagramColumns {
 }
 
 /// Whether a descriptor value is a byte (an integer in 0..=255).
-pub fn is_byte(v: f32) -> bool {
+pub(crate) fn is_byte(v: f32) -> bool {
     (0.0..=255.0).contains(&v) && v.fract() == 0.0
 }
 
 /// The `descriptors` columns of `rows` (length `b`, made by `codebook_id`), in the schema's
 /// order ([`schema::descriptors_for`]): the values as uint8 when `bytes` (each a byte, as
 /// [`is_byte`] checks), else float32.
-pub fn descriptor_columns(rows: &[DescriptorRow], b: usize, codebook_id: &str, bytes: bool) -> Vec<ArrayRef> {
+pub(crate) fn descriptor_columns(
+    rows: &[DescriptorRow],
+    b: usize,
+    codebook_id: &str,
+    bytes: bool,
+) -> Vec<ArrayRef> {
     let mut ids = StringBuilder::new();
     let mut utime = Int64Builder::new();
     let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];

@@ -15,7 +15,7 @@ use arrow::datatypes::{DataType, Field, Schema};
 use std::sync::Arc;
 
 /// Version of the table layout, written into every file's key-value metadata.
-pub const SCHEMA_VERSION: &str = "2";
+pub(crate) const SCHEMA_VERSION: &str = "2";
 /// Key-value metadata keys.
 pub mod meta {
     /// Table layout version.
@@ -199,7 +199,7 @@ pub fn descriptors(b: usize) -> Table {
 
 /// The `descriptors` table of `method`: its values `uint8` for the methods whose descriptors
 /// are bytes ([`crate::methods::stores_bytes`]), `float32` for the others.
-pub fn descriptors_for(method: &str, b: usize) -> Table {
+pub(crate) fn descriptors_for(method: &str, b: usize) -> Table {
     descriptors_of(b, if crate::methods::stores_bytes(method) { DataType::UInt8 } else { DataType::Float32 })
 }
 
@@ -246,7 +246,9 @@ pub fn query_hits() -> Table {
     Table {
         name: "query",
         doc: "One row per query scan and rank: its k best database scans.",
-        layout: Layout::Other("CSV from `toporec query` (stdout or -o); Arrow from the Python package's Index.query"),
+        layout: Layout::Other(
+            "CSV from `toporec query` (stdout or -o); Arrow from the Python package's Index.query",
+        ),
         columns: vec![
             col("query_id", Utf8, false, "the query scan's id"),
             col("rank", UInt32, false, "1 for the best database scan"),
@@ -273,7 +275,9 @@ pub fn loops() -> Table {
     Table {
         name: "loops",
         doc: "One row per scan's best allowed earlier match (the loops only, unless --all).",
-        layout: Layout::Other("one file from `toporec loops -o`: Parquet (zstd), or CSV when it ends in .csv"),
+        layout: Layout::Other(
+            "one file from `toporec loops -o`: Parquet (zstd), or CSV when it ends in .csv",
+        ),
         columns: vec![
             col("method", Utf8, false, "the descriptor method"),
             col("query_scan", Utf8, false, "the scan"),
@@ -281,14 +285,29 @@ pub fn loops() -> Table {
             col("matched_scan", Utf8, false, "the earlier scan it matches"),
             col("matched_session", Utf8, false, "its session"),
             col("distance", Float64, false, "descriptor distance"),
-            col("yaw_degrees", Float64, true, "the query's yaw relative to the match (degrees), for methods that give one"),
+            col(
+                "yaw_degrees",
+                Float64,
+                true,
+                "the query's yaw relative to the match (degrees), for methods that give one",
+            ),
             col("rank2_distance", Float64, true, "the second-best allowed match's distance"),
-            col("true_distance_m", Float64, true, "the distance between the two scans' poses (m), when both have one"),
+            col(
+                "true_distance_m",
+                Float64,
+                true,
+                "the distance between the two scans' poses (m), when both have one",
+            ),
             col("accepted", Boolean, false, "below the threshold (and, with --verify, aligned): a loop"),
             col("query_vertex", UInt64, false, "the query's position in the walking order (its g2o vertex)"),
             col("matched_vertex", UInt64, false, "the matched scan's"),
             col("verified", Boolean, true, check),
-            col("icp_fitness", Float64, true, "ICP: the share of the query's points with a partner within the last stage's distance"),
+            col(
+                "icp_fitness",
+                Float64,
+                true,
+                "ICP: the share of the query's points with a partner within the last stage's distance",
+            ),
             col("icp_rmse", Float64, true, "ICP: the root mean square of their point-to-plane distances (m)"),
             col("rel_x", Float64, true, "ICP: the query's pose in the match's sensor frame, x (m)"),
             col("rel_y", Float64, true, "y (m)"),
@@ -313,7 +332,12 @@ pub fn batch_inputs() -> Table {
             "Arrow record batches given to the Python package's describe_batch and the Spark job (mapInArrow)",
         ),
         columns: vec![
-            col("path", Utf8, false, "the scan file (names the scan and its session by the sources' layouts)"),
+            col(
+                "path",
+                Utf8,
+                false,
+                "the scan file (names the scan and its session by the sources' layouts)",
+            ),
             col("content", Binary, true, "the file's bytes"),
             col("points", points, true, "x, y, z of every point in the sensor frame (m), flattened"),
             col("format", Utf8, true, "nclt | kitti | mcap; from the path's layout when absent"),
@@ -340,7 +364,10 @@ impl Table {
     /// The Arrow schema of the columns, without metadata.
     pub fn plain_schema(&self) -> Arc<Schema> {
         Arc::new(Schema::new(
-            self.columns.iter().map(|c| Field::new(c.name, c.data_type.clone(), c.nullable)).collect::<Vec<_>>(),
+            self.columns
+                .iter()
+                .map(|c| Field::new(c.name, c.data_type.clone(), c.nullable))
+                .collect::<Vec<_>>(),
         ))
     }
 

@@ -8,7 +8,7 @@ use std::path::Path;
 
 /// The records of a CSV reader, each with the line it starts on (1-based), blank records left
 /// out. A malformed record is an `Err` item; reading goes on after it.
-pub fn numbered_records<R: std::io::Read>(
+pub(crate) fn numbered_records<R: std::io::Read>(
     reader: &mut csv::Reader<R>,
 ) -> impl Iterator<Item = (usize, Result<csv::StringRecord, csv::Error>)> + '_ {
     std::iter::from_fn(move || {

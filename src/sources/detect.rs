@@ -55,7 +55,7 @@ pub enum InputKind {
 }
 
 /// Whether the file starts with the MCAP magic.
-pub fn is_mcap(path: &Path) -> bool {
+pub(crate) fn is_mcap(path: &Path) -> bool {
     let mut magic = [0u8; 8];
     std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok()
         && magic == ::mcap::MAGIC

@@ -95,7 +95,7 @@ impl GroundTruth {
 
 /// Finds `groundtruth_<session>.csv` for an NCLT session folder: in the folder, beside it, or
 /// in a `ground_truth` folder beside it or one level up (the layouts NCLT ships and users make).
-pub fn find_for_session(session_dir: &Path, session: &str) -> Option<PathBuf> {
+pub(crate) fn find_for_session(session_dir: &Path, session: &str) -> Option<PathBuf> {
     let name = format!("groundtruth_{session}.csv");
     let parent = session_dir.parent().unwrap_or(Path::new("."));
     let mut candidates =

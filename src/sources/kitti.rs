@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Bytes per KITTI record.
-pub const RECORD: usize = 16;
+pub(crate) const RECORD: usize = 16;
 
 /// A decoded KITTI scan.
 #[derive(Debug, Default)]
@@ -140,7 +140,7 @@ fn frame_scan(path: &Path, session: &str, seq: &Sequence) -> Result<Scan, ScanFa
 /// The scan of a `velodyne/<frame>.bin` file's `bytes` in sequence `session`, with its time
 /// and pose from `seq`: as the KITTI source makes it from the file.
 #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
-pub fn frame_scan_bytes(
+pub(crate) fn frame_scan_bytes(
     path: &Path,
     bytes: &[u8],
     session: &str,

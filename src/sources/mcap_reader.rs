@@ -262,7 +262,7 @@ fn decompress(compression: &str, data: &[u8], size: u64) -> Result<Vec<u8>, Stri
 
 /// Whether a channel carries point clouds toporec decodes (PointCloud2 in CDR or ROS 1,
 /// `foxglove.PointCloud` in protobuf).
-pub fn is_point_cloud(c: &ChannelInfo) -> bool {
+pub(crate) fn is_point_cloud(c: &ChannelInfo) -> bool {
     matches!(
         (c.schema_name.as_str(), c.message_encoding.as_str()),
         ("sensor_msgs/msg/PointCloud2", "cdr")

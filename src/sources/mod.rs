@@ -102,7 +102,7 @@ impl std::fmt::Display for NoPose {
 }
 
 /// A joined pose as the scan carries it: the pose, or why there is none.
-pub fn split_pose(pose: Result<Pose, NoPose>) -> (Option<Pose>, Option<NoPose>) {
+pub(crate) fn split_pose(pose: Result<Pose, NoPose>) -> (Option<Pose>, Option<NoPose>) {
     match pose {
         Ok(p) => (Some(p), None),
         Err(why) => (None, Some(why)),
@@ -303,7 +303,10 @@ pub fn read_cloud(path: &Path, format: Option<CloudFormat>) -> Result<Vec<Point>
 }
 
 /// Reads one cloud and the content fingerprint of its file.
-pub fn read_cloud_file(path: &Path, format: Option<CloudFormat>) -> Result<(Vec<Point>, u64), SourceError> {
+pub(crate) fn read_cloud_file(
+    path: &Path,
+    format: Option<CloudFormat>,
+) -> Result<(Vec<Point>, u64), SourceError> {
     let format = match format {
         Some(f) => f,
         None => match InputKind::detect(path)? {

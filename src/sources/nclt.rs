@@ -11,11 +11,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Bytes per record.
-pub const RECORD: usize = 8;
+pub(crate) const RECORD: usize = 8;
 /// Metres per raw unit.
-pub const SCALE: f64 = 0.005;
+pub(crate) const SCALE: f64 = 0.005;
 /// Offset in metres.
-pub const OFFSET: f64 = -100.0;
+pub(crate) const OFFSET: f64 = -100.0;
 
 /// A decoded NCLT scan.
 #[derive(Debug, Default)]
@@ -51,7 +51,7 @@ pub fn decode_sync(bytes: &[u8], path: &Path) -> Result<NcltScan, SourceError> {
 /// Magic of a `velodyne_hits.bin` packet: four u16 equal to 44444.
 pub const HITS_MAGIC: [u8; 8] = [0x9C, 0xAD, 0x9C, 0xAD, 0x9C, 0xAD, 0x9C, 0xAD];
 /// Bytes of a packet header: magic, u32 hit count, u64 utime, 4 padding bytes.
-pub const HITS_HEADER: usize = 24;
+pub(crate) const HITS_HEADER: usize = 24;
 
 /// Which NCLT files to read in a session.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -90,7 +90,7 @@ fn default_tolerance_ms() -> f64 {
 }
 
 /// Whether `dir` looks like one NCLT session.
-pub fn is_session(dir: &Path) -> bool {
+pub(crate) fn is_session(dir: &Path) -> bool {
     dir.join("velodyne_sync").is_dir() || dir.join("velodyne_hits.bin").is_file()
 }
 
@@ -210,7 +210,7 @@ fn sync_scan(
 /// The scan of a `velodyne_sync/<utime>.bin` file's `bytes`, in session `session`, its pose
 /// joined from `gt` within `tolerance` µs: as the NCLT source makes it from the file.
 #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
-pub fn sync_scan_bytes(
+pub(crate) fn sync_scan_bytes(
     path: &Path,
     bytes: &[u8],
     session: &str,

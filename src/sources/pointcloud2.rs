@@ -26,7 +26,7 @@ pub mod datatype {
 }
 
 /// Size in bytes of a PointField datatype.
-pub fn datatype_size(datatype: u8) -> Option<usize> {
+pub(crate) fn datatype_size(datatype: u8) -> Option<usize> {
     Some(match datatype {
         1 | 2 => 1,
         3 | 4 => 2,
@@ -357,7 +357,7 @@ pub fn serialize(cloud: &PointCloud2<'_>, encoding: Encoding) -> Vec<u8> {
 /// Parses a `foxglove.PointCloud` protobuf message (Foxglove's `PointCloud.proto` schema) into the PointCloud2 form
 /// (one row, little-endian), mapping Foxglove's numeric types onto PointField codes. The
 /// message's `pose` is ignored: points stay in the cloud's own frame.
-pub fn parse_foxglove(buf: &[u8]) -> Result<PointCloud2<'_>, String> {
+pub(crate) fn parse_foxglove(buf: &[u8]) -> Result<PointCloud2<'_>, String> {
     let mut pb = Protobuf { buf, pos: 0 };
     let mut cloud = PointCloud2 {
         stamp_ns: 0,

@@ -18,7 +18,7 @@ use crate::types::Point;
 use std::path::{Path, PathBuf};
 
 /// Values in a submap file: 4096 points × 3.
-pub const SUBMAP_VALUES: usize = 4096 * 3;
+pub(crate) const SUBMAP_VALUES: usize = 4096 * 3;
 
 /// A benchmark set and where its runs keep their test submaps.
 struct Layout {
@@ -135,7 +135,7 @@ impl PointNetVladSpec {
 
 /// The rows of a locations CSV: (timestamp, northing, easting). A header line is skipped; a
 /// bad line is an error naming the file and the line.
-pub fn read_locations(path: &Path) -> Result<Vec<(i64, f64, f64)>, SourceError> {
+pub(crate) fn read_locations(path: &Path) -> Result<Vec<(i64, f64, f64)>, SourceError> {
     let bytes = std::fs::read(path).map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
     let mut reader = ::csv::ReaderBuilder::new()
         .has_headers(false)

@@ -69,7 +69,7 @@ pub struct Atol {
 /// filled with `[inf, inf]` centres). Holds at most `sample_size` points: the quantiser is
 /// fitted on a uniform reservoir sample of the finite points.
 #[derive(Clone, Debug)]
-pub struct AtolFitter {
+pub(crate) struct AtolFitter {
     b: usize,
     contrast: Contrast,
     weighting: Weighting,
@@ -81,7 +81,7 @@ pub struct AtolFitter {
 
 impl AtolFitter {
     /// A fitter for `b` centres, sampling at most `sample_size` points, seeded by `seed`.
-    pub fn new(
+    pub(crate) fn new(
         b: usize,
         contrast: Contrast,
         weighting: Weighting,
@@ -103,7 +103,7 @@ impl AtolFitter {
     /// Adds one measure (a diagram's points; infinite points are counted for `iidproba`'s
     /// weights, then dropped). `key` names the measure (a hash of its scan id): the sample
     /// depends on the keys offered, not on their order.
-    pub fn add(&mut self, measure: &[Point2], key: u64) {
+    pub(crate) fn add(&mut self, measure: &[Point2], key: u64) {
         self.measures += 1;
         let w = match self.weighting {
             Weighting::Cloud => 1.0,
@@ -115,18 +115,18 @@ impl AtolFitter {
     }
 
     /// Adds a fitter of the same settings fed with other measures (fitting in parallel).
-    pub fn merge(&mut self, other: AtolFitter) {
+    pub(crate) fn merge(&mut self, other: AtolFitter) {
         self.measures += other.measures;
         self.reservoir.merge(other.reservoir);
     }
 
     /// Finite points offered so far.
-    pub fn points_seen(&self) -> u64 {
+    pub(crate) fn points_seen(&self) -> u64 {
         self.reservoir.seen()
     }
 
     /// Runs the quantiser and builds the model.
-    pub fn finish(self) -> Result<Atol, AtolError> {
+    pub(crate) fn finish(self) -> Result<Atol, AtolError> {
         if self.b == 0 {
             return Err(AtolError::NoCentre);
         }

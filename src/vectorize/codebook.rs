@@ -247,7 +247,7 @@ impl CodebookFitter {
 }
 
 /// The file format tag and version written into every codebook.
-pub const FORMAT: &str = "toporec-codebook";
+pub(crate) const FORMAT: &str = "toporec-codebook";
 /// Codebook file format version; newer files are refused.
 pub const FORMAT_VERSION: u64 = 1;
 

@@ -50,7 +50,7 @@
 //! scan on reversed revisits).
 
 /// The name of the method.
-pub const NAME: &str = "toporec-plus";
+pub(crate) const NAME: &str = "toporec-plus";
 
 /// Grid channels: the total relief in a cell, the height of its highest square.
 const CHANNELS: usize = 2;

@@ -13,9 +13,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 /// The `format` tag of a manifest.
-pub const FORMAT: &str = "toporec-index";
+pub(crate) const FORMAT: &str = "toporec-index";
 /// The manifest layout this toporec writes (it reads every older one since 2).
-pub const MANIFEST_VERSION: u64 = 3;
+pub(crate) const MANIFEST_VERSION: u64 = 3;
 
 /// One committed part file.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -19,7 +19,7 @@
 
 pub mod manifest;
 pub mod reader;
-pub mod recovery;
+pub(crate) mod recovery;
 pub mod searchers;
 pub mod writer;
 
@@ -30,26 +30,26 @@ use crate::error::{Error, Result, ResultExt};
 use std::path::{Path, PathBuf};
 
 /// The codebook file of an index.
-pub const CODEBOOK_FILE: &str = "codebook.json";
+pub(crate) const CODEBOOK_FILE: &str = "codebook.json";
 /// The effective pipeline of an index.
-pub const PIPELINE_FILE: &str = "pipeline.toml";
+pub(crate) const PIPELINE_FILE: &str = "pipeline.toml";
 /// The manifest: the committed files and counts.
 pub const MANIFEST_FILE: &str = "manifest.json";
 /// The writer's lock file.
-pub const LOCK_FILE: &str = ".lock";
+pub(crate) const LOCK_FILE: &str = ".lock";
 /// The staging folder: the files of a commit until they are renamed into place (and those of
 /// a `run --full` until it switches the index to them).
-pub const STAGING_DIR: &str = ".staging";
+pub(crate) const STAGING_DIR: &str = ".staging";
 /// The folder of a sharded run's per-shard indexes.
-pub const SHARDS_DIR: &str = "shards";
+pub(crate) const SHARDS_DIR: &str = "shards";
 /// The folder of the search caches ([`searchers`]).
-pub const SEARCHERS_DIR: &str = "searchers";
+pub(crate) const SEARCHERS_DIR: &str = "searchers";
 /// The extension of a staged file.
 const STAGED_EXTENSION: &str = "staged";
 
 /// Where the file committed as `rel` (`<table>/…/part-<n>.parquet`) waits until it is put in
 /// place: `.staging/part-<n>.staged` (part numbers are unique across an index).
-pub fn staged_path(root: &Path, rel: &str) -> PathBuf {
+pub(crate) fn staged_path(root: &Path, rel: &str) -> PathBuf {
     let name = Path::new(rel).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     root.join(STAGING_DIR).join(format!("{name}.{STAGED_EXTENSION}"))
 }
@@ -57,7 +57,7 @@ pub fn staged_path(root: &Path, rel: &str) -> PathBuf {
 /// Where the bytes of the committed file `rel` are now: in place, or still staged when a
 /// commit is being completed (by its writer, or after a kill by the next process to open the
 /// index). The path in place when neither exists.
-pub fn resolve(root: &Path, rel: &str) -> PathBuf {
+pub(crate) fn resolve(root: &Path, rel: &str) -> PathBuf {
     let placed = root.join(rel);
     if placed.exists() {
         return placed;
@@ -67,14 +67,14 @@ pub fn resolve(root: &Path, rel: &str) -> PathBuf {
 }
 
 /// Whether `name` is the name of one of toporec's part files, `part-<digits>.parquet`.
-pub fn is_part_name(name: &str) -> bool {
+pub(crate) fn is_part_name(name: &str) -> bool {
     name.strip_prefix("part-")
         .and_then(|n| n.strip_suffix(".parquet"))
         .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// Whether `name` is the name of a staged file, `part-<digits>.staged`.
-pub fn is_staged_name(name: &str) -> bool {
+pub(crate) fn is_staged_name(name: &str) -> bool {
     name.strip_prefix("part-")
         .and_then(|n| n.strip_suffix(&format!(".{STAGED_EXTENSION}")))
         .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
@@ -94,7 +94,7 @@ pub fn partition(session: &str) -> String {
 /// The folder of a table's part files, relative to the index: `<table>/session=<s>`, and
 /// `descriptors/method=<m>/session=<s>` for descriptors (each method's apart: their lengths
 /// differ).
-pub fn partition_dir(table: &str, method: Option<&str>, session: &str) -> PathBuf {
+pub(crate) fn partition_dir(table: &str, method: Option<&str>, session: &str) -> PathBuf {
     let mut dir = PathBuf::from(table);
     if table == crate::sinks::schema::tables::DESCRIPTORS {
         dir.push(format!("method={}", method.unwrap_or(crate::methods::TOPOREC)));
@@ -105,7 +105,7 @@ pub fn partition_dir(table: &str, method: Option<&str>, session: &str) -> PathBu
 
 /// Every file under the table folders of an index (any depth), toporec's or not, with its
 /// path relative to the index (`/` separators), sorted.
-pub fn files_on_disk(root: &Path) -> Vec<(PathBuf, String)> {
+pub(crate) fn files_on_disk(root: &Path) -> Vec<(PathBuf, String)> {
     let mut out = Vec::new();
     for table in crate::sinks::schema::tables::ALL {
         for e in walkdir::WalkDir::new(root.join(table)).into_iter().flatten() {
@@ -122,7 +122,7 @@ pub fn files_on_disk(root: &Path) -> Vec<(PathBuf, String)> {
 }
 
 /// Decodes a `session=<name>` partition folder name.
-pub fn session_of(partition: &str) -> Option<String> {
+pub(crate) fn session_of(partition: &str) -> Option<String> {
     let encoded = partition.strip_prefix("session=")?;
     percent_encoding::percent_decode_str(encoded).decode_utf8().ok().map(|s| s.into_owned())
 }
@@ -135,7 +135,7 @@ fn part_number(path: &Path) -> Option<u64> {
 /// The part files of `table` in an index without a manifest, with their sessions, sorted by
 /// (session, part). For `descriptors`, those of `method` (`descriptors/method=<m>/`; for the
 /// TopoRec method also the older `descriptors/session=<s>/`).
-pub fn table_files(root: &Path, table: &str, method: Option<&str>) -> Result<Vec<(String, PathBuf)>> {
+pub(crate) fn table_files(root: &Path, table: &str, method: Option<&str>) -> Result<Vec<(String, PathBuf)>> {
     let dir = root.join(table);
     if !dir.is_dir() {
         return Err(Error::index(root, format!("not an index (no {table}/ folder)")));

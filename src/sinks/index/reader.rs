@@ -49,7 +49,7 @@ fn sorted(files: impl Iterator<Item = (String, PathBuf)>) -> Vec<(String, PathBu
 }
 
 /// How many times [`IndexReader::read_consistent`] starts a read over before it gives up.
-pub const READ_ATTEMPTS: u32 = 20;
+pub(crate) const READ_ATTEMPTS: u32 = 20;
 
 /// One row of `scans`, as stored.
 pub type ScanRecord = ScanRow;
@@ -511,7 +511,11 @@ fn descriptor_type(
 }
 
 /// Reads one `descriptors` file of `session`.
-pub fn read_descriptors(path: &Path, session: &str, length: Option<usize>) -> Result<Vec<IndexedScan>> {
+pub(crate) fn read_descriptors(
+    path: &Path,
+    session: &str,
+    length: Option<usize>,
+) -> Result<Vec<IndexedScan>> {
     let names = [C::SCAN_ID, C::UTIME, C::POSE_X, C::POSE_Y, C::POSE_Z, C::DESCRIPTOR, C::CODEBOOK_ID];
     let mut table = CheckedTable::open(path, &schema::descriptors(1), &names, length)?;
     let mut out = Vec::new();
@@ -548,7 +552,7 @@ pub fn read_descriptors(path: &Path, session: &str, length: Option<usize>) -> Re
 
 /// What [`check_file`] found in a table file.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct FileInfo {
+pub(crate) struct FileInfo {
     /// Rows.
     pub rows: u64,
     /// Descriptors: the codebook id of every row (an error when they differ).
@@ -575,7 +579,7 @@ fn as_declared(column: ArrayRef, declared: &DataType) -> ArrayRef {
 }
 
 /// Reads a whole table file, checking every column of `table`'s schema (types, nulls).
-pub fn check_file(path: &Path, table: &str, descriptor_length: Option<usize>) -> Result<FileInfo> {
+pub(crate) fn check_file(path: &Path, table: &str, descriptor_length: Option<usize>) -> Result<FileInfo> {
     let schema = match table {
         tables::SCANS => schema::scans(),
         tables::DIAGRAMS => schema::diagrams(),
@@ -604,18 +608,8 @@ pub fn check_file(path: &Path, table: &str, descriptor_length: Option<usize>) ->
     Ok(info)
 }
 
-/// The scan ids of any table file, once per run of equal ids (one per scan in toporec's
-/// files, whose rows of a scan are contiguous).
-pub fn distinct_scan_ids(path: &Path) -> Result<Vec<String>> {
-    read_scan_ids(path, true)
-}
-
 /// The `scan_id` column of any table file (one entry per row).
 pub fn scan_ids(path: &Path) -> Result<Vec<String>> {
-    read_scan_ids(path, false)
-}
-
-fn read_scan_ids(path: &Path, distinct: bool) -> Result<Vec<String>> {
     let mut table = CheckedTable::open_any(path, &schema::diagrams(), None, &[C::SCAN_ID], None, true, None)?;
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
@@ -624,16 +618,10 @@ fn read_scan_ids(path: &Path, distinct: bool) -> Result<Vec<String>> {
         let mut last_key = -1;
         for i in 0..ids.len() {
             let (key, id) = ids.get(i);
+            // A run of equal ids (a dictionary key repeated) is copied from the last one.
             let same = key >= 0 && key == last_key || out.last().is_some_and(|s: &String| s == id);
             last_key = key;
-            if !(distinct && same) {
-                if same {
-                    let s = out.last().expect("same as the last").clone();
-                    out.push(s);
-                } else {
-                    out.push(id.to_string());
-                }
-            }
+            out.push(if same { out.last().expect("same as the last").clone() } else { id.to_string() });
         }
     }
     Ok(out)
@@ -711,7 +699,7 @@ pub fn diagrams(path: &Path) -> Result<DiagramStream> {
 
 /// As [`diagrams`], with only the pairs of `dims` (all of them when `None`): a scan with no
 /// pair in `dims` is left out.
-pub fn diagrams_in(path: &Path, dims: Option<&[u8]>) -> Result<DiagramStream> {
+pub(crate) fn diagrams_in(path: &Path, dims: Option<&[u8]>) -> Result<DiagramStream> {
     let names = [C::SCAN_ID, C::DIM, C::BIRTH, C::DEATH];
     let dims = dims.map(<[u8]>::to_vec);
     let table =

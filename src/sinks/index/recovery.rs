@@ -25,15 +25,15 @@ use super::{
     is_staged_name, staged_path,
 };
 use crate::error::{Error, Result, ResultExt};
-use std::time::{Duration, Instant};
 use crate::fsutil::is_temp_name;
 use crate::sinks::schema::tables;
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 /// Renames the staged files among `rels` (paths relative to the index) into place, then syncs
 /// the folders they went to. Files already in place are passed over.
-pub fn place<'a>(root: &Path, rels: impl IntoIterator<Item = &'a str>) -> Result<usize> {
+pub(crate) fn place<'a>(root: &Path, rels: impl IntoIterator<Item = &'a str>) -> Result<usize> {
     let mut folders: HashSet<PathBuf> = HashSet::new();
     let mut placed = 0;
     for rel in rels {
@@ -60,7 +60,7 @@ pub fn place<'a>(root: &Path, rels: impl IntoIterator<Item = &'a str>) -> Result
 /// Whether the index holds a commit not yet complete, in a way a glob of the tables sees: a
 /// file its manifest names still staged, or a part file it does not name still in a table
 /// folder (superseded, or left by a writer killed before an older protocol's commit point).
-pub fn pending(root: &Path, manifest: &Manifest) -> bool {
+pub(crate) fn pending(root: &Path, manifest: &Manifest) -> bool {
     if manifest.files.iter().any(|f| !root.join(&f.path).exists() && staged_path(root, &f.path).exists()) {
         return true;
     }
@@ -73,7 +73,7 @@ pub fn pending(root: &Path, manifest: &Manifest) -> bool {
 
 /// Completes or undoes an interrupted commit (see the module doc), given the manifest read
 /// under the writer's lock. Returns how many files it renamed into place and deleted.
-pub fn recover(root: &Path, manifest: &Manifest) -> Result<(usize, usize)> {
+pub(crate) fn recover(root: &Path, manifest: &Manifest) -> Result<(usize, usize)> {
     let placed = place(root, manifest.files.iter().map(|f| f.path.as_str()))?;
     if placed > 0 {
         tracing::info!("{}: completed the commit of generation {}", root.display(), manifest.generation);
@@ -104,7 +104,7 @@ pub fn recover(root: &Path, manifest: &Manifest) -> Result<(usize, usize)> {
 /// Files with toporec's own names that the manifest does not name (relative paths): part
 /// files in the table folders, staged files, temporary files. A commit in progress has some;
 /// after a kill, the next writer deletes them.
-pub fn orphans(root: &Path, manifest: &Manifest) -> Vec<String> {
+pub(crate) fn orphans(root: &Path, manifest: &Manifest) -> Vec<String> {
     let named: HashSet<&str> = manifest.files.iter().map(|f| f.path.as_str()).collect();
     let staged: HashSet<PathBuf> = manifest.files.iter().map(|f| staged_path(root, &f.path)).collect();
     let mut out = Vec::new();
@@ -127,7 +127,7 @@ pub fn orphans(root: &Path, manifest: &Manifest) -> Vec<String> {
 
 /// Everything in the index folder that is not toporec's (relative paths, folders with a
 /// trailing `/`): left alone by every writer, listed by `verify`.
-pub fn foreign(root: &Path) -> Vec<String> {
+pub(crate) fn foreign(root: &Path) -> Vec<String> {
     let own_top = [
         MANIFEST_FILE,
         CODEBOOK_FILE,
@@ -180,7 +180,7 @@ fn foreign_in_table(root: &Path, dir: &Path, out: &mut Vec<String>) {
 /// Refuses to write an index into a folder that holds something and is not an index: a
 /// folder that exists, holds no manifest and holds anything but toporec's lock and staging
 /// folder (what a first run killed before its first commit leaves) is someone else's.
-pub fn check_writable_folder(root: &Path) -> Result<()> {
+pub(crate) fn check_writable_folder(root: &Path) -> Result<()> {
     if !root.exists() || root.join(MANIFEST_FILE).exists() {
         return Ok(());
     }
@@ -222,7 +222,8 @@ fn remove_empty_partitions(dir: &Path) {
     }
 }
 
-/// Said by a lock's holder while it completes a commit for a reader: held for milliseconds.
+/// What a reader that completes a commit writes into the lock file after its holder line: a
+/// writer that finds the lock held so waits for it (milliseconds) instead of failing.
 const RECOVERING: &str = "completing a commit";
 
 /// Takes the writer's lock, or explains who holds it. A reader completing a commit holds it
@@ -279,7 +280,7 @@ fn write_holder(file: &mut std::fs::File, note: &str) -> std::io::Result<()> {
 /// Completes a half-done commit for a reader ([`recovery::pending`]), when the writer's lock
 /// can be taken at once (else a writer is at work, and completes it itself). Returns the
 /// manifest read under the lock when it did.
-pub fn recover_for_reader(root: &Path) -> Option<Manifest> {
+pub(crate) fn recover_for_reader(root: &Path) -> Option<Manifest> {
     let path = root.join(LOCK_FILE);
     let mut file = std::fs::OpenOptions::new().read(true).write(true).open(&path).ok()?;
     file.try_lock().ok()?;

@@ -24,7 +24,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// A cache file's extension.
-pub const EXTENSION: &str = "searcher";
+pub(crate) const EXTENSION: &str = "searcher";
 const MAGIC: &[u8; 16] = b"toporec-search\0\0";
 /// The layout of this file (not of the body: [`Header::layout`] says that).
 pub const FORMAT_VERSION: u64 = 1;

@@ -26,9 +26,7 @@
 use super::manifest::{Counts, FileEntry, MANIFEST_VERSION, Manifest, MethodEntry, file_checksum};
 use super::reader::{read_scans, scan_ids};
 use super::recovery::{self, take_lock};
-use super::{
-    CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path,
-};
+use super::{CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path};
 use crate::error::{Error, Result, ResultExt};
 use crate::fsutil::StagedFile;
 use crate::homology::Diagram;
@@ -41,9 +39,6 @@ use crate::vectorize::codebook::Codebook;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-
-/// What a reader that completes a commit writes into the lock file after its holder line: a
-/// writer that finds the lock held so waits for it (milliseconds) instead of failing.
 
 /// What the index holds for one committed scan.
 #[derive(Clone, Debug, PartialEq)]
@@ -512,7 +507,7 @@ impl IndexWriter {
     ) -> Result<()> {
         if !self.session_files(session).descriptors.contains_key(method) {
             let (rel, staged) = self.next_part(tables::DESCRIPTORS, Some(method), session);
-            let f = DescriptorsFile::create(&staged, session, method, row.values.len(), &id())?;
+            let f = DescriptorsFile::create(&staged, method, row.values.len(), &id())?;
             self.session_files(session).descriptors.insert(method.to_string(), (rel, f));
         }
         self.session_files(session).descriptors.get_mut(method).expect("opened").1.push(row)
@@ -864,7 +859,7 @@ fn count(c: &mut Counts, status: Status, delta: i64) {
 }
 
 /// What the index at `root` with `manifest` holds for each committed scan.
-pub fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
+pub(crate) fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
     let mut out = HashMap::new();
     for f in manifest.files_of(tables::SCANS) {
         out.extend(read_scans(&resolve(root, &f.path), &f.session)?.into_iter().map(CommittedScan::of_row));
