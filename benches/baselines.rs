@@ -22,6 +22,7 @@ use common::median_ms;
 use std::path::Path;
 use std::time::Instant;
 use toporec::homology::Point;
+use toporec::methods::Computed as _;
 use toporec::methods::Searcher as _;
 use toporec::methods::lidar_iris::{self, IrisParams};
 use toporec::methods::m2dp;

@@ -20,6 +20,7 @@ use common::{median_ms, simulated_scans, turned_copy};
 use std::path::Path;
 use std::time::Instant;
 use toporec::homology::{Point, alpha_persistence};
+use toporec::methods::Computed as _;
 use toporec::methods::toporec_plus::{self, PlusParams, Searcher};
 use toporec::preprocess::{Preprocess, preprocess};
 use toporec::rng::SplitMix64;

@@ -4,6 +4,7 @@
 
 use crate::util::{self, eval_days, python_with, read_json, root, shared_data};
 use toporec::homology::Point;
+use toporec::methods::Computed as _;
 use toporec::methods::m2dp;
 use toporec::methods::scancontext::{self, ScanContextParams};
 use toporec::methods::scancontext_pp::{self, CartParams, PolarParams, Variant};

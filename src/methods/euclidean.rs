@@ -43,6 +43,18 @@ fn padded<const K: usize>(v: &[f32]) -> [f64; K] {
     out
 }
 
+/// The k-d tree of `rows` padded to `K` values; `None` when kiddo refuses them.
+fn built<const K: usize>(rows: &[&[f32]]) -> Option<ImmutableKdTree<f64, K>> {
+    ImmutableKdTree::new_from_slice(&rows.iter().map(|r| padded::<K>(r)).collect::<Vec<_>>()).ok()
+}
+
+/// The `n` rows of a tree nearest `q`.
+fn nearest<const K: usize>(tree: &ImmutableKdTree<f64, K>, q: &[f32], n: NonZeroUsize) -> Vec<usize> {
+    let point = padded::<K>(q);
+    let found = tree.query(&point).nearest_n::<SquaredEuclidean<f64>>(n).execute();
+    found.iter().map(|h| h.item as usize).collect()
+}
+
 impl Database {
     /// Builds the database over `vectors` (`n × b`, row-major).
     pub fn new(vectors: Vec<f32>, b: usize) -> Self {
@@ -52,21 +64,9 @@ impl Database {
         // matrix route.)
         let tree = if b <= KD_TREE_MAX_B && !rows.is_empty() {
             match b {
-                0..=4 => {
-                    ImmutableKdTree::new_from_slice(&rows.iter().map(|r| padded::<4>(r)).collect::<Vec<_>>())
-                        .ok()
-                        .map(Tree::K4)
-                }
-                5..=8 => {
-                    ImmutableKdTree::new_from_slice(&rows.iter().map(|r| padded::<8>(r)).collect::<Vec<_>>())
-                        .ok()
-                        .map(Tree::K8)
-                }
-                _ => {
-                    ImmutableKdTree::new_from_slice(&rows.iter().map(|r| padded::<16>(r)).collect::<Vec<_>>())
-                        .ok()
-                        .map(Tree::K16)
-                }
+                0..=4 => built::<4>(&rows).map(Tree::K4),
+                5..=8 => built::<8>(&rows).map(Tree::K8),
+                _ => built::<16>(&rows).map(Tree::K16),
             }
         } else {
             None
@@ -139,31 +139,13 @@ impl Database {
 
     fn tree_search(&self, tree: &Tree, q: &[f32], k: usize) -> Vec<Neighbour> {
         let n = NonZeroUsize::new(k).expect("k > 0");
-        let hits: Vec<(usize, f64)> = match tree {
-            Tree::K4(t) => t
-                .query(&padded::<4>(q))
-                .nearest_n::<SquaredEuclidean<f64>>(n)
-                .execute()
-                .iter()
-                .map(|h| (h.item as usize, h.distance))
-                .collect(),
-            Tree::K8(t) => t
-                .query(&padded::<8>(q))
-                .nearest_n::<SquaredEuclidean<f64>>(n)
-                .execute()
-                .iter()
-                .map(|h| (h.item as usize, h.distance))
-                .collect(),
-            Tree::K16(t) => t
-                .query(&padded::<16>(q))
-                .nearest_n::<SquaredEuclidean<f64>>(n)
-                .execute()
-                .iter()
-                .map(|h| (h.item as usize, h.distance))
-                .collect(),
+        let rows = match tree {
+            Tree::K4(t) => nearest::<4>(t, q, n),
+            Tree::K8(t) => nearest::<8>(t, q, n),
+            Tree::K16(t) => nearest::<16>(t, q, n),
         };
         // Same distance formula as the scan (the tree's sums are in the same order).
-        Self::finish(hits.into_iter().map(|(i, _)| (i, self.dist2(q, i))).collect(), k)
+        Self::finish(rows.into_iter().map(|i| (i, self.dist2(q, i))).collect(), k)
     }
 
     fn matrix_search(&self, block: &[f32], k: usize) -> Vec<Vec<Neighbour>> {

@@ -54,6 +54,7 @@
 //!   not depend on the yaw. The candidates are re-ranked by the distance above; an exhaustive
 //!   budget re-ranks every row.
 
+use super::Computed;
 use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, timed};
 use crate::types::Point;
 use rustfft::num_complex::Complex64;
@@ -115,33 +116,6 @@ impl Default for IrisParams {
 }
 
 impl IrisParams {
-    /// The settings' problems, each with its key.
-    pub fn problems(&self) -> Vec<String> {
-        let mut out = Vec::new();
-        if !(1..=16).contains(&self.scales) {
-            out.push(format!("lidar-iris.scales: must be in [1, 16]; found {}", self.scales));
-        }
-        if !(self.min_wavelength.is_finite() && self.min_wavelength >= 2.0) {
-            out.push(format!(
-                "lidar-iris.min_wavelength: must be at least 2 columns; found {}",
-                self.min_wavelength
-            ));
-        }
-        if !(self.mult.is_finite() && self.mult > 0.0) {
-            out.push(format!("lidar-iris.mult: must be in (0, inf); found {}", self.mult));
-        }
-        if !(self.sigma_on_f > 0.0 && self.sigma_on_f < 1.0) {
-            out.push(format!("lidar-iris.sigma_on_f: must be in (0, 1); found {}", self.sigma_on_f));
-        }
-        if !self.height_offset.is_finite() {
-            out.push(format!("lidar-iris.height_offset: must be finite; found {}", self.height_offset));
-        }
-        if self.candidates == 0 {
-            out.push("lidar-iris.candidates: must be at least 1; found 0".into());
-        }
-        out
-    }
-
     /// Template bytes: 2 · scales planes of packed rows.
     fn template_bytes(&self) -> usize {
         2 * self.scales * ROWS * ROW_BYTES
@@ -150,16 +124,6 @@ impl IrisParams {
     /// Mask bytes: scales planes of packed rows.
     fn mask_bytes(&self) -> usize {
         self.scales * ROWS * ROW_BYTES
-    }
-
-    /// Descriptor length (bytes): the image, the template and the mask.
-    pub fn len(&self) -> usize {
-        ROWS * COLUMNS + self.template_bytes() + self.mask_bytes()
-    }
-
-    /// Whether the descriptor is empty (never).
-    pub fn is_empty(&self) -> bool {
-        false
     }
 }
 
@@ -486,9 +450,6 @@ pub fn compare(query: &[f32], candidate: &[f32], p: &IrisParams) -> Match {
     compare_prepared(&Entry::new(candidate, p), &Query::new(query, p, &bank), p, &bank)
 }
 
-/// A hit of a search: row, distance, yaw of the query relative to the row (degrees).
-pub(crate) type IrisHit = (usize, f64, f64);
-
 /// LiDAR-Iris descriptors searched by row key, then re-ranked by [`compare`]'s distance.
 /// It grows by [`Searcher::push`].
 pub struct Searcher {
@@ -504,7 +465,7 @@ impl Searcher {
     pub fn new(descriptors: Vec<f32>, params: IrisParams) -> Self {
         let mut s = Searcher { bank: Bank::new(&params), params, entries: Vec::new(), keys: Vec::new() };
         for d in descriptors.chunks_exact(s.params.len()) {
-            s.push(d);
+            super::Searcher::push(&mut s, d);
         }
         s
     }
@@ -514,24 +475,8 @@ impl Searcher {
         &self.params
     }
 
-    /// Rows.
-    pub fn len(&self) -> usize {
-        self.entries.len()
-    }
-
-    /// Whether there are no rows.
-    pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
-    }
-
-    /// One more row.
-    pub fn push(&mut self, descriptor: &[f32]) {
-        self.keys.extend(row_key(descriptor));
-        self.entries.push(Entry::new(descriptor, &self.params));
-    }
-
-    /// The `k` best rows for `query` among those `allowed` admits, by (distance, row).
-    pub fn search_where(&self, query: &[f32], k: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<IrisHit> {
+    /// The `k` best rows for `query` (among those `allowed` admits), by (distance, row).
+    pub fn ranked(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> Vec<Hit> {
         if k == 0 {
             return Vec::new();
         }
@@ -541,7 +486,7 @@ impl Searcher {
             .keys
             .chunks_exact(ROWS)
             .enumerate()
-            .filter(|(r, _)| allowed(*r))
+            .filter(|(r, _)| allowed.is_none_or(|a| a(*r)))
             .map(|(r, row)| (r, row.iter().zip(&key).map(|(a, b)| (a - b) * (a - b)).sum::<f32>()))
             .collect();
         let order = |a: &(usize, f32), b: &(usize, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
@@ -556,24 +501,24 @@ impl Searcher {
             .collect();
         hits.sort_by(|a, b| a.1.distance.total_cmp(&b.1.distance).then(a.0.cmp(&b.0)));
         hits.truncate(k);
-        hits.into_iter().map(|(r, m)| (r, m.distance, m.yaw_degrees)).collect()
+        hits.into_iter().map(|(r, m)| Hit::turned(r, m.distance, m.yaw_degrees)).collect()
     }
 }
 
 impl super::Searcher for Searcher {
+    /// Rows.
     fn len(&self) -> usize {
-        Searcher::len(self)
+        self.entries.len()
     }
 
+    /// One more row.
     fn push(&mut self, descriptor: &[f32]) {
-        Searcher::push(self, descriptor)
+        self.keys.extend(row_key(descriptor));
+        self.entries.push(Entry::new(descriptor, &self.params));
     }
 
     fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
-        timed(|| {
-            let hits = self.search_where(query, k, allowed.unwrap_or(&|_| true)).into_iter();
-            hits.map(|(row, d, yaw)| Hit::turned(row, d, yaw)).collect()
-        })
+        timed(|| self.ranked(query, k, allowed))
     }
 
     /// The shifts are always the five around the phase correlation's peak.
@@ -584,21 +529,41 @@ impl super::Searcher for Searcher {
     }
 }
 
+impl super::Named for IrisParams {
+    const NAME: &'static str = NAME;
+}
+
 impl super::Computed for IrisParams {
-    fn name(&self) -> &'static str {
-        NAME
-    }
-
-    fn settings(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain data")
-    }
-
+    /// The settings' problems, each with its key.
     fn problems(&self) -> Vec<String> {
-        IrisParams::problems(self)
+        let mut out = Vec::new();
+        if !(1..=16).contains(&self.scales) {
+            out.push(format!("lidar-iris.scales: must be in [1, 16]; found {}", self.scales));
+        }
+        if !(self.min_wavelength.is_finite() && self.min_wavelength >= 2.0) {
+            out.push(format!(
+                "lidar-iris.min_wavelength: must be at least 2 columns; found {}",
+                self.min_wavelength
+            ));
+        }
+        if !(self.mult.is_finite() && self.mult > 0.0) {
+            out.push(format!("lidar-iris.mult: must be in (0, inf); found {}", self.mult));
+        }
+        if !(self.sigma_on_f > 0.0 && self.sigma_on_f < 1.0) {
+            out.push(format!("lidar-iris.sigma_on_f: must be in (0, 1); found {}", self.sigma_on_f));
+        }
+        if !self.height_offset.is_finite() {
+            out.push(format!("lidar-iris.height_offset: must be finite; found {}", self.height_offset));
+        }
+        if self.candidates == 0 {
+            out.push("lidar-iris.candidates: must be at least 1; found 0".into());
+        }
+        out
     }
 
+    /// Descriptor length (bytes): the image, the template and the mask.
     fn len(&self) -> usize {
-        IrisParams::len(self)
+        ROWS * COLUMNS + self.template_bytes() + self.mask_bytes()
     }
 
     /// Its image, then its template and mask bit-packed: bytes.

@@ -35,15 +35,11 @@ impl Default for M2dpParams {
     }
 }
 
+impl super::Named for M2dpParams {
+    const NAME: &'static str = NAME;
+}
+
 impl super::Computed for M2dpParams {
-    fn name(&self) -> &'static str {
-        NAME
-    }
-
-    fn settings(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain data")
-    }
-
     fn problems(&self) -> Vec<String> {
         if self.voxel.is_finite() && self.voxel >= 0.0 {
             Vec::new()

@@ -35,15 +35,35 @@ pub const TOPOREC: &str = "toporec";
 /// The kind name of imported methods in the manifest.
 pub(crate) const IMPORTED: &str = "imported";
 
-/// A descriptor method computed from raw scans: its parameters, and all that `run`, `query`,
-/// `eval`, `loops` and the online detector ask of it.
-pub trait Computed: std::fmt::Debug + Send + Sync + 'static {
+/// The name of the method whose parameters a type holds.
+pub trait Named {
     /// The method's name (its [`REGISTRY`] entry's).
+    const NAME: &'static str;
+}
+
+/// A method's name and its parameters as JSON (the manifest and the effective pipeline record
+/// them): what any serializable [`Named`] parameters give.
+pub trait Settings {
+    /// The method's name.
     fn name(&self) -> &'static str;
 
-    /// The parameters as JSON (the manifest and the effective pipeline record them).
+    /// The parameters as JSON.
     fn settings(&self) -> serde_json::Value;
+}
 
+impl<P: Named + serde::Serialize> Settings for P {
+    fn name(&self) -> &'static str {
+        P::NAME
+    }
+
+    fn settings(&self) -> serde_json::Value {
+        serde_json::to_value(self).expect("plain data")
+    }
+}
+
+/// A descriptor method computed from raw scans: its parameters, and all that `run`, `query`,
+/// `eval`, `loops` and the online detector ask of it.
+pub trait Computed: Settings + std::fmt::Debug + Send + Sync + 'static {
     /// The parameters' problems, each with its key.
     fn problems(&self) -> Vec<String>;
 
@@ -106,8 +126,8 @@ pub struct Registered {
     default: fn() -> Arc<dyn Computed>,
 }
 
-/// An entry of the registry for parameters of type `P`.
-const fn entry<P: Computed + DeserializeOwned + Default>(name: &'static str) -> Registered {
+/// The registry's entry of the method whose parameters are of type `P`.
+const fn entry<P: Computed + Named + DeserializeOwned + Default>() -> Registered {
     fn from_json<P: Computed + DeserializeOwned + Default>(
         v: &serde_json::Value,
     ) -> Result<Arc<dyn Computed>, String> {
@@ -124,18 +144,18 @@ const fn entry<P: Computed + DeserializeOwned + Default>(name: &'static str) -> 
     fn default<P: Computed + Default>() -> Arc<dyn Computed> {
         Arc::new(P::default())
     }
-    Registered { name, from_json: from_json::<P>, from_toml: from_toml::<P>, default: default::<P> }
+    Registered { name: P::NAME, from_json: from_json::<P>, from_toml: from_toml::<P>, default: default::<P> }
 }
 
 /// Every method computed from raw scans, in the order messages list them.
 pub const REGISTRY: &[Registered] = &[
-    entry::<toporec_plus::PlusParams>(toporec_plus::NAME),
-    entry::<scancontext::ScanContextParams>(scancontext::NAME),
-    entry::<scancontext_pp::PolarParams>(scancontext_pp::POLAR),
-    entry::<scancontext_pp::CartParams>(scancontext_pp::CARTESIAN),
-    entry::<m2dp::M2dpParams>(m2dp::NAME),
-    entry::<solid::SolidParams>(solid::NAME),
-    entry::<lidar_iris::IrisParams>(lidar_iris::NAME),
+    entry::<toporec_plus::PlusParams>(),
+    entry::<scancontext::ScanContextParams>(),
+    entry::<scancontext_pp::PolarParams>(),
+    entry::<scancontext_pp::CartParams>(),
+    entry::<m2dp::M2dpParams>(),
+    entry::<solid::SolidParams>(),
+    entry::<lidar_iris::IrisParams>(),
 ];
 
 impl Registered {

@@ -17,6 +17,7 @@
 //! which SC-A-LOAM and most systems deploy. The input is expected pre-downsampled (the paper: a
 //! 0.5 m voxel grid), which the method's preprocessing does.
 
+use super::Computed;
 use super::euclidean::Euclidean;
 use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
 use crate::types::Point;
@@ -58,44 +59,7 @@ impl Default for ScanContextParams {
     }
 }
 
-impl ScanContextParams {
-    /// The settings' problems, each with its key.
-    pub fn problems(&self) -> Vec<String> {
-        let mut out = Vec::new();
-        if !(1..=1000).contains(&self.rings) || !(1..=3600).contains(&self.sectors) {
-            out.push(format!(
-                "scancontext: need rings in [1, 1000] and sectors in [1, 3600] (rings {}, sectors {})",
-                self.rings, self.sectors
-            ));
-        }
-        if !(self.max_radius.is_finite() && self.max_radius > 0.0) {
-            out.push(format!("scancontext.max_radius: must be in (0, inf) m; found {}", self.max_radius));
-        }
-        if !self.lidar_height.is_finite() {
-            out.push(format!("scancontext.lidar_height: must be finite; found {}", self.lidar_height));
-        }
-        if self.candidates == 0 {
-            out.push("scancontext.candidates: must be in [1, inf)".into());
-        }
-        if !(0.0..=1.0).contains(&self.search_ratio) {
-            out.push(format!("scancontext.search_ratio: must be in [0, 1]; found {}", self.search_ratio));
-        }
-        if !(self.voxel.is_finite() && self.voxel >= 0.0) {
-            out.push(format!("scancontext.voxel: must be in [0, inf) m; found {}", self.voxel));
-        }
-        out
-    }
-
-    /// Descriptor length: rings × sectors.
-    pub fn len(&self) -> usize {
-        self.rings * self.sectors
-    }
-
-    /// Whether the descriptor is empty (never, for valid settings).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-}
+impl ScanContextParams {}
 
 /// The bin value of an empty bin while filling (the C++ `NO_POINT`).
 const NO_POINT: f64 = -1000.0;
@@ -227,12 +191,26 @@ pub fn distance(query: &[f32], candidate: &[f32], p: &ScanContextParams) -> (f64
 
 /// The yaw (degrees, in [0, 360)) that a shift stands for.
 pub fn yaw_degrees(shift: usize, p: &ScanContextParams) -> f64 {
-    shift as f64 * 360.0 / p.sectors as f64
+    super::searcher::shift_degrees(shift, p.sectors)
 }
 
-/// A hit of a ScanContext search: database row, ScanContext distance, and the column shift
-/// that attains it (the yaw is [`yaw_degrees`] of it).
+/// A hit: database row, ScanContext distance, and the column shift that attains it.
 pub(crate) type ScHit = (usize, f64, usize);
+
+/// The problems of a polar grid's settings (ScanContext's and Scan Context++'s), each with the
+/// method's key.
+pub(crate) fn polar_grid_problems(name: &str, rings: usize, sectors: usize, max_radius: f64) -> Vec<String> {
+    let mut out = Vec::new();
+    if !(1..=1000).contains(&rings) || !(1..=3600).contains(&sectors) {
+        out.push(format!(
+            "{name}: need rings in [1, 1000] and sectors in [1, 3600] (rings {rings}, sectors {sectors})"
+        ));
+    }
+    if !(max_radius.is_finite() && max_radius > 0.0) {
+        out.push(format!("{name}.max_radius: must be in (0, inf) m; found {max_radius}"));
+    }
+    out
+}
 
 /// ScanContexts searched as the reference does: the ring keys' nearest neighbours (exact,
 /// Euclidean) are the candidates, re-ranked by the ScanContext distance. For Recall@N the
@@ -295,21 +273,32 @@ impl super::Searcher for Searcher {
     }
 }
 
+impl super::Named for ScanContextParams {
+    const NAME: &'static str = NAME;
+}
+
 impl super::Computed for ScanContextParams {
-    fn name(&self) -> &'static str {
-        NAME
-    }
-
-    fn settings(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain data")
-    }
-
+    /// The settings' problems, each with its key.
     fn problems(&self) -> Vec<String> {
-        ScanContextParams::problems(self)
+        let mut out = polar_grid_problems(NAME, self.rings, self.sectors, self.max_radius);
+        if !self.lidar_height.is_finite() {
+            out.push(format!("scancontext.lidar_height: must be finite; found {}", self.lidar_height));
+        }
+        if self.candidates == 0 {
+            out.push("scancontext.candidates: must be in [1, inf)".into());
+        }
+        if !(0.0..=1.0).contains(&self.search_ratio) {
+            out.push(format!("scancontext.search_ratio: must be in [0, 1]; found {}", self.search_ratio));
+        }
+        if !(self.voxel.is_finite() && self.voxel >= 0.0) {
+            out.push(format!("scancontext.voxel: must be in [0, inf) m; found {}", self.voxel));
+        }
+        out
     }
 
+    /// Descriptor length: rings × sectors.
     fn len(&self) -> usize {
-        ScanContextParams::len(self)
+        self.rings * self.sectors
     }
 
     fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {

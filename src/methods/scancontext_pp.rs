@@ -40,6 +40,7 @@
 //! point exactly at an origin has no azimuth (0/0): the MATLAB code skips it, as toporec
 //! does. When no column is filled in both contexts the MATLAB distance is 0/0; toporec's is 1.
 
+use super::Computed;
 use super::scancontext::{self, ScanContextParams};
 use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, timed};
 use crate::types::Point;
@@ -153,42 +154,9 @@ fn common_problems(name: &str, candidates: usize, search_ratio: f64, voxel: f64,
 }
 
 impl PolarParams {
-    /// The settings' problems, each with its key.
-    pub fn problems(&self) -> Vec<String> {
-        let name = POLAR;
-        let mut out =
-            common_problems(name, self.candidates, self.search_ratio, self.voxel, self.lidar_height);
-        if !(1..=1000).contains(&self.rings) || !(1..=3600).contains(&self.sectors) {
-            out.push(format!(
-                "{name}: need rings in [1, 1000] and sectors in [1, 3600] (rings {}, sectors {})",
-                self.rings, self.sectors
-            ));
-        }
-        if !(self.max_radius.is_finite() && self.max_radius > 0.0) {
-            out.push(format!("{name}.max_radius: must be in (0, inf) m; found {}", self.max_radius));
-        }
-        if ![1, 3, 5].contains(&self.copies) {
-            out.push(format!("{name}.copies: must be 1, 3 or 5; found {}", self.copies));
-        }
-        if !(self.shift.is_finite() && self.shift >= 0.0) {
-            out.push(format!("{name}.shift: must be in [0, inf) m; found {}", self.shift));
-        }
-        out
-    }
-
     /// One context's values: rings × sectors.
     pub fn context_len(&self) -> usize {
         self.rings * self.sectors
-    }
-
-    /// Descriptor length: copies × rings × sectors.
-    pub fn len(&self) -> usize {
-        self.copies * self.context_len()
-    }
-
-    /// Whether the descriptor is empty (never, for valid settings).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 
     /// The augmented origins (x, y), in the reference's order, the sensor's own first.
@@ -199,27 +167,6 @@ impl PolarParams {
 }
 
 impl CartParams {
-    /// The settings' problems, each with its key.
-    pub fn problems(&self) -> Vec<String> {
-        let name = CARTESIAN;
-        let mut out =
-            common_problems(name, self.candidates, self.search_ratio, self.voxel, self.lidar_height);
-        let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !(positive(self.x_max) && positive(self.y_max) && positive(self.x_unit) && positive(self.y_unit)) {
-            out.push(format!(
-                "{name}: x_max, y_max, x_unit and y_unit must be in (0, inf) m (found {}, {}, {}, {})",
-                self.x_max, self.y_max, self.x_unit, self.y_unit
-            ));
-        } else if !(1..=1000).contains(&self.rows()) || !(1..=1000).contains(&self.columns()) {
-            out.push(format!(
-                "{name}: need 1 to 1000 bins each way (found {} × {})",
-                self.rows(),
-                self.columns()
-            ));
-        }
-        out
-    }
-
     /// Bins along the heading: `round(2 · x_max / x_unit)`.
     pub fn rows(&self) -> usize {
         (2.0 * self.x_max / self.x_unit).round().max(0.0) as usize
@@ -228,16 +175,6 @@ impl CartParams {
     /// Bins across the heading: `round(2 · y_max / y_unit)`.
     pub fn columns(&self) -> usize {
         (2.0 * self.y_max / self.y_unit).round().max(0.0) as usize
-    }
-
-    /// Descriptor length: rows × columns.
-    pub fn len(&self) -> usize {
-        self.rows() * self.columns()
-    }
-
-    /// Whether the descriptor is empty (never, for valid settings).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 }
 
@@ -447,9 +384,6 @@ fn squared_distance(a: &[f32], b: &[f32]) -> f32 {
     lanes.iter().sum::<f32>() + tail
 }
 
-/// A hit of a search: row, distance, yaw of the query relative to the row (degrees).
-pub(crate) type PpHit = (usize, f64, f64);
-
 /// Scan Context++ descriptors searched as the reference does: the rows whose keys lie
 /// nearest the query's (Euclidean, in float32; the nearest of a row's copies, or of the
 /// query's probes) are the candidates, re-ranked by [`compare`]. It grows by [`Searcher::push`].
@@ -465,7 +399,7 @@ impl Searcher {
     pub fn new(descriptors: Vec<f32>, variant: Variant) -> Self {
         let mut s = Searcher { variant, descriptors: Vec::new(), keys: Vec::new() };
         for d in descriptors.chunks_exact(s.variant.len()) {
-            s.push(d);
+            super::Searcher::push(&mut s, d);
         }
         s
     }
@@ -475,27 +409,8 @@ impl Searcher {
         &self.variant
     }
 
-    /// Rows.
-    pub fn len(&self) -> usize {
-        self.descriptors.len() / self.variant.len().max(1)
-    }
-
-    /// Whether there are no rows.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// One more row.
-    pub fn push(&mut self, descriptor: &[f32]) {
-        let (_, columns) = self.variant.grid();
-        self.descriptors.extend_from_slice(descriptor);
-        for context in self.variant.stored(descriptor) {
-            self.keys.extend(row_key(context, columns));
-        }
-    }
-
-    /// The `k` best rows for `query` among those `allowed` admits, by (distance, row).
-    pub fn search_where(&self, query: &[f32], k: usize, allowed: &dyn Fn(usize) -> bool) -> Vec<PpHit> {
+    /// The `k` best rows for `query` (among those `allowed` admits), by (distance, row).
+    pub fn ranked(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> Vec<Hit> {
         let wanted = self.variant.candidates().max(k);
         if k == 0 {
             return Vec::new();
@@ -506,9 +421,9 @@ impl Searcher {
         let probe_keys: Vec<Vec<f32>> = probes.iter().map(|(c, _)| row_key(c, columns)).collect();
         // Squared key distances in float32, each row's nearest copy against the nearest probe:
         // a tight loop the compiler vectorizes (candidates only; the re-rank is in float64).
-        let mut by_key: Vec<(usize, f64)> = Vec::with_capacity(self.len());
+        let mut by_key: Vec<(usize, f64)> = Vec::with_capacity(self.descriptors.len() / self.variant.len());
         for (r, keys) in self.keys.chunks_exact(per_row).enumerate() {
-            if !allowed(r) {
+            if !allowed.is_none_or(|a| a(r)) {
                 continue;
             }
             let mut d = f32::INFINITY;
@@ -533,24 +448,27 @@ impl Searcher {
             .collect();
         hits.sort_by(|a, b| a.1.distance.total_cmp(&b.1.distance).then(a.0.cmp(&b.0)));
         hits.truncate(k);
-        hits.into_iter().map(|(r, m)| (r, m.distance, m.yaw_degrees(&self.variant))).collect()
+        hits.into_iter().map(|(r, m)| Hit::turned(r, m.distance, m.yaw_degrees(&self.variant))).collect()
     }
 }
 
 impl super::Searcher for Searcher {
+    /// Rows.
     fn len(&self) -> usize {
-        Searcher::len(self)
+        self.descriptors.len() / self.variant.len().max(1)
     }
 
+    /// One more row.
     fn push(&mut self, descriptor: &[f32]) {
-        Searcher::push(self, descriptor)
+        let (_, columns) = self.variant.grid();
+        self.descriptors.extend_from_slice(descriptor);
+        for context in self.variant.stored(descriptor) {
+            self.keys.extend(row_key(context, columns));
+        }
     }
 
     fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
-        timed(|| {
-            let hits = self.search_where(query, k, allowed.unwrap_or(&|_| true)).into_iter();
-            hits.map(|(row, d, yaw)| Hit::turned(row, d, yaw)).collect()
-        })
+        timed(|| self.ranked(query, k, allowed))
     }
 
     fn set_budget(&mut self, budget: SearchBudget, entries: usize) {
@@ -569,40 +487,79 @@ impl super::Searcher for Searcher {
     }
 }
 
-/// The [`super::Computed`] methods of both contexts: the same but for their names, settings and
-/// descriptors.
-macro_rules! computed {
-    ($params:ty, $name:expr, $variant:ident, $describe:ident) => {
-        impl super::Computed for $params {
-            fn name(&self) -> &'static str {
-                $name
-            }
-
-            fn settings(&self) -> serde_json::Value {
-                serde_json::to_value(self).expect("plain data")
-            }
-
-            fn problems(&self) -> Vec<String> {
-                <$params>::problems(self)
-            }
-
-            fn len(&self) -> usize {
-                <$params>::len(self)
-            }
-
-            fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
-                Ok($describe(points, self))
-            }
-
-            fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
-                Box::new(Searcher::new(descriptors, Variant::$variant(self.clone())))
-            }
-        }
-    };
+impl super::Named for PolarParams {
+    const NAME: &'static str = POLAR;
 }
 
-computed!(PolarParams, POLAR, Polar, describe_polar);
-computed!(CartParams, CARTESIAN, Cart, describe_cart);
+impl super::Computed for PolarParams {
+    /// The settings' problems, each with its key.
+    fn problems(&self) -> Vec<String> {
+        let name = POLAR;
+        let mut out =
+            common_problems(name, self.candidates, self.search_ratio, self.voxel, self.lidar_height);
+        out.extend(scancontext::polar_grid_problems(name, self.rings, self.sectors, self.max_radius));
+        if ![1, 3, 5].contains(&self.copies) {
+            out.push(format!("{name}.copies: must be 1, 3 or 5; found {}", self.copies));
+        }
+        if !(self.shift.is_finite() && self.shift >= 0.0) {
+            out.push(format!("{name}.shift: must be in [0, inf) m; found {}", self.shift));
+        }
+        out
+    }
+
+    /// Descriptor length: copies × rings × sectors.
+    fn len(&self) -> usize {
+        self.copies * self.context_len()
+    }
+
+    fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
+        Ok(describe_polar(points, self))
+    }
+
+    fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
+        Box::new(Searcher::new(descriptors, Variant::Polar(self.clone())))
+    }
+}
+
+impl super::Named for CartParams {
+    const NAME: &'static str = CARTESIAN;
+}
+
+impl super::Computed for CartParams {
+    /// The settings' problems, each with its key.
+    fn problems(&self) -> Vec<String> {
+        let name = CARTESIAN;
+        let mut out =
+            common_problems(name, self.candidates, self.search_ratio, self.voxel, self.lidar_height);
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !(positive(self.x_max) && positive(self.y_max) && positive(self.x_unit) && positive(self.y_unit)) {
+            out.push(format!(
+                "{name}: x_max, y_max, x_unit and y_unit must be in (0, inf) m (found {}, {}, {}, {})",
+                self.x_max, self.y_max, self.x_unit, self.y_unit
+            ));
+        } else if !(1..=1000).contains(&self.rows()) || !(1..=1000).contains(&self.columns()) {
+            out.push(format!(
+                "{name}: need 1 to 1000 bins each way (found {} × {})",
+                self.rows(),
+                self.columns()
+            ));
+        }
+        out
+    }
+
+    /// Descriptor length: rows × columns.
+    fn len(&self) -> usize {
+        self.rows() * self.columns()
+    }
+
+    fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {
+        Ok(describe_cart(points, self))
+    }
+
+    fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
+        Box::new(Searcher::new(descriptors, Variant::Cart(self.clone())))
+    }
+}
 
 #[cfg(test)]
 mod tests {
@@ -628,13 +585,13 @@ mod tests {
         let db: Vec<f32> = (0..40 * p.len()).map(|_| (rng.next_f64() * 4.0).floor() as f32).collect();
         let s = Searcher::new(db.clone(), v.clone());
         let q = &db[7 * p.len()..8 * p.len()];
-        let hits = s.search_where(q, 3, &|_| true);
-        assert_eq!(hits[0].0, 7);
-        assert_eq!(hits[0].1, 0.0);
+        let hits = s.ranked(q, 3, None);
+        assert_eq!(hits[0].row, 7);
+        assert_eq!(hits[0].distance, 0.0);
         let mut exact: Vec<(usize, f64)> =
             (0..40).map(|r| (r, compare(q, &db[r * p.len()..(r + 1) * p.len()], &v).distance)).collect();
         exact.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        assert_eq!(hits.iter().map(|h| (h.0, h.1)).collect::<Vec<_>>(), exact[..3]);
-        assert!(s.search_where(q, 3, &|r| r != 7).iter().all(|h| h.0 != 7));
+        assert_eq!(hits.iter().map(|h| (h.row, h.distance)).collect::<Vec<_>>(), exact[..3]);
+        assert!(s.ranked(q, 3, Some(&|r| r != 7)).iter().all(|h| h.row != 7));
     }
 }

@@ -172,6 +172,12 @@ pub(crate) fn allowed_rows(n: usize, allowed: Allowed<'_>) -> impl Iterator<Item
     (0..n).filter(move |&r| allowed.is_none_or(|a| a(r)))
 }
 
+/// The yaw (degrees, in [0, 360)) that a circular shift by `shift` of `sectors` columns stands
+/// for.
+pub fn shift_degrees(shift: usize, sectors: usize) -> f64 {
+    shift as f64 * 360.0 / sectors as f64
+}
+
 /// Times one search charged to a single step.
 pub fn timed<T>(f: impl FnOnce() -> T) -> (T, SearchTimes) {
     let t = std::time::Instant::now();

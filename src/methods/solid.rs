@@ -28,6 +28,7 @@
 //! bound of the k-th best are ranked by the exact distance. So every budget is exhaustive. The
 //! yaw is computed for the hits only.
 
+use super::Computed;
 use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, allowed_rows, timed};
 use crate::types::Point;
 
@@ -73,47 +74,7 @@ impl Default for SolidParams {
     }
 }
 
-impl SolidParams {
-    /// The settings' problems, each with its key.
-    pub fn problems(&self) -> Vec<String> {
-        let mut out = Vec::new();
-        for (key, v) in [("rings", self.rings), ("sectors", self.sectors), ("elevations", self.elevations)] {
-            if !(1..=3600).contains(&v) {
-                out.push(format!("solid.{key}: must be in [1, 3600]; found {v}"));
-            }
-        }
-        if !(self.fov_up.is_finite() && self.fov_down.is_finite() && self.fov_up > self.fov_down) {
-            out.push(format!(
-                "solid: need fov_up > fov_down, both finite (fov_up {}, fov_down {})",
-                self.fov_up, self.fov_down
-            ));
-        }
-        if !(self.min_range.is_finite()
-            && self.max_range.is_finite()
-            && self.min_range >= 0.0
-            && self.max_range > self.min_range)
-        {
-            out.push(format!(
-                "solid: need 0 <= min_range < max_range, both finite (min_range {}, max_range {})",
-                self.min_range, self.max_range
-            ));
-        }
-        if !(self.voxel.is_finite() && self.voxel >= 0.0) {
-            out.push(format!("solid.voxel: must be in [0, inf) m; found {}", self.voxel));
-        }
-        out
-    }
-
-    /// Descriptor length: rings + sectors.
-    pub fn len(&self) -> usize {
-        self.rings + self.sectors
-    }
-
-    /// Whether the descriptor is empty (never, for valid settings).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-}
+impl SolidParams {}
 
 /// The points SOLiD describes: within (min_range, max_range) of the sensor, then on the voxel
 /// grid.
@@ -204,10 +165,10 @@ pub fn yaw_shift(query: &[f32], candidate: &[f32], p: &SolidParams) -> usize {
 
 /// The yaw (degrees, in [0, 360)) that a shift stands for.
 pub fn yaw_degrees(shift: usize, p: &SolidParams) -> f64 {
-    shift as f64 * 360.0 / p.sectors as f64
+    super::searcher::shift_degrees(shift, p.sectors)
 }
 
-/// A hit of a SOLiD search: database row, SOLiD distance, yaw shift.
+/// A hit: database row, SOLiD distance, and the yaw shift.
 pub(crate) type SolidHit = (usize, f64, usize);
 
 /// SOLiD descriptors searched by their unit range parts: every entry's float32 dot product
@@ -289,21 +250,44 @@ impl super::Searcher for Searcher {
     fn set_budget(&mut self, _budget: SearchBudget, _entries: usize) {}
 }
 
+impl super::Named for SolidParams {
+    const NAME: &'static str = NAME;
+}
+
 impl super::Computed for SolidParams {
-    fn name(&self) -> &'static str {
-        NAME
-    }
-
-    fn settings(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain data")
-    }
-
+    /// The settings' problems, each with its key.
     fn problems(&self) -> Vec<String> {
-        SolidParams::problems(self)
+        let mut out = Vec::new();
+        for (key, v) in [("rings", self.rings), ("sectors", self.sectors), ("elevations", self.elevations)] {
+            if !(1..=3600).contains(&v) {
+                out.push(format!("solid.{key}: must be in [1, 3600]; found {v}"));
+            }
+        }
+        if !(self.fov_up.is_finite() && self.fov_down.is_finite() && self.fov_up > self.fov_down) {
+            out.push(format!(
+                "solid: need fov_up > fov_down, both finite (fov_up {}, fov_down {})",
+                self.fov_up, self.fov_down
+            ));
+        }
+        if !(self.min_range.is_finite()
+            && self.max_range.is_finite()
+            && self.min_range >= 0.0
+            && self.max_range > self.min_range)
+        {
+            out.push(format!(
+                "solid: need 0 <= min_range < max_range, both finite (min_range {}, max_range {})",
+                self.min_range, self.max_range
+            ));
+        }
+        if !(self.voxel.is_finite() && self.voxel >= 0.0) {
+            out.push(format!("solid.voxel: must be in [0, inf) m; found {}", self.voxel));
+        }
+        out
     }
 
+    /// Descriptor length: rings + sectors.
     fn len(&self) -> usize {
-        SolidParams::len(self)
+        self.rings + self.sectors
     }
 
     fn describe(&self, points: &[Point]) -> Result<Vec<f32>, String> {

@@ -2,6 +2,7 @@
 //! sub-sector turn of the query, with an AVX2 build of the same integer sums.
 
 use super::{CHANNELS, LEVELS, PlusParams};
+use crate::methods::Computed;
 
 /// A descriptor's codes as bytes, column by column: `[sector][channel][ring]`.
 pub(super) fn columns_of(descriptor: &[f32], p: &PlusParams, out: &mut [u8]) {

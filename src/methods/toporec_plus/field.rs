@@ -2,6 +2,7 @@
 //! grid of codes: the descriptor ([`describe`]).
 
 use super::{HEIGHT_SCALE, LEVELS, PlusParams, RELIEF};
+use crate::methods::Computed;
 use crate::types::Point;
 
 /// The squares on a side of the height field: an even number, so that the sensor sits on a

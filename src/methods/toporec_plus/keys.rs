@@ -3,6 +3,7 @@
 
 use super::distance::columns_of;
 use super::{CHANNELS, HEIGHT_SCALE, LEVELS, PlusParams, RELIEF};
+use crate::methods::Computed;
 
 /// Terms of the shape key: the magnitudes of the first `SHAPE_TERMS` terms of the discrete
 /// Fourier transform along the sectors.

@@ -106,8 +106,35 @@ impl Default for PlusParams {
 }
 
 impl PlusParams {
+    /// The angle of one sector, degrees.
+    fn sector_degrees(&self) -> f64 {
+        360.0 / self.sectors as f64
+    }
+
+    /// Codes of one column (one channel of one sector).
+    fn height(&self) -> usize {
+        CHANNELS * self.rings
+    }
+}
+
+mod distance;
+mod field;
+mod keys;
+mod searcher;
+#[cfg(test)]
+mod tests;
+
+pub use distance::distance;
+pub use field::describe;
+pub use searcher::{PlusHit, SEARCHER_LAYOUT, Searcher, entry_bytes};
+
+impl super::Named for PlusParams {
+    const NAME: &'static str = NAME;
+}
+
+impl super::Computed for PlusParams {
     /// The settings' problems, each with its key.
-    pub fn problems(&self) -> Vec<String> {
+    fn problems(&self) -> Vec<String> {
         let mut out = Vec::new();
         if !(self.cell.is_finite() && self.cell >= 0.05) {
             out.push(format!("{NAME}.cell: must be in [0.05, inf) m; found {}", self.cell));
@@ -142,52 +169,8 @@ impl PlusParams {
     }
 
     /// Descriptor length: 2 channels × rings × sectors.
-    pub fn len(&self) -> usize {
-        CHANNELS * self.rings * self.sectors
-    }
-
-    /// Whether the descriptor is empty (never, for valid settings).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// The angle of one sector, degrees.
-    fn sector_degrees(&self) -> f64 {
-        360.0 / self.sectors as f64
-    }
-
-    /// Codes of one column (one channel of one sector).
-    fn height(&self) -> usize {
-        CHANNELS * self.rings
-    }
-}
-
-mod distance;
-mod field;
-mod keys;
-mod searcher;
-#[cfg(test)]
-mod tests;
-
-pub use distance::distance;
-pub use field::describe;
-pub use searcher::{PlusHit, SEARCHER_LAYOUT, Searcher, entry_bytes};
-
-impl super::Computed for PlusParams {
-    fn name(&self) -> &'static str {
-        NAME
-    }
-
-    fn settings(&self) -> serde_json::Value {
-        serde_json::to_value(self).expect("plain data")
-    }
-
-    fn problems(&self) -> Vec<String> {
-        PlusParams::problems(self)
-    }
-
     fn len(&self) -> usize {
-        PlusParams::len(self)
+        CHANNELS * self.rings * self.sectors
     }
 
     fn describe(&self, points: &[crate::types::Point]) -> Result<Vec<f32>, String> {

@@ -5,6 +5,7 @@
 use super::PlusParams;
 use super::distance::{Entry, Query, columns_of, distance_to, reach};
 use super::keys::*;
+use crate::methods::Computed;
 use crate::methods::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
 
 /// A hit: database row, distance, yaw of the query relative to it (degrees).
@@ -155,96 +156,94 @@ pub(super) fn get_first(blocks: &[u8], row: usize, row_bytes: usize) -> Vec<u8> 
     (0..row_bytes).map(|t| block[first_offset(t, row % BLOCK)]).collect()
 }
 
-/// For each of the [`FIRSTS`] keys of the `n` rows of `blocks` (blocked, [`BLOCK`]; `width`
-/// bytes a key, a multiple of 8), the `m[i]` rows nearest the query's (`FIRSTS × width` bytes,
-/// in a row) by the L1 distance (the sum of absolute differences), ties to the lower row, in
-/// that order: one pass over the rows.
-pub(super) fn nearest_rows_3(
-    blocks: &[u8],
-    n: usize,
-    query: &[u8],
-    width: usize,
-    m: [usize; FIRSTS],
-    allowed: &dyn Fn(usize) -> bool,
-) -> [Vec<usize>; FIRSTS] {
+/// The rows a search may answer with.
+type Rule<'a> = &'a dyn Fn(usize) -> bool;
+
+/// One list of rows per first-pass key.
+pub(super) type Lists = [Vec<usize>; FIRSTS];
+
+/// The first pass of a search: the `n` rows of `blocks` (blocked, [`BLOCK`]; [`FIRSTS`] keys of
+/// `width` bytes, a multiple of 8) against the query's keys (`FIRSTS × width` bytes, in a row).
+#[derive(Clone, Copy)]
+pub(super) struct FirstPass<'a> {
+    pub(super) blocks: &'a [u8],
+    pub(super) n: usize,
+    pub(super) query: &'a [u8],
+    pub(super) width: usize,
+}
+
+impl FirstPass<'_> {
+    /// For each key, the `m[i]` rows (among those `allowed` admits) nearest the query's by the L1
+    /// distance (the sum of absolute differences), ties to the lower row, in that order: one pass
+    /// over the rows.
+    pub(super) fn nearest(self, m: [usize; FIRSTS], allowed: Rule<'_>) -> Lists {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe { self.nearest_avx2(m, allowed) };
+        }
+        self.nearest_portable(m, allowed)
+    }
+
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked just above.
-        return unsafe { nearest_rows_3_avx2(blocks, n, query, width, m, allowed) };
-    }
-    nearest_rows_3_portable(blocks, n, query, width, m, allowed)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-pub(super) fn nearest_rows_3_avx2(
-    blocks: &[u8],
-    n: usize,
-    query: &[u8],
-    width: usize,
-    m: [usize; FIRSTS],
-    allowed: &dyn Fn(usize) -> bool,
-) -> [Vec<usize>; FIRSTS] {
-    use std::arch::x86_64::*;
-    let groups = width / 8;
-    let row_bytes = FIRSTS * width;
-    // Each query group repeated for the four rows of a block.
-    let q: Vec<__m256i> = query
-        .chunks_exact(8)
-        .map(|g| _mm256_set1_epi64x(i64::from_le_bytes(g.try_into().expect("8 bytes"))))
-        .collect();
-    let mut best = Nearest::new(m, allowed);
-    let mut bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
-    for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
-        let mut sums = [_mm256_setzero_si256(); FIRSTS];
-        let mut near = 0;
-        for (k, sum) in sums.iter_mut().enumerate() {
-            for g in k * groups..(k + 1) * groups {
-                let bytes = &block[g * 8 * BLOCK..(g + 1) * 8 * BLOCK];
-                // SAFETY: `bytes` is 32 bytes long; an unaligned load.
-                let v = unsafe { _mm256_loadu_si256(bytes.as_ptr() as *const __m256i) };
-                *sum = _mm256_add_epi64(*sum, _mm256_sad_epu8(v, q[g]));
+    #[target_feature(enable = "avx2")]
+    pub(super) fn nearest_avx2(self, m: [usize; FIRSTS], allowed: Rule<'_>) -> Lists {
+        let FirstPass { blocks, n, query, width } = self;
+        use std::arch::x86_64::*;
+        let groups = width / 8;
+        let row_bytes = FIRSTS * width;
+        // Each query group repeated for the four rows of a block.
+        let q: Vec<__m256i> = query
+            .chunks_exact(8)
+            .map(|g| _mm256_set1_epi64x(i64::from_le_bytes(g.try_into().expect("8 bytes"))))
+            .collect();
+        let mut best = Nearest::new(m, allowed);
+        let mut bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
+        for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
+            let mut sums = [_mm256_setzero_si256(); FIRSTS];
+            let mut near = 0;
+            for (k, sum) in sums.iter_mut().enumerate() {
+                for g in k * groups..(k + 1) * groups {
+                    let bytes = &block[g * 8 * BLOCK..(g + 1) * 8 * BLOCK];
+                    // SAFETY: `bytes` is 32 bytes long; an unaligned load.
+                    let v = unsafe { _mm256_loadu_si256(bytes.as_ptr() as *const __m256i) };
+                    *sum = _mm256_add_epi64(*sum, _mm256_sad_epu8(v, q[g]));
+                }
+                near |= _mm256_movemask_pd(_mm256_castsi256_pd(_mm256_cmpgt_epi64(bounds[k], *sum)));
             }
-            near |= _mm256_movemask_pd(_mm256_castsi256_pd(_mm256_cmpgt_epi64(bounds[k], *sum)));
-        }
-        // Most blocks hold no row nearer than a list's farthest.
-        if near != 0 {
-            let sums = sums.map(|s| {
-                let mut out = [0u64; BLOCK];
-                // SAFETY: `out` holds 32 bytes; an unaligned store.
-                unsafe { _mm256_storeu_si256(out.as_mut_ptr() as *mut __m256i, s) };
-                out
-            });
-            for (i, row) in (b * BLOCK..n.min((b + 1) * BLOCK)).enumerate() {
-                best.offer(row, std::array::from_fn(|k| sums[k][i] as u32));
+            // Most blocks hold no row nearer than a list's farthest.
+            if near != 0 {
+                let sums = sums.map(|s| {
+                    let mut out = [0u64; BLOCK];
+                    // SAFETY: `out` holds 32 bytes; an unaligned store.
+                    unsafe { _mm256_storeu_si256(out.as_mut_ptr() as *mut __m256i, s) };
+                    out
+                });
+                for (i, row) in (b * BLOCK..n.min((b + 1) * BLOCK)).enumerate() {
+                    best.offer(row, std::array::from_fn(|k| sums[k][i] as u32));
+                }
+                bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
             }
-            bounds = best.distance_bounds().map(|b| _mm256_set1_epi64x(b as i64));
         }
+        best.rows()
     }
-    best.rows()
-}
 
-pub(super) fn nearest_rows_3_portable(
-    blocks: &[u8],
-    n: usize,
-    query: &[u8],
-    width: usize,
-    m: [usize; FIRSTS],
-    allowed: &dyn Fn(usize) -> bool,
-) -> [Vec<usize>; FIRSTS] {
-    let row_bytes = FIRSTS * width;
-    let mut best = Nearest::new(m, allowed);
-    for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
-        for i in 0..BLOCK.min(n - b * BLOCK) {
-            let distance = |k: usize| -> u32 {
-                (k * width..(k + 1) * width)
-                    .map(|t| block[first_offset(t, i)].abs_diff(query[t]) as u32)
-                    .sum()
-            };
-            best.offer(b * BLOCK + i, std::array::from_fn(distance));
+    pub(super) fn nearest_portable(self, m: [usize; FIRSTS], allowed: Rule<'_>) -> Lists {
+        let FirstPass { blocks, n, query, width } = self;
+        let row_bytes = FIRSTS * width;
+        let mut best = Nearest::new(m, allowed);
+        for (b, block) in blocks.chunks_exact(BLOCK * row_bytes).take(n.div_ceil(BLOCK)).enumerate() {
+            for i in 0..BLOCK.min(n - b * BLOCK) {
+                let distance = |k: usize| -> u32 {
+                    (k * width..(k + 1) * width)
+                        .map(|t| block[first_offset(t, i)].abs_diff(query[t]) as u32)
+                        .sum()
+                };
+                best.offer(b * BLOCK + i, std::array::from_fn(distance));
+            }
         }
+        best.rows()
     }
-    best.rows()
 }
 
 /// The `m[k]` smallest (distance, row) for each of the [`FIRSTS`] keys among the rows
@@ -328,20 +327,6 @@ impl Searcher {
         Searcher { n: parts.len(), params, store: Store::Owned(sections) }
     }
 
-    /// One more entry, after the others (a mapped searcher is copied into memory first).
-    pub fn push(&mut self, descriptor: &[f32]) {
-        if let Store::Mapped { .. } = self.store {
-            *self = self.subset(&(0..self.n).collect::<Vec<_>>());
-        }
-        let parts = entry(descriptor, &self.params);
-        if let Store::Owned(sections) = &mut self.store {
-            for ((to, from), section) in sections.iter_mut().zip(&parts).zip(ALL_SECTIONS) {
-                section.append(to, self.n, from, &self.params);
-            }
-        }
-        self.n += 1;
-    }
-
     /// The searcher's bytes, its sections laid out as a cache file's body holds them
     /// (`layout`).
     pub fn bytes(&self) -> std::borrow::Cow<'_, [u8]> {
@@ -410,16 +395,6 @@ impl Searcher {
         &self.section(section)[row * per..(row + 1) * per]
     }
 
-    /// Rows.
-    pub fn len(&self) -> usize {
-        self.n
-    }
-
-    /// Whether there are no rows.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// The parameters.
     pub fn params(&self) -> &PlusParams {
         &self.params
@@ -443,14 +418,14 @@ impl Searcher {
         let long = LIST_PER_CANDIDATE * wanted;
         let (shape, profile) = (quantized(&shape_key(query, p)), quantized(&profile_key(query, p)));
         let first = firsts(&shape, &profile, &quantized(&ring_key(query, p)), p);
-        let [by_ring, coarse_shape, coarse_profile] = nearest_rows_3(
-            self.section(Section::Firsts),
-            self.n,
-            &first,
-            first_width(p),
-            [long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long],
-            allowed,
-        );
+        let pass = FirstPass {
+            blocks: self.section(Section::Firsts),
+            n: self.n,
+            query: &first,
+            width: first_width(p),
+        };
+        let [by_ring, coarse_shape, coarse_profile] =
+            pass.nearest([long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long], allowed);
         let refined = |section: Section, key: &[u8], mut coarse: Vec<usize>| -> Vec<usize> {
             let all = self.section(section);
             let entry = |row: usize| &all[row * key.len()..(row + 1) * key.len()];
@@ -499,8 +474,8 @@ impl Searcher {
         let t = std::time::Instant::now();
         let wanted = p.candidates.max(k);
         // With no more allowed rows than wanted, the keys' lists hold them all.
-        let rows = if wanted >= self.len() {
-            (0..self.len()).filter(|&row| allowed(row)).collect()
+        let rows = if wanted >= self.n {
+            (0..self.n).filter(|&row| allowed(row)).collect()
         } else {
             self.candidates(query, wanted, allowed)
         };
@@ -546,12 +521,23 @@ pub(super) fn prefetch(bytes: &[u8]) {
 }
 
 impl crate::methods::Searcher for Searcher {
+    /// Rows.
     fn len(&self) -> usize {
         self.n
     }
 
+    /// One more entry, after the others (a mapped searcher is copied into memory first).
     fn push(&mut self, descriptor: &[f32]) {
-        Searcher::push(self, descriptor)
+        if let Store::Mapped { .. } = self.store {
+            *self = Searcher::subset(self, &(0..self.n).collect::<Vec<_>>());
+        }
+        let parts = entry(descriptor, &self.params);
+        if let Store::Owned(sections) = &mut self.store {
+            for ((to, from), section) in sections.iter_mut().zip(&parts).zip(ALL_SECTIONS) {
+                section.append(to, self.n, from, &self.params);
+            }
+        }
+        self.n += 1;
     }
 
     fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {

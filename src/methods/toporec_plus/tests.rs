@@ -6,6 +6,7 @@ use super::distance::*;
 use super::field::*;
 use super::keys::*;
 use super::searcher::*;
+use crate::methods::Searcher as _;
 use crate::types::Point;
 
 /// Box walls around the sensor, sampled every 20 cm with a few centimetres of noise (in
@@ -165,8 +166,9 @@ fn the_first_pass_is_the_same_on_every_route() {
         };
         let m = [30, 300, 7];
         for allowed in [&(|_| true) as &dyn Fn(usize) -> bool, &|row: usize| row % 2 == 1] {
-            let fast = nearest_rows_3(&blocks, n, &query, width, m, allowed);
-            let plain = nearest_rows_3_portable(&blocks, n, &query, width, m, allowed);
+            let pass = FirstPass { blocks: &blocks, n, query: &query, width };
+            let fast = pass.nearest(m, allowed);
+            let plain = pass.nearest_portable(m, allowed);
             assert_eq!(fast, plain, "width {width}");
             for k in 0..FIRSTS {
                 let mut sorted: Vec<(u32, usize)> =
@@ -176,7 +178,8 @@ fn the_first_pass_is_the_same_on_every_route() {
                 assert_eq!(fast[k], want, "width {width}, key {k}");
             }
         }
-        assert_eq!(nearest_rows_3(&blocks, n, &query, width, m, &|_| true)[0][0], 17);
+        let pass = FirstPass { blocks: &blocks, n, query: &query, width };
+        assert_eq!(pass.nearest(m, &|_| true)[0][0], 17);
     }
 }
 
