@@ -262,7 +262,7 @@ impl BatchDescriber {
     /// only (`diagrams` and `descriptors` empty). A distributed job's tasks call this: the
     /// rows go straight from the engine to Parquet, and the engine is left with one row a scan.
     ///
-    /// The inputs are described a few at a time ([`STREAM_CHUNK`] per thread) and their rows
+    /// The inputs are described a few at a time (`STREAM_CHUNK` per thread) and their rows
     /// written before the next ones are read, so a task's memory does not grow with its size
     /// (a scan's diagram is about a megabyte in memory; growing the heap by hundreds of them
     /// cost a fresh worker process a fifth of a batch's time).

@@ -1,6 +1,6 @@
 //! The one path from a scan to its descriptors: preprocess → alpha persistence → (radii) →
 //! ATOL for the TopoRec descriptor, and the raw scan (sensor frame) → each computed baseline
-//! (ScanContext, M2DP) with its own preprocessing. `toporec run`'s workers, `query` and `eval`
+//! (toporec-plus and the baselines, [`crate::methods`]) with its own preprocessing. `toporec run`'s workers, `query` and `eval`
 //! all go through a [`Describer`], so a scan gets the same diagram and descriptors whichever
 //! command computes it. The persistence stage runs only when the TopoRec descriptor is wanted.
 //!
@@ -31,7 +31,7 @@ pub struct StageTimes {
     pub persistence: f64,
     /// ATOL.
     pub vectorize: f64,
-    /// The computed baselines (ScanContext, M2DP), all together.
+    /// The methods computed from the raw scan, all together.
     pub baselines: f64,
 }
 

@@ -98,7 +98,7 @@ impl StagedFile {
         &self.temp
     }
 
-    /// Renames the file into place (without syncing the folder: see [`sync_parent`]).
+    /// Renames the file into place (without syncing the folder: see `sync_parent`).
     pub fn publish_unsynced(mut self) -> Result<PathBuf> {
         std::fs::rename(&self.temp, &self.path).at(&self.path)?;
         self.published = true;

@@ -2,14 +2,15 @@
 //!
 //! toporec answers "have I been here before?" with the persistent homology of each scan's
 //! 3D alpha complex, vectorized by ATOL and searched by nearest neighbours (the TopoRec
-//! method, training-free).
+//! method, training-free), beside toporec's own descriptor and the usual baselines.
 //!
 //! Data flows one way:
 //!
 //! ```text
-//!  sources ──► preprocess ──► homology ──► vectorize ──► sinks ──► search / query / eval
-//!  NCLT, MCAP,  crop, ground,  alpha        ATOL with a   Parquet    k-NN, Recall@N,
-//!  KITTI, CSV   voxel, sample  persistence  codebook      index      plots
+//!  sources ──► preprocess ──► homology ──► vectorize ──┐
+//!  NCLT, MCAP,  crop, ground,  alpha        ATOL with a  ├─► describe ──► sinks ──► search ──► query, eval,
+//!  KITTI, CSV   voxel, sample  persistence  codebook     │   one scan's   Parquet   Engine      loops, batch
+//!       └──── raw scan ──► methods: toporec-plus, ScanContext(++), M2DP, SOLiD, LiDAR-Iris ┘
 //! ```
 //!
 //! * [`sources`] decode scans from the files users have (a bad scan is a stream item, not an
@@ -18,22 +19,32 @@
 //! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs,
 //!   equal to GUDHI's `AlphaComplex` in its `exact` precision.
 //! * [`vectorize`] turns diagrams into ATOL descriptors with a saved codebook.
-//! * [`describe`] is the one path from a scan to its descriptors through those three stages;
-//!   `run`, `query` and `eval` all use it. Beside the TopoRec descriptor it computes the
-//!   [`baselines`] (ScanContext, M2DP) from the raw scan, when a pipeline asks for them.
-//! * [`sinks`] write and read the index: Hive-partitioned Parquet tables whose schemas are
-//!   declared once ([`sinks::schema`]), committed atomically.
+//! * [`methods`] holds every descriptor method computed from the raw scan (toporec's own
+//!   [`methods::toporec_plus`] and the baselines) behind one interface ([`methods::Computed`])
+//!   and one registry ([`methods::REGISTRY`]), and the one search interface every method's
+//!   structure implements ([`methods::Searcher`]), exact Euclidean k-NN included.
+//! * [`describe`] is the one path from a scan to its descriptors and index rows through those
+//!   stages; `run`, `query`, `eval`, `loops` and [`batch`] all use it.
+//! * [`sinks`] write and read the index: Hive-partitioned Parquet tables whose schemas (and
+//!   every other table toporec writes or takes) are declared once ([`sinks::schema`]),
+//!   committed atomically.
 //! * [`pipeline`] connects the stages with bounded channels (`toporec run`), as a pipeline
 //!   file ([`pipeline::config`]) describes. [`batch`] runs the same per-scan step on batches
 //!   handed over in memory and returns the rows as Arrow batches (the Python package and
 //!   distributed engines call it).
+//! * [`search`] is search over an index in one place: the [`Engine`] loads a method's
+//!   descriptors (or maps its cached structure), describes new scans as the index did, and
+//!   answers at a search budget.
 //!
-//! Downstream of the index: [`search`] (exact k-NN), [`query`], [`eval`] (Recall@N,
-//! Recall@1 %), [`plot`]; [`import`] adds descriptors made elsewhere. Beside it: [`offline`] fits codebooks and vectorizes stored
-//! diagrams, [`simulate`] makes multi-session drives in the formats the sources read, and
-//! [`inspect`] describes files. At the bottom, shared by all: [`types`], [`error`],
-//! [`fsutil`] (atomic files), [`rng`]. The `toporec` binary is a thin command line over this
-//! library.
+//! Downstream of the index: [`query`], [`eval`] (Recall@N, Recall@1 %, conditions), [`loops`]
+//! (loop closures over an index, and the online [`Detector`]), [`plot`]; [`import`] adds
+//! descriptors made elsewhere; [`maintenance`] verifies, compacts and revectorizes an index;
+//! [`info`] and [`inspect`] describe indexes and files, and [`diagram_csv`] reads and writes
+//! diagrams as CSV. Beside it: [`offline`] fits codebooks and
+//! vectorizes stored diagrams, [`simulate`] makes multi-session drives in the formats the
+//! sources read. At the bottom, shared by all: [`types`], [`error`], [`fsutil`] (atomic files),
+//! [`rng`], [`fingerprint`]. The `toporec` binary is a thin command line over this library; the
+//! names a user starts from are re-exported here.
 #![deny(missing_docs)]
 #![warn(unreachable_pub)]
 

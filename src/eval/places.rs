@@ -16,6 +16,9 @@
 //! it (or with `as-recorded`) the stored descriptors are the queries. `--db-scan` and
 //! `--query-scan` choose scans by id; `--within-session` compares poses only inside a session
 //! (KITTI's sequences each have their own frame).
+//!
+//! Over 800 lines: choosing the scans, describing the queries under each condition and scoring
+//! them share one set of per-method state, which this file keeps together.
 
 use super::conditions::{Condition, NotApplicable};
 use super::metrics::{Denominator, LoopClosure, Recall, first_hit, loop_closure, one_percent_k, recall};

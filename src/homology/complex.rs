@@ -88,9 +88,9 @@ pub struct DelaunayComplex {
     pub tri_edges: Vec<[u32; 3]>,
     /// For each tetrahedron, the triangle opposite each of its vertices.
     pub tet_tris: Vec<[u32; 4]>,
-    /// For each triangle (3D), its two tetrahedra; [`OUTSIDE`] for the hull side.
+    /// For each triangle (3D), its two tetrahedra; `OUTSIDE` for the hull side.
     pub tri_cofaces: Vec<[u32; 2]>,
-    /// For each edge (2D), its two triangles; [`OUTSIDE`] for the hull side.
+    /// For each edge (2D), its two triangles; `OUTSIDE` for the hull side.
     pub edge_cofaces: Vec<[u32; 2]>,
 }
 

@@ -7,7 +7,7 @@
 //!
 //! Cells are `[u32; K]` vertex arrays (K = 4 tetrahedra, K = 3 triangles) in flat vectors;
 //! neighbour `i` of a cell is the cell across the facet opposite vertex `i`. Every cell is
-//! positively oriented; a cell holding [`INFINITE`] is positive when the infinite vertex,
+//! positively oriented; a cell holding `INFINITE` is positive when the infinite vertex,
 //! replaced by a point beyond its hull facet, gives a positive orientation.
 //!
 //! Degeneracies: a point is in conflict with a cell only if it lies *strictly* inside the

@@ -1,9 +1,9 @@
 //! Geometric quantities of the alpha filtration, computed in `f64` with a certified error
 //! bound and decided exactly (big integers) only when the bound cannot decide.
 //!
-//! Owns: squared circumradii of edges, triangles and tetrahedra ([`radius2`]), the exact
-//! comparison of two such radii ([`compare_radius2_exact`]), and the Gabriel tests
-//! ([`edge_gabriel`], [`triangle_gabriel`]). Does not own the orientation / in-sphere
+//! Owns: squared circumradii of edges, triangles and tetrahedra (`radius2`), the exact
+//! comparison of two such radii (`compare_radius2_exact`), and the Gabriel tests
+//! (`edge_obtuse`, `triangle_gabriel`). Does not own the orientation / in-sphere
 //! predicates of the triangulation, which come from the `robust` crate.
 //!
 //! Exactness matters because mathematically tied filtration values (lattices, 5 mm-quantized

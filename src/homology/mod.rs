@@ -121,7 +121,7 @@ fn scale_pow2(mut x: f64, mut k: i32) -> f64 {
 /// [1/2, 1) — exact in floating point — computed there, and its squared radii scaled back by
 /// the square of that power (exact too): so the engine's filters never overflow or underflow,
 /// whatever the cloud's magnitude. Clouds it cannot compute exactly are refused, never answered
-/// wrongly: distinct points closer than 2^[`MIN_SPACING_EXPONENT`] of the extent, or squared
+/// wrongly: distinct points closer than 2^`MIN_SPACING_EXPONENT` of the extent, or squared
 /// radii outside the range of doubles.
 ///
 /// ```

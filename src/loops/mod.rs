@@ -123,7 +123,7 @@ pub(crate) fn time_order(scans: &[IndexedScan]) -> Vec<usize> {
 /// `(query row, [(row, distance, yaw)], …)`.
 type Matches = Vec<(usize, Vec<crate::methods::Hit>)>;
 
-/// Which scans each scan may be matched with: earlier in [`time_order`], and outside its own
+/// Which scans each scan may be matched with: earlier in `time_order`, and outside its own
 /// session's exclusion window.
 pub struct Allowed<'a> {
     scans: &'a [IndexedScan],

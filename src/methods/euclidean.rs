@@ -1,5 +1,5 @@
 //! Exact k-nearest-neighbour search over descriptors (Euclidean): the search of TopoRec, M2DP
-//! and imported vectors ([`Euclidean`]), and of ScanContext's ring keys.
+//! and imported vectors (`Euclidean`), and of ScanContext's ring keys.
 //!
 //! Three routes, one answer: a kiddo k-d tree for short descriptors (b ≤ 16, padded with
 //! zeros to 4, 8 or 16 — padding does not change distances), a batched matrix product

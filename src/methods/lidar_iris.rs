@@ -451,7 +451,7 @@ pub fn compare(query: &[f32], candidate: &[f32], p: &IrisParams) -> Match {
 }
 
 /// LiDAR-Iris descriptors searched by row key, then re-ranked by [`compare`]'s distance.
-/// It grows by [`Searcher::push`].
+/// It grows by [`super::Searcher::push`].
 pub struct Searcher {
     params: IrisParams,
     bank: Bank,

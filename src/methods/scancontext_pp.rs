@@ -386,7 +386,7 @@ fn squared_distance(a: &[f32], b: &[f32]) -> f32 {
 
 /// Scan Context++ descriptors searched as the reference does: the rows whose keys lie
 /// nearest the query's (Euclidean, in float32; the nearest of a row's copies, or of the
-/// query's probes) are the candidates, re-ranked by [`compare`]. It grows by [`Searcher::push`].
+/// query's probes) are the candidates, re-ranked by [`compare`]. It grows by [`super::Searcher::push`].
 pub struct Searcher {
     variant: Variant,
     descriptors: Vec<f32>,

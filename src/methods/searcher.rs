@@ -99,7 +99,7 @@ pub enum SearchBudget {
     /// Every database entry re-ranked at every shift (toporec-plus: of every turned grid).
     Exhaustive,
     /// The same for every method that has them: this many re-ranked candidates, and the
-    /// shifts within ±[`MATCHED_SHIFTS`] sectors of the coarse alignment.
+    /// shifts within ±`MATCHED_SHIFTS` sectors of the coarse alignment.
     Matched(usize),
 }
 

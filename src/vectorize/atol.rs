@@ -152,7 +152,7 @@ impl AtolFitter {
 }
 
 impl Atol {
-    /// Fits a model on all points of `measures` (no sampling limit); see [`AtolFitter`].
+    /// Fits a model on all points of `measures` (no sampling limit); see `AtolFitter`.
     pub fn fit(
         measures: &[&[Point2]],
         b: usize,

@@ -22,7 +22,7 @@ pub(super) const LIST_PER_CANDIDATE: usize = 4;
 pub(super) const FUSION_K: f64 = 10.0;
 
 /// Descriptors searched in two steps: candidates by the keys, then those re-ranked by
-/// [`distance`]. Three keys rank the entries (the shape key among the entries whose filled
+/// [`super::distance()`]. Three keys rank the entries (the shape key among the entries whose filled
 /// shares per ring, its first terms, are nearest the query's; the profile key and the ring key
 /// among all entries: exact k-NN over bytes), and the candidates are the best of the rankings
 /// fused. Each key misses what another finds: the shape and ring keys the scans with a hidden

@@ -87,9 +87,9 @@ pub struct Counts {
 /// The manifest of an index.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
-    /// Always [`FORMAT`].
+    /// Always `FORMAT`.
     pub format: String,
-    /// [`MANIFEST_VERSION`].
+    /// `MANIFEST_VERSION`.
     pub manifest_version: u64,
     /// The toporec version of the last commit.
     pub toporec_version: String,

@@ -9,7 +9,7 @@
 //!   .staging/part-<n>.staged                 files of a commit not yet in place
 //! ```
 //!
-//! [`writer`] stages a run's files and commits them; [`recovery`] completes a commit a kill
+//! [`writer`] stages a run's files and commits them; `recovery` completes a commit a kill
 //! interrupted and tells toporec's own files from foreign ones; [`reader`] reads the committed
 //! files back, checking every table against the schemas of [`super::schema`] so that a foreign
 //! or rewritten table gives an error, never a panic. This module owns the layout they agree on.

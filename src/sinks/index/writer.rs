@@ -3,7 +3,7 @@
 //! [`IndexWriter::open`] refuses a folder that holds something but no index (it deletes
 //! nothing that is not its own), takes an OS advisory lock on `INDEX/.lock` (released by the
 //! OS when the process ends, however it ends: a killed writer leaves no stale lock), reads the
-//! manifest, and completes or undoes a commit a kill interrupted ([`super::recovery`]).
+//! manifest, and completes or undoes a commit a kill interrupted (`super::recovery`).
 //!
 //! Rows go into the open chunk's part files, written in `.staging/` (outside the table
 //! folders, under names no `*.parquet` glob matches). [`IndexWriter::commit`] closes them
@@ -18,6 +18,9 @@
 //! Killed before 1, the commit never happened; after it, the next process to open the index
 //! completes it. A plain glob of the tables sees committed files only, and a mix of two
 //! generations only for the milliseconds of steps 2 and 3 (no data is written then).
+//!
+//! Over 800 lines: the commit protocol (chunks, replacement, pruning, compaction, `--full`
+//! rebuilds) is one state machine over one manifest, kept in one file to be read as one.
 //!
 //! A rebuild (`run --full`) writes the new generation beside the old one: its chunks stay in
 //! `.staging/` and the on-disk manifest keeps naming the old files until
