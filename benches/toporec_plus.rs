@@ -190,24 +190,25 @@ fn main() {
                 codebook_id: "bench".into(),
             })
             .collect();
-        let header = toporec::sinks::index::searchers::Header {
-            format_version: toporec::sinks::index::searchers::FORMAT_VERSION,
-            generation: 1,
-            method: "toporec-plus".into(),
-            id: "bench".into(),
-            params: serde_json::to_value(&p).expect("JSON"),
-            layout: toporec_plus::SEARCHER_LAYOUT.into(),
-            rows: n,
-            sessions: Vec::new(),
-            body: (0, 0),
-        };
+        let header = toporec::sinks::index::searchers::Header::new(
+            1,
+            "toporec-plus",
+            "bench",
+            serde_json::to_value(&p).expect("JSON"),
+            toporec_plus::SEARCHER_LAYOUT,
+            n,
+        );
         let t = Instant::now();
         toporec::sinks::index::searchers::write(&path, &header, &rows, &searcher.bytes()).expect("cache written");
         let written = t.elapsed().as_secs_f64();
         drop(searcher);
         let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
         let t = Instant::now();
-        let cached = toporec::sinks::index::searchers::open(&path, 1, "bench", toporec_plus::SEARCHER_LAYOUT).expect("a current cache");
+        let toporec::sinks::index::searchers::Opened::Current(cached) =
+            toporec::sinks::index::searchers::open(&path, 1, "bench", toporec_plus::SEARCHER_LAYOUT)
+        else {
+            panic!("a current cache")
+        };
         let (body, rows_n) = (cached.header.body.0, cached.header.rows);
         let mapped = Searcher::mapped(cached.map, body, rows_n, p.clone()).expect("mapped");
         let opened = t.elapsed().as_secs_f64();

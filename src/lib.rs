@@ -42,7 +42,7 @@
 //! [`info`] and [`inspect`] describe indexes and files, and [`diagram_csv`] reads and writes
 //! diagrams as CSV. Beside it: [`offline`] fits codebooks and
 //! vectorizes stored diagrams, [`simulate`] makes multi-session drives in the formats the
-//! sources read. At the bottom, shared by all: [`types`], [`error`], [`fsutil`] (atomic files),
+//! sources read, and [`split`] makes a map and a query session of one drive. At the bottom, shared by all: [`types`], [`error`], [`fsutil`] (atomic files),
 //! [`rng`], [`fingerprint`]. The `toporec` binary is a thin command line over this library; the
 //! names a user starts from are re-exported here.
 #![deny(missing_docs)]
@@ -73,6 +73,7 @@ pub mod search;
 pub mod simulate;
 pub mod sinks;
 pub mod sources;
+pub mod split;
 pub mod types;
 pub mod vectorize;
 

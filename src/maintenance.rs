@@ -160,7 +160,8 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
     for rel in crate::sinks::index::recovery::foreign(index) {
         v.notes.push(format!("{rel}: foreign (not toporec's; left alone)"));
     }
-    // Search caches: current, or stale (the next query rebuilds it).
+    // Search caches: current, stale (the next query rebuilds it), or damaged (a problem; the next
+    // query rebuilds it too, with a warning).
     let caches = index.join(crate::sinks::index::SEARCHERS_DIR);
     for e in std::fs::read_dir(&caches).into_iter().flatten().flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
@@ -169,20 +170,28 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
             let m = manifest.methods.get(method).and_then(|entry| entry.method(method));
             m.and_then(|m| m.as_computed().and_then(|c| c.cache_layout()))
         };
-        match crate::sinks::index::searchers::header(&e.path()) {
-            Ok(h) if h.generation == manifest.generation && layout(&h.method) == Some(h.layout.as_str()) => {
+        if crate::fsutil::is_temp_name(&name) {
+            continue;
+        }
+        use crate::sinks::index::searchers::{Check, check};
+        match check(&e.path()) {
+            Check::Intact(h) if h.generation == manifest.generation && layout(&h.method) == Some(h.layout.as_str()) => {
                 v.notes.push(format!("{rel}: search cache of {} ({} rows), current", h.method, h.rows))
             }
-            Ok(h) if h.generation == manifest.generation => v.notes.push(format!(
+            Check::Intact(h) if h.generation == manifest.generation => v.notes.push(format!(
                 "{rel}: search cache of {} made by another version of toporec: stale, rebuilt by the next query",
                 h.method
             )),
-            Ok(h) => v.notes.push(format!(
+            Check::Intact(h) => v.notes.push(format!(
                 "{rel}: search cache of {} from generation {} (the index is at {}): stale, rebuilt by the next query",
                 h.method, h.generation, manifest.generation
             )),
-            Err(_) if crate::fsutil::is_temp_name(&name) => {}
-            Err(e) => v.notes.push(format!("{rel}: not a search cache toporec reads ({e})")),
+            Check::OtherFormat(version) => v.notes.push(format!(
+                "{rel}: search cache of format {version}, made by another version of toporec: stale, rebuilt by the next query"
+            )),
+            Check::Damaged(why) => v.problems.push(format!(
+                "{rel}: damaged search cache: {why} (the next query warns and rebuilds it)"
+            )),
         }
     }
     // Each file: present, intact, readable as its table.

@@ -117,7 +117,22 @@ impl Engine {
         let Some(computed) = m.as_computed() else { return Ok(None) };
         let Some(layout) = computed.cache_layout() else { return Ok(None) };
         let path = searchers::path(index, method);
-        let (searcher, rows) = match searchers::open(&path, manifest.generation, &entry.id, layout) {
+        let cached = match searchers::open(&path, manifest.generation, &entry.id, layout) {
+            searchers::Opened::Current(cached) => Some(cached),
+            searchers::Opened::Missing | searchers::Opened::Stale => None,
+            searchers::Opened::OtherVersion(why) => {
+                tracing::warn!(
+                    "{}: made by another version of toporec ({why}); rebuilding it",
+                    path.display()
+                );
+                None
+            }
+            searchers::Opened::Damaged(why) => {
+                tracing::warn!("{}: damaged: {why}; rebuilding it", path.display());
+                None
+            }
+        };
+        let (searcher, rows) = match cached {
             Some(cached) => {
                 let (body, n) = (cached.header.body.0, cached.header.rows);
                 let searcher =
@@ -131,17 +146,14 @@ impl Engine {
                 let searcher = computed.searcher(vectors);
                 let rows: Vec<IndexedScan> =
                     loaded.scans.into_iter().map(|s| IndexedScan { descriptor: Vec::new(), ..s }).collect();
-                let header = searchers::Header {
-                    format_version: searchers::FORMAT_VERSION,
-                    generation: manifest.generation,
-                    method: method.to_string(),
-                    id: entry.id.clone(),
-                    params: entry.params.clone(),
-                    layout: layout.to_string(),
-                    rows: rows.len(),
-                    sessions: Vec::new(),
-                    body: (0, 0),
-                };
+                let header = searchers::Header::new(
+                    manifest.generation,
+                    method,
+                    &entry.id,
+                    entry.params.clone(),
+                    layout,
+                    rows.len(),
+                );
                 // An index that cannot be written (read-only, another user's) gets no cache.
                 let bytes = searcher.bytes().expect("a cached method's searcher has bytes");
                 if let Err(e) = searchers::write(&path, &header, &rows, &bytes) {

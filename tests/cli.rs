@@ -293,3 +293,54 @@ fn info_says_what_an_index_holds() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("no such index folder"), "{}", stderr(&o));
 }
+
+#[test]
+fn split_makes_a_map_and_a_query_session_of_one_drive() {
+    // The sample's first day (32 scans): every 3rd scan from the first to the map, the rest to
+    // the queries, each file a link to the original, the ground truth beside both.
+    let dir = scratch_dir("split");
+    let session = root().join("samples/town/velodyne_data/2026-01-01");
+    let out = dir.join("split");
+    let o = toporec(&["split", session.to_str().unwrap(), "--every", "3", "-o", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut scans: Vec<_> =
+        std::fs::read_dir(session.join("velodyne_sync")).unwrap().flatten().map(|e| e.path()).collect();
+    scans.sort();
+    assert_eq!(scans.len(), 32);
+    let listed = |name: &str| {
+        let mut v: Vec<_> = std::fs::read_dir(out.join(name).join("velodyne_sync"))
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    let name = |p: &std::path::PathBuf| p.file_name().unwrap().to_string_lossy().into_owned();
+    let (map, query) = (listed("map"), listed("query"));
+    assert_eq!(map, scans.iter().step_by(3).map(name).collect::<Vec<_>>());
+    assert_eq!(map.len() + query.len(), 32);
+    assert!(query.iter().all(|q| !map.contains(q)));
+    // A link reads as the original; the ground truth is the drive's.
+    let first = out.join("map/velodyne_sync").join(&map[0]);
+    assert_eq!(std::fs::read(&first).unwrap(), std::fs::read(&scans[0]).unwrap());
+    let truth = std::fs::read(root().join("samples/town/ground_truth/groundtruth_2026-01-01.csv")).unwrap();
+    for s in ["map", "query"] {
+        assert_eq!(std::fs::read(out.join(format!("groundtruth_{s}.csv"))).unwrap(), truth);
+    }
+    assert!(stdout(&o).contains("(11 scans)") && stdout(&o).contains("(21 scans)"), "{}", stdout(&o));
+    // Nothing is written over; the settings are checked.
+    let again = toporec(&["split", session.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_clean_error(&again, "exists; split into a new folder", "split twice");
+    let bad = toporec(&[
+        "split",
+        session.to_str().unwrap(),
+        "--every",
+        "3",
+        "--first",
+        "3",
+        "-o",
+        dir.join("x").to_str().unwrap(),
+    ]);
+    assert_clean_error(&bad, "first in [0, every)", "split --first 3");
+}

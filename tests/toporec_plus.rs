@@ -273,3 +273,88 @@ fn the_search_structure_is_cached_in_the_index_and_rebuilt_after_a_commit() {
     assert_eq!(query(&[]), after);
     assert_eq!(toporec::sinks::index::searchers::header(&cache).unwrap().rows, 63);
 }
+
+#[test]
+fn a_damaged_search_cache_never_answers() {
+    // Every way a cache file can be wrong: the answers are a fresh build's, the query warns
+    // naming the file, and `verify` reports it (damage as a problem, exit 1; another version's
+    // file as a stale one) before the query rebuilds it.
+    let dir = scratch_dir("plus_damaged_cache");
+    let data = sample_copy(&dir, &["2026-01-01", "2026-01-02"]);
+    let body = format!(
+        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"toporec-plus\"]\n",
+        data.join("velodyne_data").display().to_string()
+    );
+    let pipeline = dir.join("plus.toml");
+    std::fs::write(&pipeline, body).unwrap();
+    let index = dir.join("idx");
+    assert!(run_pipeline(&pipeline, &index, 2).status.success());
+    let cache = index.join("searchers/toporec-plus.searcher");
+    let day2 = data.join("velodyne_data/2026-01-02");
+    let query = || {
+        let args = ["query", "--index", index.to_str().unwrap(), "--method", "toporec-plus"];
+        let o = toporec(&[&args[..], &[day2.to_str().unwrap(), "-k", "3"]].concat());
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        (text(&o.stdout), text(&o.stderr))
+    };
+    let (fresh, quiet) = query();
+    assert!(!quiet.contains("WARN"), "a fresh build warns of nothing: {quiet}");
+    let good = std::fs::read(&cache).unwrap();
+    let header = toporec::sinks::index::searchers::header(&cache).unwrap();
+    let (offset, size) = header.body;
+    let header_len = u64::from_le_bytes(good[16..24].try_into().unwrap()) as usize;
+    // Each case: the file's bytes, and whether verify calls it damaged (else stale).
+    let mut cases: Vec<(String, Vec<u8>, bool)> = Vec::new();
+    let mut scattered = good.clone();
+    let mut rng = toporec::rng::SplitMix64(1);
+    for _ in 0..200 {
+        let j = good.len() / 3 + (rng.next_u64() as usize) % (good.len() - good.len() / 3);
+        scattered[j] ^= 0xFF;
+    }
+    cases.push(("200 bytes flipped past the first third".into(), scattered, true));
+    let flipped = |at: usize| {
+        let mut b = good.clone();
+        b[at] ^= 0x01;
+        b
+    };
+    cases.push(("the header".into(), flipped(24 + header_len / 2), true));
+    cases.push(("the header's checksum".into(), flipped(24 + header_len + 3), true));
+    cases.push(("the rows".into(), flipped(24 + header_len + 8 + 5), true));
+    cases.push(("the padding before the body".into(), flipped(offset - 1), true));
+    for (name, range) in toporec_plus::body_sections(header.rows, &PlusParams::default()) {
+        cases.push((format!("the body's {name}"), flipped(offset + (range.start + range.end) / 2), true));
+    }
+    assert_eq!(offset + size, good.len());
+    cases.push(("cut short".into(), good[..good.len() / 2].to_vec(), true));
+    cases.push(("empty".into(), Vec::new(), true));
+    let other = String::from_utf8_lossy(&good[24..24 + header_len])
+        .replace("\"format_version\":2", "\"format_version\":1");
+    let mut older = good.clone();
+    older[24..24 + header_len].copy_from_slice(other.as_bytes());
+    cases.push(("of another format version".into(), older, false));
+    for (what, bytes, damaged) in cases {
+        std::fs::write(&cache, &bytes).unwrap();
+        let o = toporec(&["verify", "--index", index.to_str().unwrap()]);
+        let report = text(&o.stdout);
+        if damaged {
+            assert_eq!(o.status.code(), Some(1), "{what}: {report}");
+            assert!(
+                report.contains("searchers/toporec-plus.searcher: damaged search cache"),
+                "{what}: {report}"
+            );
+        } else {
+            assert!(o.status.success(), "{what}: {report}");
+            assert!(report.contains("made by another version of toporec"), "{what}: {report}");
+        }
+        let (answers, warnings) = query();
+        assert_eq!(answers, fresh, "{what}: the answers of a fresh build");
+        assert!(
+            warnings.contains(&cache.display().to_string()),
+            "{what}: the warning names the file: {warnings}"
+        );
+        assert!(warnings.contains("rebuilding it"), "{what}: {warnings}");
+        assert_eq!(std::fs::read(&cache).unwrap(), good, "{what}: rebuilt as it was");
+        let o = toporec(&["verify", "--index", index.to_str().unwrap()]);
+        assert!(o.status.success(), "{what}, rebuilt: {}", text(&o.stdout));
+    }
+}

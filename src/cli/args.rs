@@ -293,6 +293,45 @@ pub struct LoopsArgs {
     pub out: PathBuf,
 }
 
+/// Arguments of `toporec split`.
+#[derive(clap::Args, Debug)]
+pub struct SplitArgs {
+    /// The NCLT session folder (holding velodyne_sync/).
+    pub session: PathBuf,
+    /// Every this-many-th scan goes to the map session, the others to the query session: [2, 10⁶].
+    #[arg(long, default_value_t = 3, value_parser = |s: &str| ranges::count_within(s, 2, 1_000_000))]
+    pub every: usize,
+    /// The position of the first map scan, in [0, every).
+    #[arg(long, default_value_t = 0)]
+    pub first: usize,
+    /// The names of the map and the query sessions.
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values = ["map", "query"])]
+    pub names: Vec<String>,
+    /// The drive's ground truth (default: groundtruth_<session>.csv found beside the session).
+    #[arg(long)]
+    pub groundtruth: Option<PathBuf>,
+    /// Copy the scan files (default: absolute symbolic links to them).
+    #[arg(long)]
+    pub copy: bool,
+    /// The folder the two sessions are written into.
+    #[arg(long, short)]
+    pub out: PathBuf,
+}
+
+impl From<SplitArgs> for toporec::split::SplitArgs {
+    fn from(a: SplitArgs) -> Self {
+        toporec::split::SplitArgs {
+            session: a.session,
+            every: a.every,
+            first: a.first,
+            names: (a.names[0].clone(), a.names[1].clone()),
+            groundtruth: a.groundtruth,
+            copy: a.copy,
+            out: a.out,
+        }
+    }
+}
+
 /// Arguments of `toporec simulate`.
 #[derive(clap::Args, Debug)]
 pub struct SimulateArgs {

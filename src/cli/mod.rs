@@ -56,6 +56,9 @@ enum Command {
     Validate(ValidateArgs),
     /// Generate multi-session LiDAR drives through a procedural town (NCLT, MCAP, KITTI files).
     Simulate(args::SimulateArgs),
+    /// Split one NCLT session into a map session (every Nth scan) and a query session (the
+    /// others), to measure fine localization along one drive.
+    Split(args::SplitArgs),
     /// Write the Parquet table schemas and the report's JSON Schema (what `schemas/` holds).
     #[command(hide = true)]
     Schemas(SchemasArgs),
@@ -262,6 +265,10 @@ pub fn main() -> ExitCode {
         Command::Eval(EvalCommand::Perturbation(a)) => perturbation(a.into()),
         Command::Plot(PlotCommand::Diagram(a)) => plot_diagram(a).map(|()| Done::All),
         Command::Simulate(args) => simulate(args.into()).map(|()| Done::All),
+        Command::Split(args) => toporec::split::split(&args.into())
+            .map_err(Into::into)
+            .and_then(|r| print(&r.to_string()))
+            .map(|()| Done::All),
         Command::Diagram(args) => diagram(args).map(|()| Done::All),
         Command::Inspect(args) => toporec::inspect::inspect(&args.path)
             .map_err(Into::into)

@@ -126,7 +126,7 @@ mod tests;
 
 pub use distance::distance;
 pub use field::describe;
-pub use searcher::{PlusHit, SEARCHER_LAYOUT, Searcher, entry_bytes};
+pub use searcher::{PlusHit, SEARCHER_LAYOUT, Searcher, body_sections, entry_bytes};
 
 impl super::Named for PlusParams {
     const NAME: &'static str = NAME;

@@ -112,6 +112,14 @@ pub(super) fn layout(n: usize, p: &PlusParams) -> ([usize; SECTIONS], usize) {
     (offsets, at)
 }
 
+/// The sections of the body of a searcher of `n` entries ([`Searcher::bytes`]), by name, with
+/// their byte ranges (each section's own bytes, without the alignment after it).
+pub fn body_sections(n: usize, p: &PlusParams) -> Vec<(&'static str, std::ops::Range<usize>)> {
+    let (offsets, _) = layout(n, p);
+    let names = ["columns", "reach", "firsts", "shapes", "profiles"];
+    (0..SECTIONS).map(|i| (names[i], offsets[i]..offsets[i] + ALL_SECTIONS[i].bytes_for(n, p))).collect()
+}
+
 /// Bytes a searcher holds per entry (its sections, without their alignment).
 pub fn entry_bytes(p: &PlusParams) -> usize {
     ALL_SECTIONS.iter().map(|s| s.entry_bytes(p)).sum()

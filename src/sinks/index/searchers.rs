@@ -10,15 +10,23 @@
 //! structure in memory each time.
 //!
 //! ```text
-//! "toporec-search\0\0"  u64 LE header length   header (JSON)   rows   pad   body (page aligned)
+//! "toporec-search\0\0"  u64 LE header length   header (JSON)   u64 LE xxh3 of the header
+//!     rows   pad   body (page aligned)
 //! ```
 //!
 //! The header holds the format version, generation, method, id, parameters, the row count, the
-//! sessions and the offsets; the rows are each entry's scan id, session, time and position
-//! (what a query prints); the body is the method's structure, as its searcher lays it out.
+//! sessions, the offsets and the checksums; the rows are each entry's scan id, session, time and
+//! position (what a query prints); the body is the method's structure, as its searcher lays it
+//! out. Every byte is covered by a checksum (xxh3-64): the header by the one after it, the rows
+//! and the padding after them by one in the header, the body by one per [`BLOCK`] bytes in the
+//! header. [`open`] checks them all before the cache answers anything (the blocks on every
+//! core); a cache that fails a check is damaged, and treated as a stale one: a warning naming
+//! the file and what failed, then rebuilt. [`check`] is `verify`'s.
 
 use super::reader::IndexedScan;
-use crate::error::{Error, Result, ResultExt};
+use crate::error::{Result, ResultExt};
+use crate::fingerprint::{hex, of_bytes};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -27,9 +35,13 @@ use std::path::{Path, PathBuf};
 pub(crate) const EXTENSION: &str = "searcher";
 const MAGIC: &[u8; 16] = b"toporec-search\0\0";
 /// The layout of this file (not of the body: [`Header::layout`] says that).
-pub const FORMAT_VERSION: u64 = 1;
+pub const FORMAT_VERSION: u64 = 2;
 /// The body starts on a page boundary, so its sections are aligned when mapped.
 const PAGE: usize = 4096;
+/// Bytes of the body under one checksum.
+pub const BLOCK: usize = 8 << 20;
+/// Magic, header length.
+const LEAD: usize = 24;
 
 /// The cache file of `method` in `index`.
 pub fn path(index: &Path, method: &str) -> PathBuf {
@@ -59,9 +71,50 @@ pub struct Header {
     pub sessions: Vec<String>,
     /// Byte offset and length of the body.
     pub body: (usize, usize),
+    /// The checksums of the rows and of the body's blocks (set by [`write`]).
+    #[serde(default)]
+    pub checksums: Checksums,
 }
 
-/// A cache opened for searching: its header, rows, and its mapped bytes.
+/// The xxh3-64 checksums of a cache's parts, 16 hex digits each.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Checksums {
+    /// The rows and the padding after them (the bytes between the header's checksum and the
+    /// body).
+    pub rows: String,
+    /// Bytes of the body under one checksum.
+    pub block: usize,
+    /// One per block of the body, in order.
+    pub body: Vec<String>,
+}
+
+impl Header {
+    /// The header of a cache of `rows` entries of `method` (its id, parameters and searcher
+    /// layout), built from the manifest's `generation`.
+    pub fn new(
+        generation: u64,
+        method: &str,
+        id: &str,
+        params: serde_json::Value,
+        layout: &str,
+        rows: usize,
+    ) -> Self {
+        Header {
+            format_version: FORMAT_VERSION,
+            generation,
+            method: method.to_string(),
+            id: id.to_string(),
+            params,
+            layout: layout.to_string(),
+            rows,
+            sessions: Vec::new(),
+            body: (0, 0),
+            checksums: Checksums::default(),
+        }
+    }
+}
+
+/// A cache opened for searching, every checksum checked: its header, rows, and its mapped bytes.
 pub struct Mapped {
     /// What it was built from.
     pub header: Header,
@@ -79,15 +132,26 @@ pub fn write(path: &Path, header: &Header, rows: &[IndexedScan], body: &[u8]) ->
     sessions.dedup();
     header.sessions = sessions;
     let meta = encode_rows(rows, &header.sessions);
-    // The body's offset depends on the header's length, which names it: settle both.
+    header.checksums.block = BLOCK;
+    header.checksums.body = block_checksums(body, BLOCK);
+    // The body's offset depends on the header's length, which names it (and the checksum of
+    // the rows' padding): settle them together.
     let mut offset = 0;
-    let text = loop {
+    let (text, rows_part) = loop {
         header.body = (offset, body.len());
         let text = serde_json::to_vec(&header).expect("JSON of plain values");
-        let end = 24 + text.len() + meta.len();
+        let end = LEAD + text.len() + 8 + meta.len();
         let wanted = end.next_multiple_of(PAGE);
         if wanted == offset {
-            break text;
+            let mut rows_part = meta.clone();
+            rows_part.resize(offset - LEAD - text.len() - 8, 0);
+            let checksum = hex(of_bytes(&rows_part));
+            if header.checksums.rows == checksum {
+                break (text, rows_part);
+            }
+            // The checksum changes the header's length only if its digits did not fit: once.
+            header.checksums.rows = checksum;
+            continue;
         }
         offset = wanted;
     };
@@ -95,55 +159,151 @@ pub fn write(path: &Path, header: &Header, rows: &[IndexedScan], body: &[u8]) ->
     f.write_all(MAGIC).at(path)?;
     f.write_all(&(text.len() as u64).to_le_bytes()).at(path)?;
     f.write_all(&text).at(path)?;
-    f.write_all(&meta).at(path)?;
-    f.write_all(&vec![0u8; offset - 24 - text.len() - meta.len()]).at(path)?;
+    f.write_all(&of_bytes(&text).to_le_bytes()).at(path)?;
+    f.write_all(&rows_part).at(path)?;
     f.write_all(body).at(path)?;
     f.commit().map(drop)
 }
 
-/// Opens the cache at `path` when it was built from `generation` and `id` in `layout`; `None`
-/// when there is none, or it is stale or unreadable (it is then rebuilt).
-pub fn open(path: &Path, generation: u64, id: &str, layout: &str) -> Option<Mapped> {
-    let file = std::fs::File::open(path).ok()?;
+/// The checksums of `body`'s blocks of `block` bytes, computed on every core.
+fn block_checksums(body: &[u8], block: usize) -> Vec<String> {
+    body.par_chunks(block.max(1)).map(|b| hex(of_bytes(b))).collect()
+}
+
+/// What [`open`] found at a cache's path.
+pub enum Opened {
+    /// A current cache, every checksum checked.
+    Current(Mapped),
+    /// None there.
+    Missing,
+    /// A cache of another generation or method id: rebuilt as a matter of course.
+    Stale,
+    /// A cache made by another version of toporec (another file format or body layout): rebuilt,
+    /// with a warning.
+    OtherVersion(String),
+    /// A damaged cache: what failed (rebuilt, with a warning).
+    Damaged(String),
+}
+
+/// Opens the cache at `path` when it was built from `generation` and `id` in `layout`, every
+/// checksum checked (the header, the rows, each block of the body) before it is used.
+pub fn open(path: &Path, generation: u64, id: &str, layout: &str) -> Opened {
+    let Ok(file) = std::fs::File::open(path) else { return Opened::Missing };
     // SAFETY: cache files are replaced by rename, never written in place, so the mapped bytes
-    // do not change under the map.
-    let map = unsafe { memmap2::Mmap::map(&file) }.ok()?;
-    let parsed = parse(&map);
-    match parsed {
-        Ok((header, rows))
-            if header.generation == generation && header.id == id && header.layout == layout =>
-        {
-            Some(Mapped { header, rows, map })
+    // do not change under the map. Every page is read into the map at once: the checks read
+    // them all anyway.
+    let map = match unsafe { memmap2::MmapOptions::new().populate().map(&file) } {
+        Ok(map) => map,
+        Err(e) => return Opened::Damaged(format!("cannot be mapped ({e})")),
+    };
+    match parse(&map) {
+        Ok((header, _)) if header.layout != layout => Opened::OtherVersion(format!(
+            "its body layout is {:?}, this toporec's is {layout:?}",
+            header.layout
+        )),
+        Ok((header, _)) if header.generation != generation || header.id != id => Opened::Stale,
+        Ok((header, rows)) => Opened::Current(Mapped { header, rows, map }),
+        Err(Fault::OtherFormat(v)) => {
+            Opened::OtherVersion(format!("cache format {v}; this toporec reads {FORMAT_VERSION}"))
         }
-        Ok(_) => None,
-        Err(e) => {
-            tracing::warn!("{}: {e}; rebuilding it", path.display());
-            None
-        }
+        Err(Fault::Damaged(e)) => Opened::Damaged(e),
     }
 }
 
-/// The header of the cache at `path` (for `verify`).
+/// What `verify` finds of the cache at `path`: its header, every checksum checked; or why it
+/// cannot be used.
+pub enum Check {
+    /// Intact (current or stale: its header says which).
+    Intact(Header),
+    /// Made by another version of toporec (another file format).
+    OtherFormat(u64),
+    /// Damaged: what failed.
+    Damaged(String),
+}
+
+/// Checks the cache at `path` as [`open`] does, whatever it was built from.
+pub fn check(path: &Path) -> Check {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) => return Check::Damaged(format!("cannot be read ({e})")),
+    };
+    match parse(&bytes) {
+        Ok((h, _)) => Check::Intact(h),
+        Err(Fault::OtherFormat(v)) => Check::OtherFormat(v),
+        Err(Fault::Damaged(e)) => Check::Damaged(e),
+    }
+}
+
+/// The header of the cache at `path`, every checksum checked; an error saying why it cannot
+/// be used.
 pub fn header(path: &Path) -> Result<Header> {
-    let bytes = std::fs::read(path).at(path)?;
-    parse(&bytes).map(|(h, _)| h).map_err(|e| Error::index(path, e))
+    match check(path) {
+        Check::Intact(h) => Ok(h),
+        Check::OtherFormat(v) => {
+            Err(crate::Error::index(path, format!("cache format {v}; this toporec reads {FORMAT_VERSION}")))
+        }
+        Check::Damaged(why) => Err(crate::Error::index(path, why)),
+    }
 }
 
-fn parse(bytes: &[u8]) -> std::result::Result<(Header, Vec<IndexedScan>), String> {
-    if bytes.len() < 24 || &bytes[..16] != MAGIC {
-        return Err("not a toporec search cache".into());
+/// Why a cache cannot be read.
+enum Fault {
+    /// Another file format (another version of toporec).
+    OtherFormat(u64),
+    /// Damaged: what failed.
+    Damaged(String),
+}
+
+fn damaged(what: impl Into<String>) -> Fault {
+    Fault::Damaged(what.into())
+}
+
+fn parse(bytes: &[u8]) -> std::result::Result<(Header, Vec<IndexedScan>), Fault> {
+    if bytes.is_empty() {
+        return Err(damaged("empty file"));
     }
-    let len = u64::from_le_bytes(bytes[16..24].try_into().expect("8 bytes")) as usize;
-    let text = bytes.get(24..24 + len).ok_or("header cut short")?;
-    let header: Header = serde_json::from_slice(text).map_err(|e| format!("header: {e}"))?;
+    if bytes.len() < LEAD || &bytes[..16] != MAGIC {
+        return Err(damaged("not a toporec search cache"));
+    }
+    let len = u64::from_le_bytes(bytes[16..LEAD].try_into().expect("8 bytes")) as usize;
+    let text = bytes.get(LEAD..LEAD.saturating_add(len)).ok_or_else(|| damaged("header cut short"))?;
+    let header: Header = serde_json::from_slice(text).map_err(|e| damaged(format!("header: {e}")))?;
     if header.format_version != FORMAT_VERSION {
-        return Err(format!("cache format {}; this toporec reads {FORMAT_VERSION}", header.format_version));
+        return Err(Fault::OtherFormat(header.format_version));
+    }
+    let stored = bytes.get(LEAD + len..LEAD + len + 8).ok_or_else(|| damaged("header cut short"))?;
+    if u64::from_le_bytes(stored.try_into().expect("8 bytes")) != of_bytes(text) {
+        return Err(damaged("header fails its checksum"));
     }
     let (offset, size) = header.body;
-    if !offset.is_multiple_of(PAGE) || bytes.len() != offset + size {
-        return Err("body cut short".into());
+    if !offset.is_multiple_of(PAGE) || offset < LEAD + len + 8 {
+        return Err(damaged("header names no valid body"));
     }
-    let rows = decode_rows(&bytes[24 + len..offset], &header)?;
+    match bytes.len().cmp(&offset.saturating_add(size)) {
+        std::cmp::Ordering::Less => return Err(damaged("body cut short")),
+        std::cmp::Ordering::Greater => return Err(damaged("longer than its header says")),
+        std::cmp::Ordering::Equal => {}
+    }
+    let rows_part = &bytes[LEAD + len + 8..offset];
+    if hex(of_bytes(rows_part)) != header.checksums.rows {
+        return Err(damaged("rows fail their checksum"));
+    }
+    let c = &header.checksums;
+    let body = &bytes[offset..];
+    if c.block == 0 || c.body.len() != size.div_ceil(c.block) {
+        return Err(damaged("header lists the wrong number of body checksums"));
+    }
+    let sums = block_checksums(body, c.block);
+    if let Some(i) = (0..sums.len()).find(|&i| sums[i] != c.body[i]) {
+        let start = offset + i * c.block;
+        let end = (start + c.block).min(bytes.len());
+        return Err(damaged(format!(
+            "body block {} of {} (bytes {start}..{end}) fails its checksum",
+            i + 1,
+            sums.len()
+        )));
+    }
+    let rows = decode_rows(rows_part, &header).map_err(damaged)?;
     Ok((header, rows))
 }
 
@@ -173,11 +333,9 @@ const ROW_BYTES: usize = 4 + 1 + 8 + 24;
 
 fn decode_rows(bytes: &[u8], header: &Header) -> std::result::Result<Vec<IndexedScan>, String> {
     let n = header.rows;
-    let fixed = n * ROW_BYTES;
-    let offsets_end = fixed + 4 * (n + 1);
-    if bytes.len() < offsets_end {
-        return Err("rows cut short".into());
-    }
+    let fixed = n.checked_mul(ROW_BYTES).ok_or("a row count no file holds")?;
+    let offsets_end = n.checked_add(1).and_then(|m| m.checked_mul(4)).and_then(|m| m.checked_add(fixed));
+    let offsets_end = offsets_end.filter(|&e| e <= bytes.len()).ok_or("rows cut short")?;
     let offset = |i: usize| {
         let at = fixed + 4 * i;
         u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")) as usize
