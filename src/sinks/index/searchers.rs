@@ -173,7 +173,7 @@ fn block_checksums(body: &[u8], block: usize) -> Vec<String> {
 /// What [`open`] found at a cache's path.
 pub enum Opened {
     /// A current cache, every checksum checked.
-    Current(Mapped),
+    Current(Box<Mapped>),
     /// None there.
     Missing,
     /// A cache of another generation or method id: rebuilt as a matter of course.
@@ -202,7 +202,7 @@ pub fn open(path: &Path, generation: u64, id: &str, layout: &str) -> Opened {
             header.layout
         )),
         Ok((header, _)) if header.generation != generation || header.id != id => Opened::Stale,
-        Ok((header, rows)) => Opened::Current(Mapped { header, rows, map }),
+        Ok((header, rows)) => Opened::Current(Box::new(Mapped { header, rows, map })),
         Err(Fault::OtherFormat(v)) => {
             Opened::OtherVersion(format!("cache format {v}; this toporec reads {FORMAT_VERSION}"))
         }
