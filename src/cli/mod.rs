@@ -267,7 +267,7 @@ pub fn main() -> ExitCode {
         Command::Simulate(args) => simulate(args.into()).map(|()| Done::All),
         Command::Split(args) => toporec::split::split(&args.into())
             .map_err(Into::into)
-            .and_then(|r| print(&r.to_string()))
+            .and_then(|r| print(&format!("{r}\n")))
             .map(|()| Done::All),
         Command::Diagram(args) => diagram(args).map(|()| Done::All),
         Command::Inspect(args) => toporec::inspect::inspect(&args.path)

@@ -71,7 +71,7 @@ pub struct Header {
     pub sessions: Vec<String>,
     /// Byte offset and length of the body.
     pub body: (usize, usize),
-    /// The checksums of the rows and of the body's blocks (set by [`write`]).
+    /// The checksums of the rows and of the body's blocks (set by [`write()`]).
     #[serde(default)]
     pub checksums: Checksums,
 }
