@@ -164,7 +164,7 @@ pub enum SourceError {
         index: usize,
     },
     /// The format could not be determined.
-    #[error("{path}: unknown cloud format (expected .csv or .bin; use --format)")]
+    #[error("{path}: unknown cloud format (expected .csv, .bin, .pcd or .ply; use --format)")]
     UnknownFormat {
         /// The file.
         path: PathBuf,

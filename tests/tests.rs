@@ -4,6 +4,7 @@ mod atol;
 mod bad_input;
 mod baselines;
 mod cli;
+mod clouds;
 mod codebook;
 mod docs;
 mod eval;

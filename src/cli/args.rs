@@ -468,6 +468,10 @@ pub enum CloudFormat {
     Kitti,
     /// NCLT `velodyne_sync` `.bin`: 8-byte records.
     Nclt,
+    /// PCD (PCL): ascii, binary or binary_compressed.
+    Pcd,
+    /// PLY: ascii or binary, the vertices' x, y, z.
+    Ply,
 }
 
 impl From<QueryArgs> for toporec::query::QueryArgs {
@@ -690,6 +694,8 @@ impl From<CloudFormat> for toporec::sources::CloudFormat {
             CloudFormat::Csv => toporec::sources::CloudFormat::Csv,
             CloudFormat::Kitti => toporec::sources::CloudFormat::Kitti,
             CloudFormat::Nclt => toporec::sources::CloudFormat::Nclt,
+            CloudFormat::Pcd => toporec::sources::CloudFormat::Pcd,
+            CloudFormat::Ply => toporec::sources::CloudFormat::Ply,
         }
     }
 }

@@ -18,14 +18,20 @@ pub enum CloudFormat {
     Kitti,
     /// NCLT `velodyne_sync` `.bin`: 8-byte records.
     Nclt,
+    /// PCD (PCL): ascii, binary or binary_compressed.
+    Pcd,
+    /// PLY: ascii or binary, the vertices' x, y, z.
+    Ply,
 }
 
 impl CloudFormat {
-    /// The format a file name implies: `.csv`; `.bin` under a `velodyne_sync` folder is NCLT,
+    /// The format a file name implies: `.csv`, `.pcd`, `.ply`; `.bin` under a `velodyne_sync` folder is NCLT,
     /// any other `.bin` KITTI.
     pub fn of_path(path: &Path) -> Option<Self> {
         match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
             "csv" => Some(CloudFormat::Csv),
+            "pcd" => Some(CloudFormat::Pcd),
+            "ply" => Some(CloudFormat::Ply),
             "bin" => {
                 let parent = path.parent().and_then(|p| p.file_name()).and_then(|n| n.to_str());
                 Some(if parent == Some("velodyne_sync") { CloudFormat::Nclt } else { CloudFormat::Kitti })
@@ -119,6 +125,8 @@ impl InputKind {
             InputKind::Cloud(CloudFormat::Csv) => "csv cloud",
             InputKind::Cloud(CloudFormat::Kitti) => "kitti scan",
             InputKind::Cloud(CloudFormat::Nclt) => "nclt velodyne_sync scan",
+            InputKind::Cloud(CloudFormat::Pcd) => "pcd cloud",
+            InputKind::Cloud(CloudFormat::Ply) => "ply cloud",
         }
     }
 

@@ -15,6 +15,8 @@ pub mod kitti;
 pub mod mcap;
 pub mod mcap_reader;
 pub mod nclt;
+pub mod pcd;
+pub mod ply;
 pub mod pointcloud2;
 pub mod pointnetvlad;
 
@@ -325,6 +327,8 @@ pub(crate) fn read_cloud_file(
         CloudFormat::Csv => csv::parse_xyz(&bytes, path)?,
         CloudFormat::Kitti => kitti::decode(&bytes, path)?.points,
         CloudFormat::Nclt => nclt::decode_sync(&bytes, path)?.points,
+        CloudFormat::Pcd => pcd::decode(&bytes, path)?,
+        CloudFormat::Ply => ply::decode(&bytes, path)?,
     };
     if let Some(index) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
         return Err(SourceError::NonFinite { path: path.to_owned(), index });
