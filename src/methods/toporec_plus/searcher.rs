@@ -5,13 +5,11 @@
 use super::PlusParams;
 use super::distance::{Entry, Query, columns_of, distance_to, reach};
 use super::keys::*;
-use super::pose::Aligner;
 use crate::methods::Computed;
 use crate::methods::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
-use std::sync::Arc;
 
 /// A hit: database row, distance, yaw of the query relative to it (degrees).
-pub(super) type PlusHit = (usize, f64, f64);
+pub type PlusHit = (usize, f64, f64);
 
 /// Entries the first step of the shape list keeps, per row of the list: their filled shares
 /// per ring are nearest the query's.
@@ -32,8 +30,6 @@ pub(super) const FUSION_K: f64 = 10.0;
 /// kept as their code columns (a byte a code), not as descriptors.
 pub struct Searcher {
     params: PlusParams,
-    /// The fine stage's phase correlation, planned once.
-    aligner: Arc<Aligner>,
     /// Entries.
     n: usize,
     /// Every entry's columns and keys, by sections ([`Section`]): owned (and growing), or
@@ -42,8 +38,7 @@ pub struct Searcher {
 }
 
 /// The sections of a searcher's buffer, per entry: the code columns (u8), reach (u8); the first
-/// pass's keys ([`firsts`]), the shape key and the profile key (each [`quantized`]); the
-/// Cartesian image's codes (u8, [`super::pose`]).
+/// pass's keys ([`firsts`]), the shape key and the profile key (each [`quantized`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Section {
     Columns,
@@ -51,23 +46,21 @@ pub(super) enum Section {
     Firsts,
     Shapes,
     Profiles,
-    Image,
 }
 
-pub(super) const SECTIONS: usize = 6;
+pub(super) const SECTIONS: usize = 5;
 pub(super) const ALL_SECTIONS: [Section; SECTIONS] =
-    [Section::Columns, Section::Reach, Section::Firsts, Section::Shapes, Section::Profiles, Section::Image];
+    [Section::Columns, Section::Reach, Section::Firsts, Section::Shapes, Section::Profiles];
 
 impl Section {
     /// Bytes per entry.
     fn entry_bytes(self, p: &PlusParams) -> usize {
         match self {
-            Section::Columns => p.polar_len(),
+            Section::Columns => p.len(),
             Section::Reach => 1,
             Section::Firsts => FIRSTS * first_width(p),
             Section::Shapes => shape_len(p),
             Section::Profiles => profile_len(p),
-            Section::Image => p.image_side * p.image_side,
         }
     }
 
@@ -103,7 +96,7 @@ impl Section {
 
 /// The layout of a searcher's bytes ([`Searcher::bytes`]), as a cache file names it: a cache of
 /// another layout is rebuilt.
-pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-4";
+pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-3";
 
 /// Sections start on 64-byte boundaries.
 pub(super) const SECTION_ALIGN: usize = 64;
@@ -123,7 +116,7 @@ pub(super) fn layout(n: usize, p: &PlusParams) -> ([usize; SECTIONS], usize) {
 /// their byte ranges (each section's own bytes, without the alignment after it).
 pub fn body_sections(n: usize, p: &PlusParams) -> Vec<(&'static str, std::ops::Range<usize>)> {
     let (offsets, _) = layout(n, p);
-    let names = ["columns", "reach", "firsts", "shapes", "profiles", "image"];
+    let names = ["columns", "reach", "firsts", "shapes", "profiles"];
     (0..SECTIONS).map(|i| (names[i], offsets[i]..offsets[i] + ALL_SECTIONS[i].bytes_for(n, p))).collect()
 }
 
@@ -339,12 +332,7 @@ impl Searcher {
                 section.append(to, row, from, p);
             }
         }
-        Searcher {
-            n: parts.len(),
-            aligner: Arc::new(Aligner::new(&params)),
-            params,
-            store: Store::Owned(sections),
-        }
+        Searcher { n: parts.len(), params, store: Store::Owned(sections) }
     }
 
     /// The searcher's bytes, its sections laid out as a cache file's body holds them
@@ -374,12 +362,7 @@ impl Searcher {
                 map.len().saturating_sub(body)
             ));
         }
-        Ok(Searcher {
-            aligner: Arc::new(Aligner::new(&params)),
-            params,
-            n,
-            store: Store::Mapped { map, body, offsets },
-        })
+        Ok(Searcher { params, n, store: Store::Mapped { map, body, offsets } })
     }
 
     /// The entries `rows` (in that order) in a searcher of their own, copied.
@@ -393,12 +376,7 @@ impl Searcher {
             }
             out
         });
-        Searcher {
-            params: self.params.clone(),
-            aligner: self.aligner.clone(),
-            n: rows.len(),
-            store: Store::Owned(sections),
-        }
+        Searcher { params: self.params.clone(), n: rows.len(), store: Store::Owned(sections) }
     }
 
     /// The same entries searched with other search settings (candidates, shift range); the
@@ -488,7 +466,7 @@ impl Searcher {
     }
 
     /// The `k` best rows for `query`, by (distance, row), with the time of each step.
-    pub fn search(&self, query: &[f32], k: usize) -> (Vec<Hit>, SearchTimes) {
+    pub fn search(&self, query: &[f32], k: usize) -> (Vec<PlusHit>, SearchTimes) {
         self.search_where(query, k, &|_| true)
     }
 
@@ -499,7 +477,7 @@ impl Searcher {
         query: &[f32],
         k: usize,
         allowed: &dyn Fn(usize) -> bool,
-    ) -> (Vec<Hit>, SearchTimes) {
+    ) -> (Vec<PlusHit>, SearchTimes) {
         let p = &self.params;
         let t = std::time::Instant::now();
         let wanted = p.candidates.max(k);
@@ -520,70 +498,18 @@ impl Searcher {
             })
             .collect();
         hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        let hits = self.fine(query, hits, k);
+        hits.truncate(k);
         (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
     }
-
-    /// The fine stage over hits sorted by the polar distance: the pose of the query relative to
-    /// each of the best `fine` ([`super::pose`]), and every hit's distance the polar one plus
-    /// [`POSE_WEIGHT`] times its offset along the candidate's heading ([`forward_offset`]; a hit
-    /// not posed, or posed by a correlation peak below [`PEAK_FLOOR`], counts as
-    /// [`OFFSET_CAP`]); the best `k` by that, then by row.
-    fn fine(&self, query: &[f32], hits: Vec<PlusHit>, k: usize) -> Vec<Hit> {
-        let p = &self.params;
-        let image: Vec<u8> = image_codes(query, p);
-        // Without a fine stage the polar distance alone ranks, unchanged.
-        let unposed = if p.fine == 0 { 0.0 } else { POSE_WEIGHT * OFFSET_CAP };
-        let mut out: Vec<Hit> = hits
-            .into_iter()
-            .enumerate()
-            .map(|(rank, (row, d, yaw))| {
-                if rank >= p.fine {
-                    return Hit { row, distance: d + unposed, yaw_degrees: Some(yaw), offset: None };
-                }
-                let pose = self.aligner.pose(&image, self.entry_section(Section::Image, row), yaw, p);
-                let counted = if pose.peak >= PEAK_FLOOR { forward_offset(pose.x) } else { OFFSET_CAP };
-                let distance = d + POSE_WEIGHT * counted;
-                Hit { row, distance, yaw_degrees: Some(yaw), offset: Some([pose.x, pose.y]) }
-            })
-            .collect();
-        out.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.row.cmp(&b.row)));
-        out.truncate(k);
-        out
-    }
-}
-
-/// How much a metre of offset adds to the distance in the fine stage.
-pub(super) const POSE_WEIGHT: f64 = 0.2;
-
-/// The lowest phase-correlation peak whose offset the fine stage trusts: below it, two images
-/// share too little for their offset to say anything (a candidate of another place, or a view
-/// mostly hidden), and the hit counts as not posed. Its pose is reported all the same.
-pub(super) const PEAK_FLOOR: f64 = 0.15;
-
-/// The largest offset the fine stage counts (m): beyond it a pose says only "elsewhere".
-pub(super) const OFFSET_CAP: f64 = 4.0;
-
-/// The offset of a pose as the fine stage counts it: its forward part `|x|`, at most
-/// [`OFFSET_CAP`]. Neighbouring map scans of a drive lie along their headings, so how far the
-/// query is ahead of or behind each says which is nearest; a lateral offset (a lane over) is
-/// common to them all and says little, and the pose is reported with it, not ranked by it.
-pub(super) fn forward_offset(x: f64) -> f64 {
-    x.abs().min(OFFSET_CAP)
-}
-
-/// The Cartesian image's codes of a descriptor, as bytes.
-fn image_codes(d: &[f32], p: &PlusParams) -> Vec<u8> {
-    d[p.polar_len()..].iter().map(|&v| v.clamp(0.0, 255.0) as u8).collect()
 }
 
 /// The sections' bytes of one entry.
 pub(super) fn entry(d: &[f32], p: &PlusParams) -> [Vec<u8>; SECTIONS] {
-    let mut columns = vec![0u8; p.polar_len()];
+    let mut columns = vec![0u8; p.len()];
     columns_of(d, p, &mut columns);
     let (shape, profile) = (quantized(&shape_key(d, p)), quantized(&profile_key(d, p)));
     let first = firsts(&shape, &profile, &quantized(&ring_key(d, p)), p);
-    [columns, vec![reach(d, p) as u8], first, shape, profile, image_codes(d, p)]
+    [columns, vec![reach(d, p) as u8], first, shape, profile]
 }
 
 /// Rows ahead whose bytes a scan of scattered rows asks for.
@@ -623,7 +549,8 @@ impl crate::methods::Searcher for Searcher {
     }
 
     fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
-        self.search_where(query, k, allowed.unwrap_or(&|_| true))
+        let (hits, times) = self.search_where(query, k, allowed.unwrap_or(&|_| true));
+        (hits.into_iter().map(|(row, d, yaw)| Hit::turned(row, d, yaw)).collect(), times)
     }
 
     fn set_budget(&mut self, budget: SearchBudget, entries: usize) {
