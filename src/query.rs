@@ -114,6 +114,8 @@ pub fn hits_batch(engine: &Engine, answers: &[(&str, &[Hit])]) -> RecordBatch {
         pose(1),
         pose(2),
         Arc::new(Float64Array::from(rows.iter().map(|r| r.2.yaw_degrees).collect::<Vec<_>>())),
+        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.offset.map(|o| o[0])).collect::<Vec<_>>())),
+        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.offset.map(|o| o[1])).collect::<Vec<_>>())),
     ];
     RecordBatch::try_new(crate::sinks::schema::query_hits().plain_schema(), columns)
         .expect("the columns of the query table")

@@ -261,7 +261,7 @@ fn info_says_what_an_index_holds() {
         "2026-01-01        32       32        0        0",
         "toporec: length 50, codebook ",
         "scancontext: length 1200, id ",
-        "toporec-plus: length 2400, id ",
+        "toporec-plus: length 4000, id ",
         "m2dp: length 192, id ",
         "solid: length 100, id ",
         "[descriptors]",

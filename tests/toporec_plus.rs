@@ -50,24 +50,24 @@ fn turned_kitti_scans_find_themselves_at_twelve_angles() {
             let q = toporec_plus::describe(&turned(cloud, angle), &p).unwrap();
             let (hits, _) = searcher.search(&q, 3);
             assert_eq!(
-                hits[0].0,
+                hits[0].row,
                 i,
                 "{} turned by {angle}°: top-1 is row {} ({hits:?})",
                 path.display(),
-                hits[0].0
+                hits[0].row
             );
             // The yaw estimate: within a sixth of a sector (2°) plus a sector's rounding.
-            let yaw = hits[0].2;
+            let yaw = hits[0].yaw_degrees.unwrap();
             let off = (yaw - angle).rem_euclid(360.0).min((angle - yaw).rem_euclid(360.0));
             assert!(off <= 6.0, "{} turned by {angle}°: yaw {yaw}", path.display());
             if step % 3 == 0 {
                 // A quarter turn maps the voxel grid and the polar grid onto themselves: the
                 // descriptor is the original's shifted by 15 sectors, and the distance 0.
                 assert!(
-                    hits[0].1.abs() <= 1e-9,
+                    hits[0].distance.abs() <= 1e-9,
                     "{} turned by {angle}°: distance {}",
                     path.display(),
-                    hits[0].1
+                    hits[0].distance
                 );
                 assert_eq!(yaw, angle, "{} turned by {angle}°", path.display());
             }

@@ -538,7 +538,8 @@ impl LoopDetector {
     }
 
     /// Describes and adds one scan; its best allowed earlier match as
-    /// `(row, distance, yaw, rank2, true_distance, accepted)`, or None for the first scans.
+    /// `(row, distance, yaw, offset, rank2, true_distance, accepted)`, or None for the first
+    /// scans.
     #[pyo3(signature = (points, time, session, pose))]
     #[expect(clippy::type_complexity, reason = "a plain tuple the Python layer names")]
     fn add(
@@ -548,7 +549,7 @@ impl LoopDetector {
         time: Option<f64>,
         session: &str,
         pose: Option<[f64; 3]>,
-    ) -> PyResult<Option<(usize, f64, Option<f64>, Option<f64>, Option<f64>, bool)>> {
+    ) -> PyResult<Option<(usize, f64, Option<f64>, Option<[f64; 2]>, Option<f64>, Option<f64>, bool)>> {
         let pts = points_of(&points, "points")?;
         if let Some(t) = time.filter(|t| !t.is_finite()) {
             return Err(value_error(format!("time {t}: must be finite")));
@@ -557,7 +558,9 @@ impl LoopDetector {
         let found = py
             .detach(|| self.inner.lock().expect("not poisoned").add(&pts, utime, session, pose))
             .map_err(value_error)?;
-        Ok(found.map(|m| (m.row, m.distance, m.yaw_degrees, m.rank2_distance, m.true_distance_m, m.accepted)))
+        Ok(found.map(|m| {
+            (m.row, m.distance, m.yaw_degrees, m.offset, m.rank2_distance, m.true_distance_m, m.accepted)
+        }))
     }
 
     /// Scans added.

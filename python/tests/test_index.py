@@ -58,7 +58,7 @@ def sample_files():
 def test_query_paths_match_the_cli(sample_index, tmp_path, binary):
     day2 = REPO / "samples" / "town" / "velodyne_data" / "2026-01-02"
     table = toporec.Index(sample_index).query(day2, k=3)
-    assert table.column_names == "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z,yaw_deg".split(",")
+    assert table.column_names == "query_id,rank,scan_id,session,distance,pose_x,pose_y,pose_z,yaw_deg,x_m,y_m".split(",")
     first = table.filter(pa.compute.equal(table["rank"], 1))
     assert first["query_id"].to_pylist() == first["scan_id"].to_pylist()
     assert max(first["distance"].to_pylist()) == 0.0

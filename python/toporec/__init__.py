@@ -308,7 +308,9 @@ class Index:
         sessions: Sequence[str] = (),
     ) -> pa.Table:
         """The ``k`` nearest indexed scans of each query, laid out as ``toporec query``'s CSV:
-        ``query_id, rank, scan_id, session, distance, pose_x, pose_y, pose_z, yaw_deg``.
+        ``query_id, rank, scan_id, session, distance, pose_x, pose_y, pose_z, yaw_deg, x_m, y_m``
+        (``x_m``, ``y_m``: the query's estimated position in the hit's sensor frame, x forward and
+        y left, for the methods that estimate one).
 
         ``scans``: an ``(n, 3)`` array of points in the sensor frame (described as the index
         describes its scans), a path (scan file, cloud, folder or log, as ``toporec query``
@@ -518,8 +520,10 @@ class LoopDetector:
         """Describes and adds one scan (sensor frame, metres, z up; ``time`` in seconds).
 
         Returns the accepted loop as a dict — ``match`` (the position of the earlier scan among
-        those added, 0 the first), ``distance``, ``yaw_degrees``, ``rank2_distance``,
-        ``true_distance_m`` (when both scans were given a pose) — or None.
+        those added, 0 the first), ``distance``, ``yaw_degrees``, ``x_m`` and ``y_m`` (the
+        scan's estimated position in the match's sensor frame, x forward and y left, for the
+        methods that estimate one, else None), ``rank2_distance``, ``true_distance_m`` (when both
+        scans were given a pose) — or None.
 
         Raises:
             ValueError: the points are not an ``(n, 3)`` array, or the method cannot describe
@@ -531,11 +535,14 @@ class LoopDetector:
         if found is None:
             self.last_match = None
             return None
-        row, distance, yaw, rank2, true_distance, accepted = found
+        row, distance, yaw, offset, rank2, true_distance, accepted = found
+        x, y = offset if offset is not None else (None, None)
         self.last_match = {
             "match": row,
             "distance": distance,
             "yaw_degrees": yaw,
+            "x_m": x,
+            "y_m": y,
             "rank2_distance": rank2,
             "true_distance_m": true_distance,
             "accepted": accepted,

@@ -17,6 +17,9 @@ pub struct Match {
     pub distance: f64,
     /// The query's yaw relative to the match (degrees), for the methods that estimate one.
     pub yaw_degrees: Option<f64>,
+    /// The query's estimated position in the match's sensor frame (x forward, y left, m), for
+    /// the methods that estimate one.
+    pub offset: Option<[f64; 2]>,
     /// The second-best allowed match's distance.
     pub rank2_distance: Option<f64>,
     /// The distance between the two scans' poses (m), when both were given one.
@@ -160,10 +163,11 @@ impl Detector {
             )
         };
         let (hits, _) = self.growing.search(descriptor, 2, Some(&allowed));
-        let found = hits.first().map(|&Hit { row, distance, yaw_degrees, .. }| Match {
+        let found = hits.first().map(|&Hit { row, distance, yaw_degrees, offset }| Match {
             row,
             distance,
             yaw_degrees,
+            offset,
             rank2_distance: hits.get(1).map(|h| h.distance),
             true_distance_m: pose.zip(self.pose[row]).map(|(a, b)| distance3(a, b)),
             accepted: distance < self.threshold,

@@ -81,6 +81,9 @@ pub struct LoopRow {
     pub distance: f64,
     /// The yaw of the query relative to the match (degrees), for methods that give one.
     pub yaw_degrees: Option<f64>,
+    /// The query's estimated position in the match's sensor frame (x forward, y left, m), for
+    /// methods that give one.
+    pub offset: Option<[f64; 2]>,
     /// The second-best allowed match's distance.
     pub rank2_distance: Option<f64>,
     /// The distance between the two scans' poses (m), when both have one.
@@ -240,7 +243,7 @@ pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> 
     matches
         .iter()
         .filter_map(|(query, best)| {
-            let crate::methods::Hit { row, distance, yaw_degrees: yaw, .. } = *best.first()?;
+            let crate::methods::Hit { row, distance, yaw_degrees: yaw, offset } = *best.first()?;
             let (q, m) = (&scans[*query], &scans[row]);
             Some(LoopRow {
                 method: engine.method.name.clone(),
@@ -250,6 +253,7 @@ pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> 
                 matched_session: m.session.clone(),
                 distance,
                 yaw_degrees: yaw,
+                offset,
                 rank2_distance: best.get(1).map(|b| b.distance),
                 true_distance_m: match (q.pose, m.pose) {
                     (Some(a), Some(b)) => Some(distance3(a, b)),
@@ -658,6 +662,8 @@ pub(crate) fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
         strings(&|r| &r.matched_session),
         floats(&|r| Some(r.distance)),
         floats(&|r| r.yaw_degrees),
+        floats(&|r| r.offset.map(|o| o[0])),
+        floats(&|r| r.offset.map(|o| o[1])),
         floats(&|r| r.rank2_distance),
         floats(&|r| r.true_distance_m),
         Arc::new(BooleanArray::from(rows.iter().map(|r| r.accepted).collect::<Vec<_>>())),

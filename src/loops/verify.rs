@@ -126,7 +126,7 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> 
             let (Some(Ok(q)), Some(Ok(m))) = (clouds.get(&r.query_scan), clouds.get(&r.matched_scan)) else {
                 return Some(failure);
             };
-            match best_alignment(q, m, r.yaw_degrees, &p) {
+            match best_alignment(q, m, r.yaw_degrees, r.offset, &p) {
                 Ok(a) => Some(Check {
                     passed: a.fitness >= limits.min_fitness && a.rmse <= limits.max_rmse,
                     fitness: a.fitness,
@@ -155,13 +155,16 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> 
 }
 
 /// The better of the alignments from the descriptor's yaw taken either way round (the methods
-/// differ in its sign; at 0° and 180° both are one), by fitness, then RMSE.
+/// differ in its sign; at 0° and 180° both are one), by fitness, then RMSE; each starts at the
+/// method's estimate of the query's position in the match's frame, where it gives one.
 fn best_alignment(
     query: &[Point],
     matched: &[Point],
     yaw_degrees: Option<f64>,
+    offset: Option<[f64; 2]>,
     p: &IcpParams,
 ) -> std::result::Result<icp::Alignment, String> {
+    let [x, y] = offset.unwrap_or([0.0, 0.0]);
     let yaw = yaw_degrees.unwrap_or(0.0);
     let mut guesses = vec![yaw];
     if (yaw.rem_euclid(180.0)).abs() > 1e-9 {
@@ -170,7 +173,12 @@ fn best_alignment(
     let mut best: Option<icp::Alignment> = None;
     let mut last_error = String::new();
     for g in guesses {
-        match icp::align(query, matched, Isometry3::rotation(Vector3::z() * g.to_radians()), p) {
+        match icp::align(
+            query,
+            matched,
+            Isometry3::new(Vector3::new(x, y, 0.0), Vector3::z() * g.to_radians()),
+            p,
+        ) {
             Ok(a) => {
                 if best.as_ref().is_none_or(|b| (a.fitness, -a.rmse) > (b.fitness, -b.rmse)) {
                     best = Some(a);

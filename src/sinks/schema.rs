@@ -239,6 +239,12 @@ fn descriptors_of(b: usize, values: DataType) -> Table {
     }
 }
 
+/// The columns of a match's estimated offset, in `query`'s and `loops`' tables alike.
+const X_M: &str = "x_m";
+const Y_M: &str = "y_m";
+const OFFSET_X_DOC: &str = "the query's estimated position in the database scan's sensor frame: x, forward (m), for the methods that estimate one";
+const OFFSET_Y_DOC: &str = "likewise y, left (m)";
+
 /// `query`'s hits: one row per query and rank (CSV from `toporec query`, Arrow from Python's
 /// `Index.query`).
 pub fn query_hits() -> Table {
@@ -264,6 +270,8 @@ pub fn query_hits() -> Table {
                 true,
                 "the query's yaw relative to the database scan (degrees, [0, 360)), for the methods that estimate one",
             ),
+            col(X_M, Float64, true, OFFSET_X_DOC),
+            col(Y_M, Float64, true, OFFSET_Y_DOC),
         ],
     }
 }
@@ -291,6 +299,8 @@ pub fn loops() -> Table {
                 true,
                 "the query's yaw relative to the match (degrees), for methods that give one",
             ),
+            col(X_M, Float64, true, OFFSET_X_DOC),
+            col(Y_M, Float64, true, OFFSET_Y_DOC),
             col("rank2_distance", Float64, true, "the second-best allowed match's distance"),
             col(
                 "true_distance_m",

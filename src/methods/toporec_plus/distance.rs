@@ -2,7 +2,6 @@
 //! sub-sector turn of the query, with an AVX2 build of the same integer sums.
 
 use super::{CHANNELS, LEVELS, PlusParams};
-use crate::methods::Computed;
 
 /// A descriptor's codes as bytes, column by column: `[sector][channel][ring]`.
 pub(super) fn columns_of(descriptor: &[f32], p: &PlusParams, out: &mut [u8]) {
@@ -208,7 +207,7 @@ pub(super) fn mean_cosine_distance(
 /// filled in both), and the yaw of the query relative to the candidate (degrees, [0, 360),
 /// counter-clockwise seen from above) that attains it.
 pub fn distance(query: &[f32], candidate: &[f32], p: &PlusParams) -> (f64, f64) {
-    let mut columns = vec![0u8; p.len()];
+    let mut columns = vec![0u8; p.polar_len()];
     columns_of(candidate, p, &mut columns);
     distance_to(&Query::new(query, p), Entry { columns: &columns, reach: reach(candidate, p) }, p)
 }

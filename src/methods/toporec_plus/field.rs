@@ -2,7 +2,6 @@
 //! grid of codes: the descriptor ([`describe`]).
 
 use super::{HEIGHT_SCALE, LEVELS, PlusParams, RELIEF};
-use crate::methods::Computed;
 use crate::types::Point;
 
 /// The squares on a side of the height field: an even number, so that the sensor sits on a
@@ -144,10 +143,16 @@ impl HeightField {
     }
 }
 
+/// The code of a share of a channel's scale: its square root in 256 levels.
+fn code(share: f64) -> f32 {
+    (share.min(1.0).sqrt() * LEVELS).round() as f32
+}
+
 /// The descriptor of a raw scan (sensor frame, metres, z up): `2 × rings × sectors` codes in
-/// `0..=255` (`[channel][ring][sector]`, channel 0 the relief, 1 the height). An error for a
-/// scan with no return within `max_radius`: it has no descriptor (an error row), never a zero
-/// vector.
+/// `0..=255` (`[channel][ring][sector]`, channel 0 the relief, 1 the height), then the
+/// Cartesian image's `image_side²` height codes (`[x cell][y cell]`, [`super::pose`]). An error
+/// for a scan with no return within `max_radius`: it has no descriptor (an error row), never a
+/// zero vector.
 pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, String> {
     let field = height_field(points, p);
     if field.filled.is_empty() {
@@ -155,7 +160,7 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, String> {
     }
     let (order, relief) = field.relief();
     let (rings, sectors) = (p.rings, p.sectors);
-    let mut grid = vec![0f64; p.len()];
+    let mut grid = vec![0f64; p.polar_len()];
     let sector = p.sector_degrees();
     for (&k, &r) in order.iter().zip(&relief) {
         let (x, y) = field.centre(k as usize, p.cell);
@@ -186,7 +191,7 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, String> {
         let cell = &mut grid[((1 - RELIEF) * rings + ring) * sectors + s];
         *cell = cell.max(h);
     }
-    let mut out = vec![0f32; p.len()];
+    let mut out = vec![0f32; p.polar_len()];
     for (ch, (codes, values)) in
         out.chunks_exact_mut(rings * sectors).zip(grid.chunks_exact(rings * sectors)).enumerate()
     {
@@ -194,9 +199,13 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, String> {
         let largest = if ch == RELIEF { values.iter().copied().fold(0.0, f64::max) } else { HEIGHT_SCALE };
         if largest > 0.0 {
             for (c, &v) in codes.iter_mut().zip(values) {
-                *c = ((v / largest).min(1.0).sqrt() * LEVELS).round() as f32;
+                *c = code(v / largest);
             }
         }
     }
+    // The Cartesian image: each square's height code, the highest in an image cell.
+    let height = |k: usize| code((field.height[k] as f64 + p.lidar_height).max(0.0) / HEIGHT_SCALE);
+    let squares = field.filled.iter().map(|&k| (field.centre(k as usize, p.cell), height(k as usize)));
+    out.extend(super::pose::image(squares, p));
     Ok(out)
 }

@@ -3,7 +3,6 @@
 
 use super::distance::columns_of;
 use super::{CHANNELS, HEIGHT_SCALE, LEVELS, PlusParams, RELIEF};
-use crate::methods::Computed;
 
 /// Terms of the shape key: the magnitudes of the first `SHAPE_TERMS` terms of the discrete
 /// Fourier transform along the sectors.
@@ -65,7 +64,7 @@ pub(super) fn shape_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
 /// was, where it moves every term of the shape key.
 pub(super) fn profile_key(descriptor: &[f32], p: &PlusParams) -> Vec<f32> {
     let (rings, sectors, height) = (p.rings, p.sectors, p.height());
-    let mut columns = vec![0u8; p.len()];
+    let mut columns = vec![0u8; p.polar_len()];
     columns_of(descriptor, p, &mut columns);
     let (mut mean, mut square) = (vec![0f64; height], vec![0f64; height]);
     let mut n = 0usize;

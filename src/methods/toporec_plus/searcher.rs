@@ -5,11 +5,13 @@
 use super::PlusParams;
 use super::distance::{Entry, Query, columns_of, distance_to, reach};
 use super::keys::*;
+use super::pose::Aligner;
 use crate::methods::Computed;
 use crate::methods::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
+use std::sync::Arc;
 
 /// A hit: database row, distance, yaw of the query relative to it (degrees).
-pub type PlusHit = (usize, f64, f64);
+pub(super) type PlusHit = (usize, f64, f64);
 
 /// Entries the first step of the shape list keeps, per row of the list: their filled shares
 /// per ring are nearest the query's.
@@ -30,6 +32,8 @@ pub(super) const FUSION_K: f64 = 10.0;
 /// kept as their code columns (a byte a code), not as descriptors.
 pub struct Searcher {
     params: PlusParams,
+    /// The fine stage's phase correlation, planned once.
+    aligner: Arc<Aligner>,
     /// Entries.
     n: usize,
     /// Every entry's columns and keys, by sections ([`Section`]): owned (and growing), or
@@ -38,7 +42,8 @@ pub struct Searcher {
 }
 
 /// The sections of a searcher's buffer, per entry: the code columns (u8), reach (u8); the first
-/// pass's keys ([`firsts`]), the shape key and the profile key (each [`quantized`]).
+/// pass's keys ([`firsts`]), the shape key and the profile key (each [`quantized`]); the
+/// Cartesian image's codes (u8, [`super::pose`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Section {
     Columns,
@@ -46,21 +51,23 @@ pub(super) enum Section {
     Firsts,
     Shapes,
     Profiles,
+    Image,
 }
 
-pub(super) const SECTIONS: usize = 5;
+pub(super) const SECTIONS: usize = 6;
 pub(super) const ALL_SECTIONS: [Section; SECTIONS] =
-    [Section::Columns, Section::Reach, Section::Firsts, Section::Shapes, Section::Profiles];
+    [Section::Columns, Section::Reach, Section::Firsts, Section::Shapes, Section::Profiles, Section::Image];
 
 impl Section {
     /// Bytes per entry.
     fn entry_bytes(self, p: &PlusParams) -> usize {
         match self {
-            Section::Columns => p.len(),
+            Section::Columns => p.polar_len(),
             Section::Reach => 1,
             Section::Firsts => FIRSTS * first_width(p),
             Section::Shapes => shape_len(p),
             Section::Profiles => profile_len(p),
+            Section::Image => p.image_side * p.image_side,
         }
     }
 
@@ -96,7 +103,7 @@ impl Section {
 
 /// The layout of a searcher's bytes ([`Searcher::bytes`]), as a cache file names it: a cache of
 /// another layout is rebuilt.
-pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-3";
+pub const SEARCHER_LAYOUT: &str = "toporec-plus/height-field-4";
 
 /// Sections start on 64-byte boundaries.
 pub(super) const SECTION_ALIGN: usize = 64;
@@ -116,7 +123,7 @@ pub(super) fn layout(n: usize, p: &PlusParams) -> ([usize; SECTIONS], usize) {
 /// their byte ranges (each section's own bytes, without the alignment after it).
 pub fn body_sections(n: usize, p: &PlusParams) -> Vec<(&'static str, std::ops::Range<usize>)> {
     let (offsets, _) = layout(n, p);
-    let names = ["columns", "reach", "firsts", "shapes", "profiles"];
+    let names = ["columns", "reach", "firsts", "shapes", "profiles", "image"];
     (0..SECTIONS).map(|i| (names[i], offsets[i]..offsets[i] + ALL_SECTIONS[i].bytes_for(n, p))).collect()
 }
 
@@ -332,7 +339,12 @@ impl Searcher {
                 section.append(to, row, from, p);
             }
         }
-        Searcher { n: parts.len(), params, store: Store::Owned(sections) }
+        Searcher {
+            n: parts.len(),
+            aligner: Arc::new(Aligner::new(&params)),
+            params,
+            store: Store::Owned(sections),
+        }
     }
 
     /// The searcher's bytes, its sections laid out as a cache file's body holds them
@@ -362,7 +374,12 @@ impl Searcher {
                 map.len().saturating_sub(body)
             ));
         }
-        Ok(Searcher { params, n, store: Store::Mapped { map, body, offsets } })
+        Ok(Searcher {
+            aligner: Arc::new(Aligner::new(&params)),
+            params,
+            n,
+            store: Store::Mapped { map, body, offsets },
+        })
     }
 
     /// The entries `rows` (in that order) in a searcher of their own, copied.
@@ -376,7 +393,12 @@ impl Searcher {
             }
             out
         });
-        Searcher { params: self.params.clone(), n: rows.len(), store: Store::Owned(sections) }
+        Searcher {
+            params: self.params.clone(),
+            aligner: self.aligner.clone(),
+            n: rows.len(),
+            store: Store::Owned(sections),
+        }
     }
 
     /// The same entries searched with other search settings (candidates, shift range); the
@@ -466,7 +488,7 @@ impl Searcher {
     }
 
     /// The `k` best rows for `query`, by (distance, row), with the time of each step.
-    pub fn search(&self, query: &[f32], k: usize) -> (Vec<PlusHit>, SearchTimes) {
+    pub fn search(&self, query: &[f32], k: usize) -> (Vec<Hit>, SearchTimes) {
         self.search_where(query, k, &|_| true)
     }
 
@@ -477,7 +499,7 @@ impl Searcher {
         query: &[f32],
         k: usize,
         allowed: &dyn Fn(usize) -> bool,
-    ) -> (Vec<PlusHit>, SearchTimes) {
+    ) -> (Vec<Hit>, SearchTimes) {
         let p = &self.params;
         let t = std::time::Instant::now();
         let wanted = p.candidates.max(k);
@@ -498,18 +520,72 @@ impl Searcher {
             })
             .collect();
         hits.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-        hits.truncate(k);
+        let hits = self.fine(query, hits, k);
         (hits, SearchTimes { candidates: candidates_secs, rerank: t.elapsed().as_secs_f64() })
     }
+
+    /// The fine stage over hits sorted by the polar distance: the pose of the query relative to
+    /// each of the best `fine` ([`super::pose`]), which are then ordered by a score, the polar
+    /// distance plus [`POSE_WEIGHT`] times the offset along the candidate's heading
+    /// ([`forward_offset`]; posed by a correlation peak below [`PEAK_FLOOR`], counts as
+    /// [`OFFSET_CAP`]), ties by row; the rest follow in polar order. Every hit reports its polar
+    /// distance: the score orders the few, and a threshold on the distance (loop closure) keeps
+    /// the scale of the polar ranking.
+    fn fine(&self, query: &[f32], hits: Vec<PlusHit>, k: usize) -> Vec<Hit> {
+        let p = &self.params;
+        let image: Vec<u8> = image_codes(query, p);
+        let mut posed: Vec<(f64, Hit)> = hits
+            .iter()
+            .take(p.fine)
+            .map(|&(row, d, yaw)| {
+                let pose = self.aligner.pose(&image, self.entry_section(Section::Image, row), yaw, p);
+                let counted = if pose.peak >= PEAK_FLOOR { forward_offset(pose.x) } else { OFFSET_CAP };
+                let hit = Hit { row, distance: d, yaw_degrees: Some(yaw), offset: Some([pose.x, pose.y]) };
+                (d + POSE_WEIGHT * counted, hit)
+            })
+            .collect();
+        posed.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.row.cmp(&b.1.row)));
+        let rest = hits.iter().skip(p.fine).map(|&(row, d, yaw)| Hit {
+            row,
+            distance: d,
+            yaw_degrees: Some(yaw),
+            offset: None,
+        });
+        posed.into_iter().map(|(_, hit)| hit).chain(rest).take(k).collect()
+    }
+}
+
+/// How much a metre of offset adds to the distance in the fine stage.
+pub(super) const POSE_WEIGHT: f64 = 0.2;
+
+/// The lowest phase-correlation peak whose offset the fine stage trusts: below it, two images
+/// share too little for their offset to say anything (a candidate of another place, or a view
+/// mostly hidden), and the hit counts as not posed. Its pose is reported all the same.
+pub(super) const PEAK_FLOOR: f64 = 0.15;
+
+/// The largest offset the fine stage counts (m): beyond it a pose says only "elsewhere".
+pub(super) const OFFSET_CAP: f64 = 4.0;
+
+/// The offset of a pose as the fine stage counts it: its forward part `|x|`, at most
+/// [`OFFSET_CAP`]. Neighbouring map scans of a drive lie along their headings, so how far the
+/// query is ahead of or behind each says which is nearest; a lateral offset (a lane over) is
+/// common to them all and says little, and the pose is reported with it, not ranked by it.
+pub(super) fn forward_offset(x: f64) -> f64 {
+    x.abs().min(OFFSET_CAP)
+}
+
+/// The Cartesian image's codes of a descriptor, as bytes.
+fn image_codes(d: &[f32], p: &PlusParams) -> Vec<u8> {
+    d[p.polar_len()..].iter().map(|&v| v.clamp(0.0, 255.0) as u8).collect()
 }
 
 /// The sections' bytes of one entry.
 pub(super) fn entry(d: &[f32], p: &PlusParams) -> [Vec<u8>; SECTIONS] {
-    let mut columns = vec![0u8; p.len()];
+    let mut columns = vec![0u8; p.polar_len()];
     columns_of(d, p, &mut columns);
     let (shape, profile) = (quantized(&shape_key(d, p)), quantized(&profile_key(d, p)));
     let first = firsts(&shape, &profile, &quantized(&ring_key(d, p)), p);
-    [columns, vec![reach(d, p) as u8], first, shape, profile]
+    [columns, vec![reach(d, p) as u8], first, shape, profile, image_codes(d, p)]
 }
 
 /// Rows ahead whose bytes a scan of scattered rows asks for.
@@ -549,8 +625,7 @@ impl crate::methods::Searcher for Searcher {
     }
 
     fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
-        let (hits, times) = self.search_where(query, k, allowed.unwrap_or(&|_| true));
-        (hits.into_iter().map(|(row, d, yaw)| Hit::turned(row, d, yaw)).collect(), times)
+        self.search_where(query, k, allowed.unwrap_or(&|_| true))
     }
 
     fn set_budget(&mut self, budget: SearchBudget, entries: usize) {

@@ -6,6 +6,7 @@ use super::distance::*;
 use super::field::*;
 use super::keys::*;
 use super::searcher::*;
+use crate::methods::Hit;
 use crate::methods::Searcher as _;
 use crate::types::Point;
 
@@ -69,11 +70,13 @@ fn relief_is_the_height_above_where_the_class_dies() {
     assert_eq!([at(0.5), at(1.5), at(2.5), at(3.5)], [4.0, 1.0, 2.0, 0.0]);
     // Two returns above one square: the height channel holds its highest, 5 m + 2 m, as the
     // code round(255 · √(7 / 64)) = round(84.33) = 84; the relief channel the square's relief
-    // (5 − 5 = 0: its class ends at the lowest square, itself).
+    // (5 − 5 = 0: its class ends at the lowest square, itself); the Cartesian image, the
+    // same height code in the one cell the square is in.
     let two = [[0.5, 0.5, 5.0], [0.6, 0.7, 3.0]];
     let d = describe(&two, &p).unwrap();
-    let height: Vec<f32> = d[p.rings * p.sectors..].iter().copied().filter(|&v| v > 0.0).collect();
-    assert_eq!(height, [84.0]);
+    let filled = |codes: &[f32]| codes.iter().copied().filter(|&v| v > 0.0).collect::<Vec<f32>>();
+    assert_eq!(filled(&d[p.rings * p.sectors..p.polar_len()]), [84.0]);
+    assert_eq!(filled(&d[p.polar_len()..]), [84.0]);
     assert!(d[..p.rings * p.sectors].iter().all(|&v| v == 0.0));
 }
 
@@ -208,7 +211,7 @@ fn a_grown_searcher_and_a_restricted_search_equal_a_searcher_of_those_rows() {
     let alone = built.subset(&kept);
     let (restricted, _) = grown.search_where(&query, 2, &|row| kept.contains(&row));
     let (only, _) = alone.search(&query, 2);
-    let renumbered: Vec<PlusHit> = only.iter().map(|&(row, d, yaw)| (kept[row], d, yaw)).collect();
+    let renumbered: Vec<Hit> = only.iter().map(|h| Hit { row: kept[h.row], ..*h }).collect();
     assert_eq!(restricted, renumbered);
 }
 
@@ -225,7 +228,32 @@ fn search_finds_a_turned_scan_and_its_yaw() {
         for (i, s) in scenes.iter().enumerate() {
             let q = describe(&turned(s, 2), &p).unwrap();
             let (hits, _) = searcher.search(&q, 1);
-            assert_eq!((hits[0].0, hits[0].2), (i, 180.0), "{candidates} candidates");
+            assert_eq!((hits[0].row, hits[0].yaw_degrees), (i, Some(180.0)), "{candidates} candidates");
         }
     }
+}
+
+#[test]
+fn the_fine_stage_finds_where_the_query_stands() {
+    // The query's sensor 2.5 m ahead of the candidate's and 1.5 m to its right, turned 30°
+    // counter-clockwise: its points are the scene's seen from there.
+    let p = PlusParams::default();
+    let (tx, ty, heading) = (2.5f64, -1.5f64, 30f64.to_radians());
+    let (sin, cos) = heading.sin_cos();
+    let seen: Vec<Point> = scene()
+        .iter()
+        .map(|&[x, y, z]| {
+            let (dx, dy) = (x - tx, y - ty);
+            [cos * dx + sin * dy, -sin * dx + cos * dy, z]
+        })
+        .collect();
+    let searcher = Searcher::new(describe(&scene(), &p).unwrap(), p.clone());
+    let (hits, _) = searcher.search(&describe(&seen, &p).unwrap(), 1);
+    let [x, y] = hits[0].offset.expect("the best candidate is posed");
+    let yaw = hits[0].yaw_degrees.unwrap();
+    // 1 m image cells, turned by a yaw found to a sub-sector turn (2°): within half a cell.
+    // The yaw is the turn that brings the query's view onto the candidate's: −30°.
+    assert!((x - tx).hypot(y - ty) <= 0.5, "pose ({x:.2}, {y:.2}), expected ({tx}, {ty})");
+    let off = (yaw + 30.0).rem_euclid(360.0).min((-30.0 - yaw).rem_euclid(360.0));
+    assert!(off <= 2.0, "yaw {yaw}");
 }
