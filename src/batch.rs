@@ -87,12 +87,13 @@ pub enum ScanInput {
         /// Its format (`None`: from the path).
         format: Option<FileFormat>,
     },
-    /// The scans of an MCAP file whose message index (among its point-cloud topic's messages)
-    /// lies in `first..first + count`, read from the file, as the pipeline's MCAP source that
-    /// lists the file reads it (its topic, poses, session), else with the defaults. Its
+    /// The scans of a message log (an MCAP file, a ROS 1 bag, a rosbag2 folder or `.db3` file)
+    /// whose message index (among its point-cloud topic's messages) lies in
+    /// `first..first + count`, read from it, as the pipeline's `mcap` or `rosbag` source that
+    /// lists it reads it (its topic, poses, session), else with the defaults. Its
     /// position is that of the range's first scan; the others follow.
     McapRange {
-        /// The MCAP file.
+        /// The log.
         path: PathBuf,
         /// The first message index.
         first: u64,
@@ -223,17 +224,18 @@ impl BatchDescriber {
     ) -> Vec<(u64, std::result::Result<Scan, ScanFailure>)> {
         let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
         let wanted = canonical(path);
-        let spec = self
+        let settings = self
             .pipeline
             .sources
             .iter()
             .find_map(|s| match s {
-                SourceSpec::Mcap(m) if m.files.iter().any(|f| canonical(f) == wanted) => Some(m.clone()),
+                SourceSpec::Mcap(m) if m.files.iter().any(|f| canonical(f) == wanted) => Some(m.settings()),
+                SourceSpec::Rosbag(r) if r.paths.iter().any(|f| canonical(f) == wanted) => Some(r.settings()),
                 _ => None,
             })
-            .unwrap_or_else(|| McapSpec::file(path));
+            .unwrap_or_else(|| McapSpec::file(path).settings());
         let end = first.saturating_add(count);
-        match spec.open_range(path, first..end) {
+        match settings.open_range(path, first..end) {
             Ok(stream) => stream
                 .map(|item| {
                     let index = match &item {
@@ -244,9 +246,8 @@ impl BatchDescriber {
                 })
                 .collect(),
             Err(e) => {
-                let session = spec.session.clone().unwrap_or_else(|| {
-                    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
-                });
+                let session =
+                    settings.session.clone().unwrap_or_else(|| crate::sources::logs::default_session(path));
                 let id = format!("{session}/messages_{first}-{end}");
                 vec![(position, Err(ScanFailure::of_file(id, &session, path, None, e.to_string())))]
             }

@@ -1,7 +1,8 @@
 //! `toporec inspect PATH`: what a file or folder holds, read the way a run would read it.
 
-use crate::error::{Error, Result};
-use crate::sources::mcap_reader::{McapMessages, is_point_cloud};
+use crate::error::Result;
+use crate::sources::logs::LogKind;
+use crate::sources::mcap_reader::is_point_cloud;
 use crate::sources::nclt::NcltReader;
 use crate::sources::pointcloud2::{self, Encoding};
 use crate::sources::{InputKind, Scan, ScanStream, SourceSpec, read_cloud};
@@ -20,8 +21,16 @@ macro_rules! line {
 pub fn inspect(path: &Path) -> Result<String> {
     let kind = InputKind::detect(path)?;
     let mut out = format!("path: {}\nformat: {}\n", path.display(), kind.name());
+    let log = match kind {
+        InputKind::Mcap => Some(LogKind::Mcap),
+        InputKind::Bag(log) => Some(log),
+        _ => None,
+    };
+    if let Some(log) = log {
+        log_report(path, log, &mut out)?;
+        return Ok(out);
+    }
     match kind.source(path, None)? {
-        Some(SourceSpec::Mcap(_)) => mcap_report(path, &mut out)?,
         Some(spec) => {
             match &spec {
                 SourceSpec::Nclt(n) if n.reader == NcltReader::Sync => {
@@ -108,7 +117,9 @@ fn scans_report(stream: ScanStream, out: &mut String) {
     }
 }
 
-fn mcap_report(path: &Path, out: &mut String) -> Result<()> {
+/// The topics of a message log (MCAP, ROS 1 bag, rosbag2), each with its messages and, for
+/// point clouds, what decoding them gives.
+fn log_report(path: &Path, log: LogKind, out: &mut String) -> Result<()> {
     #[derive(Default)]
     struct Topic {
         schema: String,
@@ -120,12 +131,26 @@ fn mcap_report(path: &Path, out: &mut String) -> Result<()> {
         last: Option<i64>,
         bad: usize,
     }
-    let summary = crate::sources::mcap_reader::summary_channels(path).is_some();
+    let index = match log {
+        LogKind::Mcap => {
+            let summary = crate::sources::mcap_reader::summary_channels(path).is_some();
+            format!("summary section: {}", if summary { "yes" } else { "no" })
+        }
+        LogKind::Ros1Bag => {
+            let indexed = crate::sources::ros1bag::indexed_counts(path).is_some();
+            format!("index: {}", if indexed { "yes" } else { "no (read record by record)" })
+        }
+        LogKind::Rosbag2 => match crate::sources::rosbag2::Metadata::read(path) {
+            Ok(m) => {
+                format!("storage: {}, {} file(s), compression: {:?}", m.storage, m.files.len(), m.compression)
+            }
+            Err(e) => return Err(crate::sources::SourceError::invalid(path, e).into()),
+        },
+        LogKind::Sqlite3 => "storage: sqlite3".to_string(),
+    };
     let mut topics: BTreeMap<String, Topic> = BTreeMap::new();
     let mut faults = Vec::new();
-    let mut messages =
-        McapMessages::open(path).map_err(|source| Error::Io { path: path.to_owned(), source })?;
-    for m in messages.by_ref() {
+    for m in log.messages(path)? {
         let m = match m {
             Ok(m) => m,
             Err(f) => {
@@ -151,7 +176,7 @@ fn mcap_report(path: &Path, out: &mut String) -> Result<()> {
             }
         }
     }
-    line!(out, "summary section: {}", if summary { "yes" } else { "no" });
+    line!(out, "{index}");
     line!(out, "topics: {}", topics.len());
     for (name, t) in &mut topics {
         line!(out, "  {name}  [{} / {}]  {} messages", t.schema, t.encoding, t.messages);
@@ -163,6 +188,7 @@ fn mcap_report(path: &Path, out: &mut String) -> Result<()> {
         }
     }
     line!(out, "poses joined: no (give `poses` in a pipeline file)");
+    line!(out, "scan time: the header stamp, else the log time");
     line!(out, "corrupt records: {}", faults.len());
     for f in faults.iter().take(20) {
         line!(out, "error: {}: {f}", path.display());

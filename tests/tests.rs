@@ -2,6 +2,7 @@
 
 mod atol;
 mod bad_input;
+mod bags;
 mod baselines;
 mod cli;
 mod clouds;

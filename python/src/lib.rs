@@ -489,6 +489,73 @@ fn read_points<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyArr
     Ok(Array2::from_shape_vec((points.len(), 3), flat).expect("n × 3 values").into_pyarray(py))
 }
 
+/// The scans of a source path (a bag, a rosbag2 folder, an MCAP, an NCLT session, a KITTI
+/// sequence), read one at a time as a run reads them; a scan that cannot be read is a dict with
+/// `error`.
+#[pyclass(module = "toporec._toporec")]
+struct ScanReader {
+    stream: std::sync::Mutex<toporec::sources::ScanStream>,
+}
+
+#[pymethods]
+impl ScanReader {
+    #[new]
+    #[pyo3(signature = (path, topic=None))]
+    fn new(py: Python<'_>, path: PathBuf, topic: Option<String>) -> PyResult<Self> {
+        let stream = py
+            .detach(|| -> Result<toporec::sources::ScanStream, toporec::sources::SourceError> {
+                let kind = toporec::sources::InputKind::detect(&path)?;
+                match kind.source(&path, topic.as_deref())? {
+                    Some(spec) => spec.open(),
+                    None => Err(toporec::sources::SourceError::invalid(
+                        &path,
+                        "a single cloud file: read it with read_points",
+                    )),
+                }
+            })
+            .map_err(|e| value_error(e.to_string()))?;
+        Ok(ScanReader { stream: std::sync::Mutex::new(stream) })
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let item = py.detach(|| match self.stream.lock() {
+            Ok(mut s) => Ok(s.next()),
+            Err(_) => Err("the reader failed in another thread"),
+        });
+        let Some(item) = item.map_err(value_error)? else {
+            return Ok(None);
+        };
+        let out = PyDict::new(py);
+        match item {
+            Ok(scan) => {
+                out.set_item("scan_id", &scan.id)?;
+                out.set_item("session", &scan.session)?;
+                out.set_item("path", scan.path.to_string_lossy().into_owned())?;
+                out.set_item("utime", scan.utime)?;
+                out.set_item("message_index", scan.message_index)?;
+                let flat: Vec<f64> = scan.points.iter().flatten().copied().collect();
+                let points = Array2::from_shape_vec((scan.points.len(), 3), flat).expect("n × 3 values");
+                out.set_item("points", points.into_pyarray(py))?;
+                out.set_item("intensity", scan.intensity.map(|v| Array1::from_vec(v).into_pyarray(py)))?;
+                out.set_item("pose", scan.pose.map(|p| (p.x, p.y, p.z, p.yaw)))?;
+            }
+            Err(f) => {
+                out.set_item("scan_id", &f.id)?;
+                out.set_item("session", &f.session)?;
+                out.set_item("path", f.path.to_string_lossy().into_owned())?;
+                out.set_item("utime", f.utime)?;
+                out.set_item("message_index", f.message_index)?;
+                out.set_item("error", &f.error)?;
+            }
+        }
+        Ok(Some(out))
+    }
+}
+
 /// The online loop detector of one method.
 #[pyclass(module = "toporec._toporec")]
 struct LoopDetector {
@@ -758,6 +825,7 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<ArrowStream>()?;
     m.add_class::<QueryEngine>()?;
     m.add_class::<LoopDetector>()?;
+    m.add_class::<ScanReader>()?;
     m.add_function(wrap_pyfunction!(read_points, m)?)?;
     m.add_class::<BatchDescriber>()?;
     m.add_function(wrap_pyfunction!(batch_input_schema, m)?)?;

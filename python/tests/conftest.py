@@ -57,3 +57,14 @@ def binary() -> pathlib.Path:
             pytest.fail(f"{path} is missing: build it with `cargo build --release`")
         pytest.skip(f"{path} is missing (cargo build --release)")
     return path
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> pathlib.Path:
+    """``../shared/data`` beside the repository, or a skip (a failure with TOPOREC_REQUIRE_DATA=1)."""
+    path = REPO.parent / "shared" / "data"
+    if not path.is_dir():
+        if data_required():
+            pytest.fail(f"{path} is missing")
+        pytest.skip(f"{path} is missing")
+    return path

@@ -21,7 +21,7 @@ import hashlib
 import json
 import os
 import warnings
-from typing import TYPE_CHECKING, Any, Dict, Iterable, List, Optional, Sequence, Tuple, Union
+from typing import TYPE_CHECKING, Any, Dict, Iterable, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import pyarrow as pa
@@ -61,6 +61,7 @@ __all__ = [
     "fit",
     "paper_diagram",
     "read_points",
+    "read_scans",
     "run",
 ]
 
@@ -464,6 +465,26 @@ def read_points(path: PathLike) -> np.ndarray:
         ValueError: the file cannot be read as a cloud (the message names it).
     """
     return _toporec.read_points(os.fspath(path))
+
+
+def read_scans(path: PathLike, topic: Optional[str] = None) -> Iterator[Dict[str, Any]]:
+    """The scans of a source, one at a time, as ``toporec run`` reads them: a ROS 1 bag, a rosbag2
+    folder or ``.db3`` file, an MCAP, an NCLT session or a KITTI sequence (docs/sources.md).
+
+    Each scan is a dict: ``scan_id``, ``session``, ``path``, ``utime`` (µs), ``message_index``
+    (logs; else None), ``points`` (``(n, 3)`` float64, sensor frame), ``intensity`` (or None),
+    ``pose`` (``(x, y, z, yaw)`` when joined, else None). A scan that cannot be read is a dict
+    with ``error`` (naming the file and the message) instead of the data, and reading goes on.
+    Memory is one scan (one chunk) at a time.
+
+    Args:
+        path: the source.
+        topic: a log's point-cloud topic (default: its only one).
+
+    Raises:
+        ValueError: the path is not a source (a single cloud file: use :func:`read_points`).
+    """
+    return _toporec.ScanReader(os.fspath(path), topic)
 
 
 class LoopDetector:

@@ -13,7 +13,8 @@ pub struct QueryArgs {
     /// The index to search.
     #[arg(long)]
     pub index: PathBuf,
-    /// Query inputs: cloud files, MCAPs, NCLT sessions, KITTI sequences.
+    /// Query inputs: cloud files (csv, bin, pcd, ply), MCAPs, ROS 1 bags, rosbag2 folders, NCLT
+    /// sessions, KITTI sequences.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// Neighbours per query: [1, ∞), clamped to the database size.
@@ -25,7 +26,7 @@ pub struct QueryArgs {
     /// Database sessions (default: all).
     #[arg(long = "session")]
     pub sessions: Vec<String>,
-    /// MCAP topic.
+    /// The point-cloud topic of an MCAP or bag (default: its only one).
     #[arg(long)]
     pub topic: Option<String>,
     /// Output CSV (default stdout).

@@ -21,7 +21,7 @@ use toporec::pipeline::config::{Pipeline, Vectorize};
 use toporec::query::QueryArgs;
 use toporec::simulate::SimulateArgs;
 use toporec::sinks::index::IndexReader;
-use toporec::sources::mcap::McapSpec;
+use toporec::sources::rosbag::RosbagSpec;
 use toporec::sources::{InputKind, read_cloud};
 
 /// Topological place descriptors from LiDAR logs.
@@ -214,7 +214,8 @@ struct InspectArgs {
 /// Arguments of `toporec diagram`.
 #[derive(clap::Args, Debug)]
 struct DiagramArgs {
-    /// The cloud: .csv (header x,y,z), KITTI .bin, or NCLT velodyne_sync .bin.
+    /// The cloud: .csv (header x,y,z), KITTI .bin, NCLT velodyne_sync .bin, .pcd, .ply; or a
+    /// message log (MCAP, ROS 1 bag, rosbag2 folder or .db3) with --index.
     cloud: PathBuf,
     /// Dimensions to print, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
@@ -225,10 +226,10 @@ struct DiagramArgs {
     /// The file format; detected from the path when omitted (MCAP by its magic).
     #[arg(long, value_enum)]
     format: Option<args::CloudFormat>,
-    /// MCAP: the Nth point-cloud message (0-based) of the topic.
+    /// MCAP or bag: the Nth point-cloud message (0-based) of the topic.
     #[arg(long, default_value_t = 0)]
     index: u64,
-    /// MCAP: the topic (default: the file's only point-cloud topic).
+    /// MCAP or bag: the topic (default: its only point-cloud topic).
     #[arg(long)]
     topic: Option<String>,
 }
@@ -490,7 +491,9 @@ fn diagram(args: DiagramArgs) -> Result<()> {
     }
     let points = match args.format {
         Some(f) => read_cloud(&args.cloud, Some(f.into()))?,
-        None if InputKind::detect(&args.cloud)? == InputKind::Mcap => mcap_cloud(&args)?,
+        None if matches!(InputKind::detect(&args.cloud)?, InputKind::Mcap | InputKind::Bag(_)) => {
+            log_cloud(&args)?
+        }
         None => read_cloud(&args.cloud, None)?,
     };
     if points.len() < MIN_POINTS {
@@ -507,10 +510,11 @@ fn diagram(args: DiagramArgs) -> Result<()> {
     Ok(())
 }
 
-/// The `--index`th point cloud of an MCAP file.
-fn mcap_cloud(args: &DiagramArgs) -> Result<Vec<toporec::types::Point>> {
-    let spec = McapSpec { topic: args.topic.clone(), ..McapSpec::file(&args.cloud) };
-    for item in spec.open()? {
+/// The `--index`th point cloud of a message log (MCAP, ROS 1 bag, rosbag2).
+fn log_cloud(args: &DiagramArgs) -> Result<Vec<toporec::types::Point>> {
+    let spec = RosbagSpec { topic: args.topic.clone(), ..RosbagSpec::path(&args.cloud) };
+    let end = args.index.saturating_add(1);
+    for item in spec.open_range(&args.cloud, args.index..end)? {
         match item {
             Ok(scan) if scan.message_index == Some(args.index) => return Ok(scan.points),
             Err(f) if f.message_index == Some(args.index) => bail!("{}", f.error),

@@ -65,7 +65,8 @@ fn load(
         }
     }
     for (path, wanted) in mcap {
-        let spec = crate::sources::mcap::McapSpec::file(Path::new(&path));
+        // Any message log (MCAP, ROS 1 bag, rosbag2), read by what it is.
+        let spec = crate::sources::rosbag::RosbagSpec::path(Path::new(&path));
         match spec.open() {
             Ok(items) => {
                 for item in items {

@@ -557,6 +557,13 @@ fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
             }
         }
         SourceSpec::PointNetVlad(p) => check("root", &p.root),
+        SourceSpec::Rosbag(r) => {
+            r.paths.iter().for_each(|p| check("paths", p));
+            r.poses.iter().for_each(|p| check("poses", p));
+            if r.paths.is_empty() {
+                errors.push(format!("sources[{i}].paths: empty"));
+            }
+        }
     }
 }
 
@@ -564,8 +571,10 @@ fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
 /// invalid type …`): a key of the wrong type or unknown is reported and left out, and the rest
 /// of the entry is read again, so one bad key does not hide the next.
 fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<SourceSpec> {
-    use crate::sources::{kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec, pointnetvlad::PointNetVladSpec};
-    const KINDS: &str = "nclt, mcap, kitti or pointnetvlad";
+    use crate::sources::{
+        kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec, pointnetvlad::PointNetVladSpec, rosbag::RosbagSpec,
+    };
+    const KINDS: &str = "nclt, mcap, rosbag, kitti or pointnetvlad";
     let Value::Table(table) = item else {
         errors.push(format!("sources[{i}]: expected a table ([[sources]]), found {}", item.type_str()));
         return None;
@@ -597,6 +606,7 @@ fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<Sour
             "mcap" => typed::<McapSpec>(&rest).map(SourceSpec::Mcap),
             "kitti" => typed::<KittiSpec>(&rest).map(SourceSpec::Kitti),
             "pointnetvlad" => typed::<PointNetVladSpec>(&rest).map(SourceSpec::PointNetVlad),
+            "rosbag" => typed::<RosbagSpec>(&rest).map(SourceSpec::Rosbag),
             other => {
                 errors.push(format!("sources[{i}].kind: unknown kind `{other}` (expected {KINDS})"));
                 return None;
@@ -641,6 +651,7 @@ fn check_source_numbers(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
             Some(n.tolerance_ms)
         }
         SourceSpec::Mcap(m) => Some(m.tolerance_ms),
+        SourceSpec::Rosbag(r) => Some(r.tolerance_ms),
         SourceSpec::Kitti(_) | SourceSpec::PointNetVlad(_) => None,
     };
     if let Some(t) = tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {

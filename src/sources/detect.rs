@@ -1,11 +1,14 @@
 //! What a path given on the command line is — an NCLT session (or a folder of them), a
-//! `velodyne_hits.bin`, a KITTI sequence (or `sequences/`), an MCAP (by its magic), or one
+//! `velodyne_hits.bin`, a KITTI sequence (or `sequences/`), an MCAP, a ROS 1 bag, a rosbag2
+//! folder or `.db3` file (by their magic or `metadata.yaml`), or one
 //! cloud file (by extension and folder) — and the source that reads it. `inspect`, `query`
 //! and `diagram` all decide here.
 
 use super::kitti::KittiSpec;
+use super::logs::LogKind;
 use super::mcap::McapSpec;
 use super::nclt::{NcltReader, NcltSpec, is_session};
+use super::rosbag::RosbagSpec;
 use super::{SourceError, SourceSpec};
 use std::path::{Path, PathBuf};
 
@@ -56,6 +59,8 @@ pub enum InputKind {
     KittiSequences,
     /// An MCAP file.
     Mcap,
+    /// A ROS 1 bag, a rosbag2 folder or a rosbag2 `.db3` file.
+    Bag(LogKind),
     /// One cloud file.
     Cloud(CloudFormat),
 }
@@ -83,6 +88,9 @@ impl InputKind {
     /// Decides what `path` is.
     pub fn detect(path: &Path) -> Result<Self, SourceError> {
         if path.is_dir() {
+            if let Some(kind) = LogKind::detect(path) {
+                return Ok(InputKind::Bag(kind));
+            }
             if is_session(path) {
                 return Ok(InputKind::NcltSession);
             }
@@ -96,14 +104,19 @@ impl InputKind {
             if children.iter().any(|c| is_kitti_sequence(c)) {
                 return Ok(InputKind::KittiSequences);
             }
-            return Err(SourceError::invalid(path, "no NCLT session or KITTI sequence here"));
+            return Err(SourceError::invalid(
+                path,
+                "no NCLT session, KITTI sequence or rosbag2 metadata.yaml here",
+            ));
         }
         if !path.exists() {
             let source = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or folder");
             return Err(SourceError::Io { path: path.to_owned(), source });
         }
-        if is_mcap(path) {
-            return Ok(InputKind::Mcap);
+        match LogKind::detect(path) {
+            Some(LogKind::Mcap) => return Ok(InputKind::Mcap),
+            Some(kind) => return Ok(InputKind::Bag(kind)),
+            None => {}
         }
         if path.file_name().is_some_and(|n| n == "velodyne_hits.bin") {
             return Ok(InputKind::NcltHits);
@@ -122,6 +135,7 @@ impl InputKind {
             InputKind::KittiSequence => "kitti sequence",
             InputKind::KittiSequences => "kitti sequences",
             InputKind::Mcap => "mcap",
+            InputKind::Bag(kind) => kind.name(),
             InputKind::Cloud(CloudFormat::Csv) => "csv cloud",
             InputKind::Cloud(CloudFormat::Kitti) => "kitti scan",
             InputKind::Cloud(CloudFormat::Nclt) => "nclt velodyne_sync scan",
@@ -136,6 +150,9 @@ impl InputKind {
         Ok(Some(match self {
             InputKind::Mcap => {
                 SourceSpec::Mcap(McapSpec { topic: topic.map(String::from), ..McapSpec::file(path) })
+            }
+            InputKind::Bag(_) => {
+                SourceSpec::Rosbag(RosbagSpec { topic: topic.map(String::from), ..RosbagSpec::path(path) })
             }
             InputKind::NcltSession | InputKind::NcltSessions => {
                 SourceSpec::Nclt(NcltSpec::sessions(vec![path.to_owned()]))

@@ -12,6 +12,7 @@ pub mod csv;
 pub mod detect;
 pub mod groundtruth;
 pub mod kitti;
+pub mod logs;
 pub mod mcap;
 pub mod mcap_reader;
 pub mod nclt;
@@ -19,6 +20,9 @@ pub mod pcd;
 pub mod ply;
 pub mod pointcloud2;
 pub mod pointnetvlad;
+pub mod ros1bag;
+pub mod rosbag;
+pub mod rosbag2;
 
 pub use crate::error::SourceError;
 pub use detect::{CloudFormat, InputKind};
@@ -191,6 +195,8 @@ pub enum SourceSpec {
     Kitti(kitti::KittiSpec),
     /// The PointNetVLAD benchmark's test submaps (`benchmark_datasets/`).
     PointNetVlad(pointnetvlad::PointNetVladSpec),
+    /// ROS 1 bags, rosbag2 folders (sqlite3 or MCAP storage), `.db3` and MCAP files.
+    Rosbag(rosbag::RosbagSpec),
 }
 
 impl SourceSpec {
@@ -202,6 +208,7 @@ impl SourceSpec {
             SourceSpec::Mcap(s) => s.open(),
             SourceSpec::Kitti(s) => s.open(),
             SourceSpec::PointNetVlad(s) => s.open(),
+            SourceSpec::Rosbag(s) => s.open(),
         }
     }
 
@@ -233,6 +240,11 @@ impl SourceSpec {
                     (s.session.clone().unwrap_or(stem), f.clone())
                 })
                 .collect(),
+            SourceSpec::Rosbag(s) => s
+                .paths
+                .iter()
+                .map(|p| (s.session.clone().unwrap_or_else(|| logs::default_session(p)), p.clone()))
+                .collect(),
         })
     }
 
@@ -255,6 +267,10 @@ impl SourceSpec {
             }
             SourceSpec::Kitti(s) => s.sequences.iter_mut().for_each(fix),
             SourceSpec::PointNetVlad(s) => fix(&mut s.root),
+            SourceSpec::Rosbag(s) => {
+                s.paths.iter_mut().for_each(fix);
+                s.poses.iter_mut().for_each(fix);
+            }
         }
     }
 }
