@@ -1,6 +1,8 @@
 //! Decoding throughput (design goal ≥ 200 MB/s on one core): NCLT `velodyne_sync` records and
 //! PointCloud2 messages (ROS 2 CDR from the KITTI MCAP, ROS 1 from the Ouster MCAP), from
-//! `../shared/data` when present, else from synthetic buffers of the same layouts.
+//! `../shared/data` when present, else from synthetic buffers of the same layouts; then whole
+//! logs read from disk into scans (the same four KITTI scans as an MCAP, two ROS 1 bags and two
+//! rosbag2 folders: decompression, records, PointCloud2), MB/s of the log's bytes.
 //!
 //! Run: `cargo bench --bench decode`.
 
@@ -69,5 +71,26 @@ fn main() {
     ] {
         let (msg, enc) = first_message(&data.join(file)).unwrap_or_else(|| (synthetic(120_000, enc), enc));
         rate(name, msg.len(), || pointcloud2::parse(&msg, enc).unwrap().decode().unwrap().points.len());
+    }
+    for (name, log) in [
+        ("log → scans: MCAP (zstd chunks)", "mcap/kitti_ros2_cdr.mcap"),
+        ("log → scans: ROS 1 bag, bz2 chunks", "bags/kitti00_ros1_bz2.bag"),
+        ("log → scans: ROS 1 bag, lz4 chunks", "bags/kitti00_ros1_lz4.bag"),
+        ("log → scans: rosbag2, sqlite3", "bags/kitti00_rosbag2_sqlite3"),
+        ("log → scans: rosbag2, mcap", "bags/kitti00_rosbag2_mcap"),
+    ] {
+        let path = data.join(log);
+        if !path.exists() {
+            println!("{name:<46} skipped: {} is missing", path.display());
+            continue;
+        }
+        let bytes: u64 = walkdir::WalkDir::new(&path)
+            .into_iter()
+            .flatten()
+            .filter(|e| e.file_type().is_file())
+            .map(|e| e.metadata().map_or(0, |m| m.len()))
+            .sum();
+        let spec = toporec::sources::rosbag::RosbagSpec::path(&path);
+        rate(name, bytes as usize, || spec.open().unwrap().map(|s| s.unwrap().points.len()).sum());
     }
 }

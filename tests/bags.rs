@@ -323,3 +323,214 @@ fn a_pipeline_indexes_every_bag_with_every_method_and_query_reads_a_bag() {
         }
     }
 }
+
+// ------------------------------------------------------------ a small bag, written here
+
+/// A ROS 1 record: header fields, then data.
+fn record(fields: &[(&str, &[u8])], data: &[u8]) -> Vec<u8> {
+    let mut header = Vec::new();
+    for (name, value) in fields {
+        let field = [name.as_bytes(), b"=", value].concat();
+        header.extend((field.len() as u32).to_le_bytes());
+        header.extend(field);
+    }
+    let mut out = (header.len() as u32).to_le_bytes().to_vec();
+    out.extend(header);
+    out.extend((data.len() as u32).to_le_bytes());
+    out.extend(data);
+    out
+}
+
+fn connection_record() -> Vec<u8> {
+    let described = record(&[("topic", b"/points"), ("type", b"sensor_msgs/PointCloud2")], &[]);
+    let block = &described[4..described.len() - 4];
+    record(&[("op", &[0x07]), ("conn", &0u32.to_le_bytes()), ("topic", b"/points")], block)
+}
+
+/// A ROS 1 `PointCloud2` of `n` points (x, y, z float32), shifted by `k`.
+fn ros1_cloud(n: usize, k: usize) -> Vec<u8> {
+    use toporec::sources::pointcloud2::{PointCloud2, PointField, serialize};
+    let fields = ["x", "y", "z"]
+        .iter()
+        .enumerate()
+        .map(|(i, f)| PointField { name: f.to_string(), offset: 4 * i as u32, datatype: 7, count: 1 })
+        .collect();
+    let data: Vec<u8> = (0..n * 3).flat_map(|i| (i as f32 * 0.01 + 1.0 + k as f32).to_le_bytes()).collect();
+    let cloud = PointCloud2 {
+        stamp_ns: 1_000_000_000 * (k as i64 + 1),
+        frame_id: "lidar".into(),
+        height: 1,
+        width: n as u32,
+        fields,
+        is_bigendian: false,
+        point_step: 12,
+        row_step: 12 * n as u32,
+        data: &data,
+    };
+    serialize(&cloud, toporec::sources::pointcloud2::Encoding::Ros1)
+}
+
+/// A bag of `clouds` messages, one lz4 chunk each, with its index section.
+fn small_bag(clouds: usize) -> Vec<u8> {
+    let header_len = |index_pos: u64| {
+        record(
+            &[
+                ("op", &[0x03]),
+                ("index_pos", &index_pos.to_le_bytes()),
+                ("conn_count", &1u32.to_le_bytes()),
+                ("chunk_count", &(clouds as u32).to_le_bytes()),
+            ],
+            &[b' '; 64],
+        )
+    };
+    let mut body = Vec::new();
+    let mut positions = Vec::new();
+    let start = 13 + header_len(0).len();
+    for k in 0..clouds {
+        let time = ((k as u64 + 1) & 0xffff_ffff).to_le_bytes();
+        let mut inner = if k == 0 { connection_record() } else { Vec::new() };
+        inner.extend(record(
+            &[("op", &[0x02]), ("conn", &0u32.to_le_bytes()), ("time", &time)],
+            &ros1_cloud(50, k),
+        ));
+        let mut packed = Vec::new();
+        let mut enc = lz4::EncoderBuilder::new().build(&mut packed).unwrap();
+        std::io::Write::write_all(&mut enc, &inner).unwrap();
+        enc.finish().1.unwrap();
+        positions.push((start + body.len()) as u64);
+        body.extend(record(
+            &[("op", &[0x05]), ("compression", b"lz4"), ("size", &(inner.len() as u32).to_le_bytes())],
+            &packed,
+        ));
+    }
+    let index_pos = (start + body.len()) as u64;
+    body.extend(connection_record());
+    for (k, pos) in positions.iter().enumerate() {
+        let t = ((k as u64 + 1) & 0xffff_ffff).to_le_bytes();
+        let counts = [0u32.to_le_bytes(), 1u32.to_le_bytes()].concat();
+        body.extend(record(
+            &[
+                ("op", &[0x06]),
+                ("ver", &1u32.to_le_bytes()),
+                ("chunk_pos", &pos.to_le_bytes()),
+                ("start_time", &t),
+                ("end_time", &t),
+                ("count", &1u32.to_le_bytes()),
+            ],
+            &counts,
+        ));
+    }
+    let mut out = b"#ROSBAG V2.0\n".to_vec();
+    out.extend(header_len(index_pos));
+    out.extend(body);
+    out
+}
+
+#[test]
+fn a_bag_written_here_reads_by_its_index_and_without_it() {
+    let dir = scratch_dir("bags_small");
+    let path = dir.join("small.bag");
+    let bytes = small_bag(3);
+    std::fs::write(&path, &bytes).unwrap();
+    let (got, bad) = bag(&path);
+    assert!(bad.is_empty(), "{bad:?}");
+    assert_eq!(got.len(), 3);
+    for (k, s) in got.iter().enumerate() {
+        assert_eq!(
+            (s.id.as_str(), s.utime, s.points.len()),
+            (format!("small/{k:06}").as_str(), (k as i64 + 1) * 1_000_000, 50)
+        );
+        assert_eq!(s.points[0], [1.0 + k as f64, 1.01 + k as f64, 1.02 + k as f64].map(|v| v as f32 as f64));
+    }
+    let path = dir.join("bare.bag");
+    std::fs::write(&path, unindexed(&bytes)).unwrap();
+    let (bare, bad) = bag(&path);
+    assert!(bad.is_empty(), "{bad:?}");
+    assert!(bare.iter().zip(&got).all(|(a, b)| a.points == b.points && a.utime == b.utime));
+}
+
+#[test]
+fn fuzz_mutated_bags_never_panic() {
+    // Random byte flips and cuts of a valid bag (each case writes a file): readers, inspect and
+    // the scan stream return errors, never panic.
+    let dir = scratch_dir("bags_fuzz");
+    let base = small_bag(3);
+    let mut rng = toporec::rng::SplitMix64(11);
+    let target = dir.join("case.bag");
+    for _ in 0..300 {
+        let mut b = base.clone();
+        for _ in 0..1 + rng.below(6) {
+            let i = rng.below(b.len());
+            b[i] = rng.next_u64() as u8;
+        }
+        if rng.below(4) == 0 {
+            b.truncate(rng.below(b.len()));
+        }
+        std::fs::write(&target, &b).unwrap();
+        let _ = RosbagSpec::path(&target).open().map(|s| s.count());
+        let _ = toporec::inspect::inspect(&target);
+    }
+}
+
+// ------------------------------------------------------------ folders of PCD / PLY files
+
+#[test]
+fn a_folder_of_pcd_files_is_a_session_with_frame_or_timestamp_names_and_tum_or_nclt_poses() {
+    use toporec::sources::clouds::{CloudsSpec, FileNames, PoseFormat};
+    let Some(data) = shared_data("a_folder_of_pcd_files_is_a_session") else { return };
+    let city = data.join("pcd/kitti_raw_city");
+    let (got, bad) = collect(SourceSpec::Clouds(CloudsSpec::folder(&city)));
+    assert!(bad.is_empty(), "{bad:?}");
+    let ids: Vec<(&str, i64)> = got.iter().map(|s| (s.id.as_str(), s.utime)).collect();
+    // Frame numbers; 100 ms a frame by default.
+    assert_eq!(ids, [("kitti_raw_city/0000000000", 0), ("kitti_raw_city/0000000153", 15_300_000)]);
+    for s in &got {
+        // The file's points, the no-returns at (0, 0, 0) left out as every source does.
+        let all = read_cloud(&s.path);
+        let returns: Vec<[f64; 3]> = all.iter().copied().filter(|p| *p != [0.0; 3]).collect();
+        assert_eq!(s.raw_points, all.len(), "{}", s.id);
+        assert!(s.points == returns, "{}: {} of {} points", s.id, s.points.len(), returns.len());
+    }
+    // The same files named by timestamps (seconds), with TUM poses joined by time, and a file
+    // whose name is not a timestamp: a failure naming it, the others read.
+    let dir = scratch_dir("clouds_folder").join("drive");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(city.join("0000000000.pcd"), dir.join("1317000000.00.pcd")).unwrap();
+    std::fs::copy(city.join("0000000153.pcd"), dir.join("1317000015.30.pcd")).unwrap();
+    std::fs::copy(city.join("0000000153.pcd"), dir.join("frame.pcd")).unwrap();
+    let tum = dir.with_extension("tum.txt");
+    std::fs::write(&tum, "# t x y z qx qy qz qw\n1317000000.02 1 2 3 0 0 0 1\n1317000015.25 4 5 6 0 0 1 0\n")
+        .unwrap();
+    let spec = CloudsSpec {
+        names: FileNames::Seconds,
+        poses: Some(tum.clone()),
+        poses_format: PoseFormat::Tum,
+        ..CloudsSpec::folder(&dir)
+    };
+    let (got, bad) = collect(SourceSpec::Clouds(spec.clone()));
+    assert_eq!(got.len(), 2);
+    assert_eq!(got[0].utime, 1_317_000_000_000_000);
+    let p = got[1].pose.expect("a pose within 100 ms");
+    assert_eq!((p.x, p.y, p.z), (4.0, 5.0, 6.0));
+    assert!((p.yaw.abs() - std::f64::consts::PI).abs() < 1e-12);
+    assert_eq!(bad.len(), 1);
+    assert!(
+        bad[0].error.contains("frame.pcd") && bad[0].error.contains("not a timestamp"),
+        "{}",
+        bad[0].error
+    );
+    // Tighter than the 50 ms gap: no pose, and the reason.
+    let (got, _) = collect(SourceSpec::Clouds(CloudsSpec { tolerance_ms: 10.0, ..spec }));
+    assert!(got[1].pose.is_none() && got[0].pose.is_none());
+    // By line with frame indices: frame 0 takes the first pose.
+    let spec = CloudsSpec { poses: Some(tum), poses_format: PoseFormat::Tum, ..CloudsSpec::folder(&city) };
+    let (got, _) = collect(SourceSpec::Clouds(spec));
+    assert_eq!(got[0].pose.map(|p| p.x), Some(1.0));
+    assert!(got[1].pose.is_none(), "frame 153 has no pose line");
+    // inspect and query take the folder as they take a session.
+    let report = text(&toporec(&["inspect", city.to_str().unwrap()]).stdout);
+    assert!(
+        report.contains("format: folder of clouds") && report.contains("session kitti_raw_city: 2 scans"),
+        "{report}"
+    );
+}

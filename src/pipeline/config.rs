@@ -557,6 +557,13 @@ fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
             }
         }
         SourceSpec::PointNetVlad(p) => check("root", &p.root),
+        SourceSpec::Clouds(c) => {
+            c.folders.iter().for_each(|p| check("folders", p));
+            c.poses.iter().for_each(|p| check("poses", p));
+            if c.folders.is_empty() {
+                errors.push(format!("sources[{i}].folders: empty"));
+            }
+        }
         SourceSpec::Rosbag(r) => {
             r.paths.iter().for_each(|p| check("paths", p));
             r.poses.iter().for_each(|p| check("poses", p));
@@ -572,9 +579,10 @@ fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
 /// of the entry is read again, so one bad key does not hide the next.
 fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<SourceSpec> {
     use crate::sources::{
-        kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec, pointnetvlad::PointNetVladSpec, rosbag::RosbagSpec,
+        clouds::CloudsSpec, kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec, pointnetvlad::PointNetVladSpec,
+        rosbag::RosbagSpec,
     };
-    const KINDS: &str = "nclt, mcap, rosbag, kitti or pointnetvlad";
+    const KINDS: &str = "nclt, mcap, rosbag, kitti, clouds or pointnetvlad";
     let Value::Table(table) = item else {
         errors.push(format!("sources[{i}]: expected a table ([[sources]]), found {}", item.type_str()));
         return None;
@@ -607,6 +615,7 @@ fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<Sour
             "kitti" => typed::<KittiSpec>(&rest).map(SourceSpec::Kitti),
             "pointnetvlad" => typed::<PointNetVladSpec>(&rest).map(SourceSpec::PointNetVlad),
             "rosbag" => typed::<RosbagSpec>(&rest).map(SourceSpec::Rosbag),
+            "clouds" => typed::<CloudsSpec>(&rest).map(SourceSpec::Clouds),
             other => {
                 errors.push(format!("sources[{i}].kind: unknown kind `{other}` (expected {KINDS})"));
                 return None;
@@ -652,6 +661,15 @@ fn check_source_numbers(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
         }
         SourceSpec::Mcap(m) => Some(m.tolerance_ms),
         SourceSpec::Rosbag(r) => Some(r.tolerance_ms),
+        SourceSpec::Clouds(c) => {
+            if !(c.frame_period_ms.is_finite() && c.frame_period_ms > 0.0) {
+                errors.push(format!(
+                    "sources[{i}].frame_period_ms: must be in (0, inf) ms; found {}",
+                    c.frame_period_ms
+                ));
+            }
+            Some(c.tolerance_ms)
+        }
         SourceSpec::Kitti(_) | SourceSpec::PointNetVlad(_) => None,
     };
     if let Some(t) = tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {

@@ -61,6 +61,8 @@ pub enum InputKind {
     Mcap,
     /// A ROS 1 bag, a rosbag2 folder or a rosbag2 `.db3` file.
     Bag(LogKind),
+    /// A folder of PCD / PLY files (a session).
+    CloudFolder,
     /// One cloud file.
     Cloud(CloudFormat),
 }
@@ -104,9 +106,12 @@ impl InputKind {
             if children.iter().any(|c| is_kitti_sequence(c)) {
                 return Ok(InputKind::KittiSequences);
             }
+            if super::clouds::is_cloud_folder(path) {
+                return Ok(InputKind::CloudFolder);
+            }
             return Err(SourceError::invalid(
                 path,
-                "no NCLT session, KITTI sequence or rosbag2 metadata.yaml here",
+                "no NCLT session, KITTI sequence, rosbag2 metadata.yaml or PCD/PLY file here",
             ));
         }
         if !path.exists() {
@@ -136,6 +141,7 @@ impl InputKind {
             InputKind::KittiSequences => "kitti sequences",
             InputKind::Mcap => "mcap",
             InputKind::Bag(kind) => kind.name(),
+            InputKind::CloudFolder => "folder of clouds",
             InputKind::Cloud(CloudFormat::Csv) => "csv cloud",
             InputKind::Cloud(CloudFormat::Kitti) => "kitti scan",
             InputKind::Cloud(CloudFormat::Nclt) => "nclt velodyne_sync scan",
@@ -151,6 +157,7 @@ impl InputKind {
             InputKind::Mcap => {
                 SourceSpec::Mcap(McapSpec { topic: topic.map(String::from), ..McapSpec::file(path) })
             }
+            InputKind::CloudFolder => SourceSpec::Clouds(super::clouds::CloudsSpec::folder(path)),
             InputKind::Bag(_) => {
                 SourceSpec::Rosbag(RosbagSpec { topic: topic.map(String::from), ..RosbagSpec::path(path) })
             }

@@ -8,6 +8,7 @@
 //! are rotated by 180° about x: `(x, y, z) → (x, -y, -z)` (a rotation, so distances — and
 //! hence diagrams — are unchanged).
 
+pub mod clouds;
 pub mod csv;
 pub mod detect;
 pub mod groundtruth;
@@ -197,6 +198,8 @@ pub enum SourceSpec {
     PointNetVlad(pointnetvlad::PointNetVladSpec),
     /// ROS 1 bags, rosbag2 folders (sqlite3 or MCAP storage), `.db3` and MCAP files.
     Rosbag(rosbag::RosbagSpec),
+    /// Folders of PCD / PLY files, each a session.
+    Clouds(clouds::CloudsSpec),
 }
 
 impl SourceSpec {
@@ -209,6 +212,7 @@ impl SourceSpec {
             SourceSpec::Kitti(s) => s.open(),
             SourceSpec::PointNetVlad(s) => s.open(),
             SourceSpec::Rosbag(s) => s.open(),
+            SourceSpec::Clouds(s) => s.open(),
         }
     }
 
@@ -240,6 +244,7 @@ impl SourceSpec {
                     (s.session.clone().unwrap_or(stem), f.clone())
                 })
                 .collect(),
+            SourceSpec::Clouds(s) => s.folders.iter().map(|d| (name(d), d.clone())).collect(),
             SourceSpec::Rosbag(s) => s
                 .paths
                 .iter()
@@ -269,6 +274,10 @@ impl SourceSpec {
             SourceSpec::PointNetVlad(s) => fix(&mut s.root),
             SourceSpec::Rosbag(s) => {
                 s.paths.iter_mut().for_each(fix);
+                s.poses.iter_mut().for_each(fix);
+            }
+            SourceSpec::Clouds(s) => {
+                s.folders.iter_mut().for_each(fix);
                 s.poses.iter_mut().for_each(fix);
             }
         }

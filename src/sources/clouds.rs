@@ -1,0 +1,305 @@
+//! Folders of single-cloud files (`kind = "clouds"`): each folder is a session, its `.pcd` and
+//! `.ply` files the scans, in name order (PCD and PLY as [`super::pcd`] and [`super::ply`] read
+//! them). A scan's id is `<folder name>/<file stem>`, so ids are stable across runs.
+//!
+//! What a numeric file name means is the `names` setting:
+//! - `index` (default): a frame number (`0000000153.pcd`, as KITTI raw's exports); a name that
+//!   is not a number takes its place in the folder instead. The scan's time is the frame times
+//!   `frame_period_ms` (100 ms: a 10 Hz LiDAR), so time windows (`loops --exclude-seconds`)
+//!   have a scale.
+//! - `seconds`, `milliseconds`, `microseconds`, `nanoseconds`: a timestamp in that unit (a
+//!   decimal point allowed); a name that is not one is a failure naming the file.
+//!
+//! Poses (optional, `poses`): NCLT's ground-truth CSV layout or TUM's `t x y z qx qy qz qw`
+//! (`poses_format = "tum"`; seconds; `#` comments; what KISS-ICP and most SLAM tools write;
+//! yaw from the quaternion, z up as written). With timestamp names a scan takes the pose
+//! nearest in time within `tolerance_ms`; with frame indices, the pose on the frame's row (the
+//! k-th pose in time order for frame k).
+
+use super::groundtruth::GroundTruth;
+use super::{NoPose, Pose, Scan, ScanFailure, ScanStream, SourceError};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// What a numeric file name means.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FileNames {
+    /// A frame number.
+    #[default]
+    Index,
+    /// A timestamp in seconds.
+    Seconds,
+    /// A timestamp in milliseconds.
+    Milliseconds,
+    /// A timestamp in microseconds.
+    Microseconds,
+    /// A timestamp in nanoseconds.
+    Nanoseconds,
+}
+
+/// The layout of a pose file.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PoseFormat {
+    /// NCLT's ground-truth CSV (`utime, x, y, z, roll, pitch, heading`).
+    #[default]
+    Nclt,
+    /// TUM's `t x y z qx qy qz qw` (seconds).
+    Tum,
+}
+
+/// `kind = "clouds"` in a pipeline file.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CloudsSpec {
+    /// Folders of `.pcd` / `.ply` files; each is one session named by the folder.
+    pub folders: Vec<PathBuf>,
+    /// What a numeric file name means.
+    #[serde(default)]
+    pub names: FileNames,
+    /// With `names = "index"`: the time between frames (ms).
+    #[serde(default = "default_period_ms")]
+    pub frame_period_ms: f64,
+    /// Poses for every folder (one session's, usually).
+    #[serde(default)]
+    pub poses: Option<PathBuf>,
+    /// The layout of `poses`.
+    #[serde(default)]
+    pub poses_format: PoseFormat,
+    /// Largest time gap for a pose join by time, milliseconds.
+    #[serde(default = "default_tolerance_ms")]
+    pub tolerance_ms: f64,
+}
+
+fn default_period_ms() -> f64 {
+    100.0
+}
+
+fn default_tolerance_ms() -> f64 {
+    100.0
+}
+
+/// Whether `path` is a cloud file a folder session holds.
+fn is_cloud_file(path: &Path) -> bool {
+    path.is_file()
+        && path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| e.eq_ignore_ascii_case("pcd") || e.eq_ignore_ascii_case("ply"))
+}
+
+/// Whether `dir` is a folder holding `.pcd` or `.ply` files.
+pub fn is_cloud_folder(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|entries| entries.flatten().any(|e| is_cloud_file(&e.path())))
+}
+
+/// The cloud files of `dir`, in name order.
+fn cloud_files(dir: &Path) -> Result<Vec<PathBuf>, SourceError> {
+    let entries =
+        std::fs::read_dir(dir).map_err(|source| SourceError::Io { path: dir.to_owned(), source })?;
+    let mut files: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| is_cloud_file(p)).collect();
+    files.sort();
+    Ok(files)
+}
+
+/// TUM trajectory text: `t x y z qx qy qz qw` per line (seconds), `#` comments.
+pub fn parse_tum(text: &str, path: &Path) -> GroundTruth {
+    let mut gt = GroundTruth { path: path.to_owned(), ..Default::default() };
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let v: Option<Vec<f64>> = line.split_whitespace().map(|f| f.parse().ok()).collect();
+        match v.filter(|v| v.len() >= 8 && v[0].is_finite()) {
+            Some(v) => {
+                let [x, y, z, qx, qy, qz, qw] = [v[1], v[2], v[3], v[4], v[5], v[6], v[7]];
+                let yaw = (2.0 * (qw * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz));
+                let pose = Pose { x, y, z, yaw };
+                let finite = [x, y, z, yaw].iter().all(|c| c.is_finite());
+                if !finite {
+                    gt.non_finite_rows += 1;
+                }
+                gt.rows.push(((v[0] * 1e6).round() as i64, finite.then_some(pose)));
+            }
+            None => {
+                let e = SourceError::Parse {
+                    path: path.to_owned(),
+                    line: i + 1,
+                    message: "expected 8 numbers: t x y z qx qy qz qw".into(),
+                };
+                tracing::warn!("{e}");
+                gt.bad_lines.push(e.to_string());
+            }
+        }
+    }
+    gt.rows.sort_by_key(|r| r.0);
+    gt
+}
+
+impl CloudsSpec {
+    /// A spec for one folder with defaults.
+    pub fn folder(dir: &Path) -> Self {
+        CloudsSpec {
+            folders: vec![dir.to_owned()],
+            names: FileNames::default(),
+            frame_period_ms: default_period_ms(),
+            poses: None,
+            poses_format: PoseFormat::default(),
+            tolerance_ms: default_tolerance_ms(),
+        }
+    }
+
+    fn ground_truth(&self) -> Result<Option<Arc<GroundTruth>>, SourceError> {
+        let Some(path) = &self.poses else { return Ok(None) };
+        Ok(Some(Arc::new(match self.poses_format {
+            PoseFormat::Nclt => GroundTruth::read(path)?,
+            PoseFormat::Tum => {
+                let text = std::fs::read_to_string(path)
+                    .map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
+                parse_tum(&text, path)
+            }
+        })))
+    }
+
+    /// The time of a scan (µs) from its file name (`position`: its place in the folder).
+    fn utime_of(&self, path: &Path, position: usize) -> Result<(i64, Option<usize>), String> {
+        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let scale = match self.names {
+            FileNames::Index => {
+                let frame = stem.parse::<usize>().unwrap_or(position);
+                return Ok(((frame as f64 * self.frame_period_ms * 1000.0).round() as i64, Some(frame)));
+            }
+            FileNames::Seconds => 1e6,
+            FileNames::Milliseconds => 1e3,
+            FileNames::Microseconds => 1.0,
+            FileNames::Nanoseconds => 1e-3,
+        };
+        // Integers exactly (nanoseconds overflow f64's integers), decimals as f64.
+        let t = match stem.parse::<i64>() {
+            Ok(n) => match self.names {
+                FileNames::Nanoseconds => Some(n.div_euclid(1000)),
+                _ => n.checked_mul(scale as i64),
+            },
+            Err(_) => stem
+                .parse::<f64>()
+                .ok()
+                .map(|v| (v * scale).round())
+                .filter(|v| v.abs() < 9.2e18)
+                .map(|v| v as i64),
+        };
+        t.map(|t| (t, None))
+            .ok_or_else(|| format!("file name `{stem}` is not a timestamp in {:?}", self.names))
+    }
+
+    /// Opens the stream: each folder's files in name order. A folder that cannot be listed is
+    /// one failure naming it; a file that cannot be read is one failure naming it.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
+    pub fn open(&self) -> Result<ScanStream, SourceError> {
+        let poses = self.ground_truth()?;
+        let spec = self.clone();
+        let folders = self.folders.clone();
+        Ok(Box::new(folders.into_iter().flat_map(move |dir| -> ScanStream {
+            let session = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let files = match cloud_files(&dir) {
+                Ok(f) => f,
+                Err(e) => {
+                    return Box::new(std::iter::once(Err(ScanFailure::of_input(
+                        &session,
+                        &dir,
+                        e.to_string(),
+                    ))));
+                }
+            };
+            let (spec, poses) = (spec.clone(), poses.clone());
+            Box::new(
+                files
+                    .into_iter()
+                    .enumerate()
+                    .map(move |(position, path)| spec.scan(&session, &path, position, poses.as_deref())),
+            )
+        })))
+    }
+
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
+    fn scan(
+        &self,
+        session: &str,
+        path: &Path,
+        position: usize,
+        poses: Option<&GroundTruth>,
+    ) -> Result<Scan, ScanFailure> {
+        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let id = format!("{session}/{stem}");
+        let (utime, frame) = self.utime_of(path, position).map_err(|e| {
+            ScanFailure::of_file(id.clone(), session, path, None, format!("{}: {e}", path.display()))
+        })?;
+        let (points, fingerprint) = super::read_cloud_file(path, None)
+            .map_err(|e| ScanFailure::of_file(id.clone(), session, path, Some(utime), e.to_string()))?;
+        let pose = match (poses, frame) {
+            (None, _) => Err(NoPose::NoGroundTruth),
+            (Some(gt), Some(frame)) => match gt.rows.get(frame) {
+                Some((_, Some(p))) => Ok(*p),
+                Some((_, None)) => Err(NoPose::NonFinite),
+                None => Err(NoPose::NoRowNear),
+            },
+            (Some(gt), None) => gt.pose_at(utime, (self.tolerance_ms * 1000.0).round() as i64),
+        };
+        let (pose, no_pose) = super::split_pose(pose);
+        let raw_points = points.len();
+        let mut points = points;
+        let (mut intensity, mut ring) = (None, None);
+        super::drop_invalid(&mut points, &mut intensity, &mut ring);
+        Ok(Scan {
+            id,
+            fingerprint,
+            session: session.to_string(),
+            path: path.to_owned(),
+            message_index: None,
+            utime,
+            points,
+            intensity,
+            ring,
+            raw_points,
+            pose,
+            no_pose,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_names_mean_frames_or_timestamps() {
+        let mut spec = CloudsSpec::folder(Path::new("d"));
+        assert_eq!(spec.utime_of(Path::new("d/0000000153.pcd"), 7), Ok((15_300_000, Some(153))));
+        assert_eq!(spec.utime_of(Path::new("d/scan_a.pcd"), 7), Ok((700_000, Some(7))));
+        spec.names = FileNames::Nanoseconds;
+        assert_eq!(
+            spec.utime_of(Path::new("d/1317000009745340952.ply"), 0),
+            Ok((1_317_000_009_745_340, None))
+        );
+        spec.names = FileNames::Seconds;
+        assert_eq!(spec.utime_of(Path::new("d/1317000009.745341.pcd"), 0), Ok((1_317_000_009_745_341, None)));
+        spec.names = FileNames::Milliseconds;
+        assert_eq!(spec.utime_of(Path::new("d/1500.pcd"), 0), Ok((1_500_000, None)));
+        assert!(spec.utime_of(Path::new("d/frame.pcd"), 0).unwrap_err().contains("not a timestamp"));
+    }
+
+    #[test]
+    fn tum_poses_parse_with_their_yaw() {
+        let half = std::f64::consts::FRAC_1_SQRT_2;
+        let text =
+            format!("# t x y z qx qy qz qw\n1.5 1 2 3 0 0 {half} {half}\n0.5 0 0 0 0 0 0 1\nbad line\n");
+        let gt = parse_tum(&text, Path::new("p.txt"));
+        assert_eq!(gt.rows.len(), 2);
+        assert_eq!(gt.rows[0], (500_000, Some(Pose { x: 0.0, y: 0.0, z: 0.0, yaw: 0.0 })));
+        let p = gt.rows[1].1.unwrap();
+        assert_eq!((gt.rows[1].0, p.x, p.y, p.z), (1_500_000, 1.0, 2.0, 3.0));
+        assert!((p.yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert_eq!(gt.bad_lines.len(), 1);
+    }
+}
