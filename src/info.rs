@@ -41,7 +41,7 @@ pub struct IndexInfo {
 #[derive(Clone, Debug, Serialize)]
 pub struct MethodInfo {
     /// `toporec`, `scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`,
-    /// `lidar-iris`, `toporec-plus` or `imported`.
+    /// `lidar-iris`, `ring`, `toporec-plus` or `imported`.
     pub kind: String,
     /// Descriptor length.
     pub length: usize,

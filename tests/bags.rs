@@ -322,6 +322,79 @@ fn a_pipeline_indexes_every_bag_with_every_method_and_query_reads_a_bag() {
             assert!(line.contains(&format!("kitti00_rosbag2_sqlite3/{i:06}")), "{method}: {line}");
         }
     }
+    // Loops over the bags' index: each scan of a later bag closes on its copy in an earlier
+    // one (distance 0), and `--verify` reads both raw scans back from the bags and aligns them.
+    let csv = dir.join("loops.csv");
+    let o = toporec(&[
+        "loops",
+        "--index",
+        index.to_str().unwrap(),
+        "--method",
+        "scancontext",
+        "--threshold",
+        "0.01",
+        "--verify",
+        "-o",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let loops = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = loops.lines().next().unwrap().split(',').collect();
+    let column =
+        |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}: {header:?}"));
+    let (query, matched, verified) = (column("query_scan"), column("matched_scan"), column("verified"));
+    let found: Vec<Vec<&str>> = loops.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(found.len(), 12, "{loops}");
+    for row in &found {
+        assert_eq!(row[query].split('/').nth(1), row[matched].split('/').nth(1), "{row:?}");
+        assert_eq!(row[verified], "true", "{row:?}");
+    }
+}
+
+/// A folder of PCD files indexed with every method by a `kind = "clouds"` pipeline; each
+/// frame, queried from the folder, finds itself first with every method.
+#[test]
+fn a_pipeline_indexes_a_pcd_folder_with_every_method() {
+    let Some(data) = shared_data("a_pipeline_indexes_a_pcd_folder_with_every_method") else { return };
+    let dir = scratch_dir("pcd_folder_pipeline");
+    let city = data.join("pcd/kitti_raw_city");
+    let mut methods = vec!["toporec".to_string()];
+    methods.extend(toporec::methods::computed_names().iter().map(|m| m.to_string()));
+    let pipeline = dir.join("clouds.toml");
+    std::fs::write(
+        &pipeline,
+        format!(
+            "[output]\nindex = \"unused\"\n\n[[sources]]\nkind = \"clouds\"\nfolders = [{:?}]\n\n\
+             [preprocess]\nsubsample = 1024\nnormalize = true\n\n[vectorize]\nb = 8\nseed = 0\n\n\
+             [descriptors]\nmethods = {:?}\n",
+            city.to_str().unwrap(),
+            methods
+        ),
+    )
+    .unwrap();
+    let index = dir.join("index");
+    let (o, summary) = run_with(&pipeline, &index, &[]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(counter(&summary, "computed"), 2, "{summary}");
+    for method in &methods {
+        let o = toporec(&[
+            "query",
+            "--index",
+            index.to_str().unwrap(),
+            "--method",
+            method,
+            "-k",
+            "1",
+            city.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{method}: {}", text(&o.stderr));
+        let out = text(&o.stdout);
+        let hits: Vec<&str> = out.lines().skip(1).collect();
+        assert_eq!(hits.len(), 2, "{method}: {out}");
+        for (hit, frame) in hits.iter().zip(["0000000000", "0000000153"]) {
+            assert_eq!(hit.matches(frame).count(), 2, "{method}: {hit}");
+        }
+    }
 }
 
 // ------------------------------------------------------------ a small bag, written here

@@ -10,7 +10,7 @@ use toporec::methods::scancontext::{self, ScanContextParams};
 use toporec::methods::scancontext_pp::{self, CartParams, PolarParams, Variant};
 use toporec::methods::solid::{self, SolidParams};
 
-fn turned(points: &[Point], degrees: f64) -> Vec<Point> {
+pub(crate) fn turned(points: &[Point], degrees: f64) -> Vec<Point> {
     let (s, c) = degrees.to_radians().sin_cos();
     points.iter().map(|p| [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]]).collect()
 }
@@ -116,16 +116,16 @@ fn m2dp_is_invariant_to_rotations_the_sign_convention_keeps() {
 }
 
 /// A line `<cloud>,<kind>,<values…>` that a reference transcription printed.
-struct ReferenceLine {
+pub(crate) struct ReferenceLine {
     /// Which of the scans it is about.
-    cloud: usize,
-    kind: String,
-    values: Vec<f64>,
+    pub cloud: usize,
+    pub kind: String,
+    pub values: Vec<f64>,
 }
 
 /// The clouds of `scans` as toporec reads them, handed to `scripts/SCRIPT` as exact CSV in
 /// a scratch folder `name`: the clouds, and the lines the script printed.
-fn reference_output(
+pub(crate) fn reference_output(
     name: &str,
     script: &str,
     scans: &[std::path::PathBuf],
@@ -443,7 +443,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert!(
         said.contains(
             "scancontext (length 1200), scancontext-pp (length 3600), scancontext-pp-cart (length 1600), \
-             m2dp (length 192), solid (length 100), lidar-iris (length 72000)"
+             m2dp (length 192), solid (length 100), lidar-iris (length 72000), ring (length 15300)"
         ),
         "{said}"
     );
@@ -452,6 +452,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(methods.keys().map(String::as_str).collect::<Vec<_>>(), util::EVERY_METHOD[1..]);
     assert_eq!(methods["scancontext"]["length"], 1200);
     assert_eq!(methods["lidar-iris"]["length"], 72000);
+    assert_eq!(methods["ring"]["length"], 15300);
     assert_eq!(methods["m2dp"]["length"], 192);
     assert_eq!(methods["solid"]["params"]["fov_up"], 10.67);
     for m in util::EVERY_METHOD {
@@ -525,7 +526,7 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(o.status.code(), Some(2));
     assert!(
         text(&o.stderr)
-            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, lidar-iris, m2dp, scancontext, scancontext-pp, scancontext-pp-cart, solid, toporec-plus)"),
+            .contains("holds no descriptors of method `pointnetvlad` (it holds: toporec, lidar-iris, m2dp, ring, scancontext, scancontext-pp, scancontext-pp-cart, solid, toporec-plus)"),
         "{}",
         text(&o.stderr)
     );
@@ -548,20 +549,23 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     assert_eq!(names, util::EVERY_METHOD);
     // Regression values (toporec's own output on the committed sample): R@1 at 5, 10, 20,
     // 50 m, in 32nds of the queries.
-    assert_eq!(r1(0), [6.0, 11.0, 13.0, 31.0], "TopoRec");
-    assert_eq!(r1(1), [30.0, 30.0, 30.0, 32.0], "LiDAR-Iris");
-    assert_eq!(r1(2), [24.0, 24.0, 26.0, 29.0], "M2DP");
-    assert_eq!(r1(3), [32.0, 32.0, 32.0, 32.0], "ScanContext");
-    assert_eq!(r1(4), [32.0, 32.0, 32.0, 32.0], "Scan Context++, polar");
-    assert_eq!(r1(5), [31.0, 31.0, 31.0, 32.0], "Scan Context++, Cartesian");
-    assert_eq!(r1(6), [11.0, 13.0, 15.0, 32.0], "SOLiD");
-    assert_eq!(r1(7), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
+    let r1 = |name: &str| r1(names.iter().position(|n| *n == name).unwrap());
+    assert_eq!(r1("toporec"), [6.0, 11.0, 13.0, 31.0], "TopoRec");
+    assert_eq!(r1("lidar-iris"), [30.0, 30.0, 30.0, 32.0], "LiDAR-Iris");
+    assert_eq!(r1("m2dp"), [24.0, 24.0, 26.0, 29.0], "M2DP");
+    assert_eq!(r1("scancontext"), [32.0, 32.0, 32.0, 32.0], "ScanContext");
+    assert_eq!(r1("scancontext-pp"), [32.0, 32.0, 32.0, 32.0], "Scan Context++, polar");
+    assert_eq!(r1("scancontext-pp-cart"), [31.0, 31.0, 31.0, 32.0], "Scan Context++, Cartesian");
+    assert_eq!(r1("solid"), [11.0, 13.0, 15.0, 32.0], "SOLiD");
+    assert_eq!(r1("toporec-plus"), [32.0, 32.0, 32.0, 32.0], "toporec-plus");
+    assert_eq!(r1("ring"), [32.0, 32.0, 32.0, 32.0], "RING");
     for f in
         ["recall_at_n.png", "trajectory_toporec.png", "trajectory_m2dp.png", "trajectory_scancontext.png"]
     {
         assert!(eval.join(f).is_file(), "{f}");
     }
-    assert!(report["methods"][3]["timing_ms"]["rerank"]["mean"].as_f64().unwrap() > 0.0);
+    let sc = names.iter().position(|n| *n == "scancontext").unwrap();
+    assert!(report["methods"][sc]["timing_ms"]["rerank"]["mean"].as_f64().unwrap() > 0.0);
     let one = dir.join("eval-m2dp");
     let o = eval_days(&index, &one, &["--method", "m2dp"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
@@ -575,10 +579,14 @@ fn one_run_indexes_every_method_and_query_and_eval_take_each() {
     let base = root().join("pipelines").display().to_string();
     let edited = text_of
         .replace(
-            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"scancontext-pp\", \"scancontext-pp-cart\", \"m2dp\", \"solid\", \"lidar-iris\"]",
+            "methods = [\"toporec\", \"toporec-plus\", \"scancontext\", \"scancontext-pp\", \"scancontext-pp-cart\", \"m2dp\", \"solid\", \"lidar-iris\", \"ring\"]",
             "methods = [\"toporec\", \"m2dp\"]",
         )
         .replace("\"../", &format!("\"{base}/../"));
+    assert!(
+        edited.contains("methods = [\"toporec\", \"m2dp\"]"),
+        "the methods line of pipelines/compare.toml"
+    );
     std::fs::write(&toporec_only, edited).unwrap();
     let o = run_pipeline(&toporec_only, &index, 2);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));

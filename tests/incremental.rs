@@ -358,6 +358,18 @@ fn manifest_json_schema_matches_a_real_manifest() {
         "file entries"
     );
     assert_eq!(manifest["manifest_version"], schema["properties"]["manifest_version"]["const"]);
+    // The method kinds are the registry's computed methods and `imported`.
+    let kinds: Vec<String> =
+        schema["properties"]["methods"]["additionalProperties"]["properties"]["kind"]["enum"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|k| k.as_str().unwrap().to_string())
+            .collect();
+    let mut registered: Vec<String> =
+        toporec::methods::computed_names().iter().map(|n| n.to_string()).collect();
+    registered.push("imported".into());
+    assert_eq!(kinds, registered, "schemas/manifest.json method kinds");
     // And a real JSON Schema validator agrees, where one is installed.
     if python_with("manifest JSON Schema validation", &["jsonschema"]) {
         let script = format!(

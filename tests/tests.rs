@@ -16,6 +16,7 @@ mod integrity;
 mod loops;
 mod pipeline;
 mod pointnetvlad;
+mod ring;
 mod shard;
 mod simulate;
 mod sources;

@@ -5,10 +5,11 @@ use toporec::homology::{Diagram, Point};
 
 /// Every method `pipelines/compare.toml` and `pipelines/kitti.toml` index, in the order
 /// `eval` reports them (TopoRec first, then by name).
-pub const EVERY_METHOD: [&str; 8] = [
+pub const EVERY_METHOD: [&str; 9] = [
     "toporec",
     "lidar-iris",
     "m2dp",
+    "ring",
     "scancontext",
     "scancontext-pp",
     "scancontext-pp-cart",

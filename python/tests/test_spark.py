@@ -182,3 +182,38 @@ def test_the_summary_speaks_as_toporec_run(spark, tmp_path, binary):
     assert all(word in theirs for word in ours), (ours, theirs)
     scans = next(line for line in run.stderr.splitlines() if line.startswith("scans:"))
     assert scans == "scans: 64 read, 64 indexed, 0 skipped, 0 errors"
+
+
+def test_bags_index_as_toporec_run_indexes_them(spark, tmp_path, shared_data):
+    """The four real bags of ../shared/data/bags (two ROS 1 files, a rosbag2 sqlite3 folder and
+    a rosbag2 MCAP folder): the folders are listed as one log each (not their storage files),
+    split into message ranges, and the index equals `toporec run`'s on a `kind = "rosbag"`
+    pipeline."""
+    from toporec.spark import _local_files, _logs, index_files
+
+    bags = shared_data / "bags"
+    paths = [bags / n for n in ["kitti00_ros1_bz2.bag", "kitti00_ros1_lz4.bag", "kitti00_rosbag2_mcap", "kitti00_rosbag2_sqlite3"]]
+    listed = _logs(_local_files([str(bags)], "*"))
+    assert [p.rsplit("/", 1)[1] for p in listed] == [p.name for p in paths]
+    pipeline = tmp_path / "bags.toml"
+    pipeline.write_text(
+        '[output]\nindex = "unused"\n\n[[sources]]\nkind = "rosbag"\npaths = [' + ", ".join(f'"{p}"' for p in paths) + "]\n\n"
+        "[preprocess]\nsubsample = 1024\nnormalize = true\n\n"
+        '[vectorize]\nb = 8\ndims = [0, 1, 2]\ncontrast = "laplacian"\nseed = 0\n\n'
+        '[descriptors]\nmethods = ["toporec", "scancontext"]\n'
+    )
+    by_run, by_spark = tmp_path / "run", tmp_path / "spark"
+    toporec.fit(pipeline, sample=1.0, index=by_run)
+    toporec.run(pipeline, index=by_run)
+    result = index_files(spark, [bags], by_spark, pipeline=pipeline, sample=1.0, messages_per_task=3)
+    assert result["scans"] == 16 and result["ok"] == 16, result
+
+    a, b = toporec.Index(by_run), toporec.Index(by_spark)
+    key = [("scan_id", "ascending")]
+    sa, sb = a.scans().sort_by(key), b.scans().sort_by(key)
+    assert sorted({i.split("/")[0] for i in sa.column("scan_id").to_pylist()}) == [p.name.removesuffix(".bag") for p in paths]
+    assert sa.equals(sb)
+    pairs = key + [("dim", "ascending"), ("birth", "ascending"), ("death", "ascending")]
+    assert a.diagrams().sort_by(pairs).equals(b.diagrams().sort_by(pairs))
+    for method in ["toporec", "scancontext"]:
+        assert a.descriptors(method).sort_by(key).equals(b.descriptors(method).sort_by(key))

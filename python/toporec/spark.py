@@ -15,11 +15,11 @@
    list them; others (``s3a://``, ``hdfs://``, globs; or ``read="spark"``) by that
    ``binaryFile`` read's file index. Local files are read by the tasks themselves, a run of
    ``scans_per_task`` files each: their bytes do not pass through the JVM. Files elsewhere
-   come as the ``binaryFile`` rows' content. MCAP files are listed the same way and split by
-   message ranges (``messages_per_task`` scans a task, counted by a first pass on the
-   executors); a task reads its range from the file's path, decoding only its own messages.
-   Each scan keeps its position in the sorted file list (an MCAP file's scans in message
-   order) as its ``seq``.
+   come as the ``binaryFile`` rows' content. Message logs (MCAP files, ROS 1 bags, rosbag2
+   folders and ``.db3`` files) are listed the same way and split by message ranges
+   (``messages_per_task`` scans a task, counted by a first pass on the executors); a task
+   reads its range from the log's path, decoding only its own messages. Each scan keeps its
+   position in the sorted file list (a log's scans in message order) as its ``seq``.
 3. ``mapInArrow`` calls :func:`toporec.describe_batch` on each Arrow batch (a scan that fails
    is an ``error`` row, never a failed task). The diagrams and each method's descriptors are
    written by the task itself, by toporec's own Parquet writer, into a staging folder inside
@@ -156,7 +156,7 @@ def _is_local(uri: str) -> bool:
 
 
 def describe_ranges(batches, index: str, staging: str):
-    """The ``mapInArrow`` function of MCAP files: rows of message ranges (``path``,
+    """The ``mapInArrow`` function of message logs: rows of message ranges (``path``,
     ``first_message``, ``message_count``, ``seq``) in, one row per scan out (as
     :func:`describe_partition`)."""
     _task_threads()
@@ -175,7 +175,7 @@ def describe_ranges(batches, index: str, staging: str):
 
 
 def _count_scans(batches):
-    """The ``mapInArrow`` function that counts each MCAP file's scans (and names its topic)."""
+    """The ``mapInArrow`` function that counts each log's scans (and names its topic)."""
     for batch in batches:
         paths = batch.column("path").to_pylist()
         counted = [toporec._toporec.mcap_scan_count(local_path(p)) for p in paths]
@@ -235,6 +235,19 @@ def _local_files(inputs: Sequence[str], glob: str) -> List[str]:
     return sorted(set(found))
 
 
+LOG_GLOBS = ("*.mcap", "*.bag", "*.db3", "metadata.yaml")
+"""The message logs :func:`index_files` lists by default: MCAP files, ROS 1 bags, lone rosbag2
+``.db3`` files, and rosbag2 folders (found by their ``metadata.yaml``)."""
+
+
+def _logs(files: Sequence[str]) -> List[str]:
+    """The logs among listed files, sorted: each folder holding a ``metadata.yaml`` (a rosbag2
+    folder, read whole, as ``toporec run`` reads it), and every other file not inside one."""
+    folders = sorted({f.rsplit("/", 1)[0] for f in files if f.rsplit("/", 1)[-1] == "metadata.yaml"})
+    inside = tuple(d + "/" for d in folders)
+    return sorted(set(folders) | {f for f in files if not f.startswith(inside) and f.rsplit("/", 1)[-1] != "metadata.yaml"})
+
+
 def index_files(
     spark: Any,
     inputs: Sequence[PathLike],
@@ -245,7 +258,7 @@ def index_files(
     scans_per_task: Optional[int] = None,
     read: str = "auto",
     glob: str = "*.bin",
-    mcap_glob: Optional[str] = "*.mcap",
+    log_globs: Sequence[str] = LOG_GLOBS,
     messages_per_task: int = 64,
 ) -> Dict[str, Any]:
     """Indexes the scan files under ``inputs`` into ``index`` with Spark (see the module doc).
@@ -265,10 +278,12 @@ def index_files(
             ``binaryFile`` rows otherwise; ``"spark"``, always Spark.
         glob: the scan files' name pattern (NCLT ``velodyne_sync`` and KITTI ``velodyne``
             files, one scan each).
-        mcap_glob: the MCAP files' name pattern (``None``: no MCAP). Each file is split into
-            tasks of ``messages_per_task`` scans; a task reads its file from the path (on a
-            file system every executor mounts), decoding only its own messages.
-        messages_per_task: scans per MCAP task.
+        log_globs: the message logs' name patterns (empty: no logs): MCAP files, ROS 1 bags and
+            lone rosbag2 ``.db3`` files; a folder holding a ``metadata.yaml`` is one rosbag2
+            log (its storage files are not listed apart). Each log is split into tasks of
+            ``messages_per_task`` scans; a task reads its log from the path (on a file system
+            every executor mounts), decoding only its own messages.
+        messages_per_task: scans per log task.
 
     Returns:
         ``{"scans": n, "ok": n, "skipped": n, "errors": n, "index": path}``.
@@ -289,12 +304,12 @@ def index_files(
     # the file index Spark builds for a `binaryFile` read.
     if read == "auto" and _local_inputs(spark, inputs):
         scan_files = _local_files(inputs, glob)
-        logs_listed = _local_files(inputs, mcap_glob) if mcap_glob else []
+        logs_listed = _logs([f for g in log_globs for f in _local_files(inputs, g)])
     else:
         files = _listing(spark, inputs, glob)
         scan_files = sorted(_uri(p) for p in files.inputFiles())
-        logs_listed = sorted(_uri(p) for p in _listing(spark, inputs, mcap_glob).inputFiles()) if mcap_glob else []
-    # Scan counts of the MCAP files (one pass over each, on the executors).
+        logs_listed = _logs([_uri(p) for g in log_globs for p in _listing(spark, inputs, g).inputFiles()])
+    # Scan counts of the logs (one pass over each, on the executors).
     counts: Dict[str, int] = {}
     if logs_listed:
         paths_df = spark.createDataFrame([(p,) for p in logs_listed], "path string").repartition(len(logs_listed))
@@ -393,7 +408,7 @@ def main(argv: Optional[List[str]] = None) -> None:
     ap.add_argument("--sample", type=float, default=0.1, help="fraction of scans the codebook is fitted on")
     ap.add_argument("--scans-per-task", type=int, help="scan files per task (default: a quarter of a core's share, at most 256)")
     ap.add_argument("--read", choices=["auto", "spark"], default="auto", help="who reads the scan files: the tasks when local (auto), or Spark's binaryFile rows")
-    ap.add_argument("--messages-per-task", type=int, default=64, help="scans per MCAP task")
+    ap.add_argument("--messages-per-task", type=int, default=64, help="scans per message-log task (MCAP, bag)")
     ap.add_argument("--master", help="Spark master (default: spark-submit's)")
     ap.add_argument("--verbose", action="store_true", help="keep Spark's INFO log lines (default: warnings only)")
     args = ap.parse_args(argv)

@@ -125,7 +125,7 @@ pub struct Manifest {
 /// A descriptor method of an index, besides the TopoRec one.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MethodEntry {
-    /// `scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`, `lidar-iris`,
+    /// `scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`, `lidar-iris`, `ring`,
     /// `toporec-plus` or `imported`.
     pub kind: String,
     /// Its parameters (computed methods) or where the vectors came from (imported ones).
