@@ -305,27 +305,40 @@ fn correlation(q: &Spectra, m: &Spectra, p: &RingParams, plans: &Plans) -> Vec<f
     let scale = 1.0 / (a as f64).sqrt();
     let mut corr = vec![0.0f64; a];
     let mut buf = vec![Complex64::default(); a];
-    let product = |col: usize, k: usize| -> Complex64 {
-        let (x, y) = (q.bins[col * half + k], m.bins[col * half + k]);
-        let z = x * y.conj();
-        Complex64::new(z.re as f64, z.im as f64)
+    let mut scratch = vec![Complex64::default(); plans.angles_inverse.get_inplace_scratch_len()];
+    let (mut one, mut two) = (vec![Complex64::default(); half], vec![Complex64::default(); half]);
+    let products = |col: usize, out: &mut [Complex64]| {
+        let (x, y) = (&q.bins[col * half..(col + 1) * half], &m.bins[col * half..(col + 1) * half]);
+        for ((o, x), y) in out.iter_mut().zip(x).zip(y) {
+            let z = x * y.conj();
+            *o = Complex64::new(z.re as f64, z.im as f64);
+        }
     };
+    // sqrt(v² + 1e-15), the reference's magnitude, is |v| to 1e-11 wherever |v| > 1e-4.
+    let magnitude = |v: f64| if v.abs() > 1e-4 { v.abs() } else { (v * v + 1e-15).sqrt() };
     let mut col = 0;
     while col < n {
         let pair = col + 1 < n;
-        for (k, slot) in buf.iter_mut().enumerate() {
-            // Bin k of a real signal's spectrum; the upper half mirrors the lower.
-            let bin = |c: usize| if k < half { product(c, k) } else { product(c, a - k).conj() };
-            let one = bin(col);
-            let two = if pair { bin(col + 1) } else { Complex64::default() };
-            *slot = one + Complex64::new(-two.im, two.re);
+        products(col, &mut one);
+        if pair {
+            products(col + 1, &mut two);
+        } else {
+            two.fill(Complex64::default());
         }
-        plans.angles_inverse.process(&mut buf);
-        for (s, z) in buf.iter().enumerate() {
-            let (re, im) = (z.re * scale, z.im * scale);
-            corr[s] += (re * re + 1e-15).sqrt();
+        // Two real columns in one complex transform: the first's spectrum plus i times the
+        // second's; the upper half of each mirrors its lower half.
+        for k in 0..half {
+            buf[k] = one[k] + Complex64::new(-two[k].im, two[k].re);
+        }
+        for k in half..a {
+            let (x, y) = (one[a - k].conj(), two[a - k].conj());
+            buf[k] = x + Complex64::new(-y.im, y.re);
+        }
+        plans.angles_inverse.process_with_scratch(&mut buf, &mut scratch);
+        for (c, z) in corr.iter_mut().zip(&buf) {
+            *c += magnitude(z.re * scale);
             if pair {
-                corr[s] += (im * im + 1e-15).sqrt();
+                *c += magnitude(z.im * scale);
             }
         }
         col += 2;
