@@ -522,27 +522,58 @@ fn a_bag_written_here_reads_by_its_index_and_without_it() {
     assert!(bare.iter().zip(&got).all(|(a, b)| a.points == b.points && a.utime == b.utime));
 }
 
-#[test]
-fn fuzz_mutated_bags_never_panic() {
-    // Random byte flips and cuts of a valid bag (each case writes a file): readers, inspect and
-    // the scan stream return errors, never panic.
-    let dir = scratch_dir("bags_fuzz");
-    let base = small_bag(3);
-    let mut rng = toporec::rng::SplitMix64(11);
-    let target = dir.join("case.bag");
-    for _ in 0..300 {
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 300, failure_persistence: None, ..Default::default() })]
+
+    /// Byte flips and cuts of a valid ROS 1 bag (each case writes a file): the reader, `inspect`
+    /// and the scan stream return errors, never panic.
+    #[test]
+    fn fuzz_mutated_bags_never_panic(
+        flips in proptest::collection::vec((0usize..100_000, proptest::prelude::any::<u8>()), 1..7),
+        cut in proptest::option::of(0usize..100_000),
+    ) {
+        let base = small_bag(3);
         let mut b = base.clone();
-        for _ in 0..1 + rng.below(6) {
-            let i = rng.below(b.len());
-            b[i] = rng.next_u64() as u8;
+        for (i, v) in flips {
+            let n = b.len();
+            b[i % n] = v;
         }
-        if rng.below(4) == 0 {
-            b.truncate(rng.below(b.len()));
+        if let Some(c) = cut {
+            b.truncate(c % base.len());
         }
+        let target = scratch_dir("bags_fuzz").join(format!("case-{:016x}.bag", fingerprint(&b)));
         std::fs::write(&target, &b).unwrap();
         let _ = RosbagSpec::path(&target).open().map(|s| s.count());
         let _ = toporec::inspect::inspect(&target);
+        let _ = std::fs::remove_file(&target);
     }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 24, failure_persistence: None, ..Default::default() })]
+
+    /// Byte flips in the first 64 KB of the real rosbag2 `.db3` (SQLite's header and first
+    /// pages): an error or fewer scans, never a panic.
+    #[test]
+    fn fuzz_mutated_db3_never_panics(
+        flips in proptest::collection::vec((0usize..65_536, proptest::prelude::any::<u8>()), 1..5),
+    ) {
+        let Some(data) = shared_data("fuzz_mutated_db3_never_panics") else { return Ok(()) };
+        let mut b = std::fs::read(data.join("bags/kitti00_rosbag2_sqlite3/kitti00_rosbag2_sqlite3.db3")).unwrap();
+        for (i, v) in flips {
+            b[i] = v;
+        }
+        let target = scratch_dir("db3_fuzz").join(format!("case-{:016x}.db3", fingerprint(&b[..65_536])));
+        std::fs::write(&target, &b).unwrap();
+        let _ = RosbagSpec::path(&target).open().map(|s| s.count());
+        let _ = toporec::inspect::inspect(&target);
+        let _ = std::fs::remove_file(&target);
+    }
+}
+
+/// A name for a fuzz case's file (cases may run in parallel).
+fn fingerprint(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf29ce484222325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x100000001b3))
 }
 
 // ------------------------------------------------------------ folders of PCD / PLY files
