@@ -1,10 +1,10 @@
 //! Baselines benchmark: ScanContext, Scan Context++ (polar and Cartesian), M2DP, SOLiD,
-//! LiDAR-Iris and RING (and toporec-plus, for the comparison) per scan (design goal: under 2 ms
+//! LiDAR-Iris, RING and RING++ (and toporec-plus, for the comparison) per scan (design goal: under 2 ms
 //! each for a 4096-point scan), and their searches over 100,000 entries (design goal: under 5 ms
 //! per query), one thread. LiDAR-Iris's entries take 75 KB each in its searcher and RING's
-//! about 120 KB (the descriptor and its angle spectra), so their searches run over 1,000 and
-//! 10,000 entries: LiDAR-Iris's row-key pass grows with the entries, the re-rank of its
-//! candidates does not; RING correlates every entry.
+//! about 120 KB (the descriptor and its angle spectra), RING++'s about 1 MB, so their searches
+//! run over 1,000 and 10,000 entries: LiDAR-Iris's row-key pass grows with the entries, the re-rank of its
+//! candidates does not; RING and RING++ correlate every entry.
 //!
 //! Scans: the real KITTI scans of `../shared/data` when present (subsampled to 4096 points, and
 //! whole), else simulated ones from `samples/`. The 100,000 database entries are ScanContexts
@@ -29,6 +29,7 @@ use toporec::methods::Searcher as _;
 use toporec::methods::lidar_iris::{self, IrisParams};
 use toporec::methods::m2dp;
 use toporec::methods::ring::{self, RingParams};
+use toporec::methods::ring_plus::{self, RingPlusParams};
 use toporec::methods::scancontext::{self, ScanContextParams, Searcher};
 use toporec::methods::scancontext_pp::{self, CartParams, PolarParams, Variant};
 use toporec::methods::solid::{self, SolidParams};
@@ -97,7 +98,8 @@ fn main() {
         let ip = IrisParams::default();
         let plus = toporec::methods::toporec_plus::PlusParams::default();
         let rp = RingParams::default();
-        let rows: [(&str, Describe); 11] = [
+        let rpp = RingPlusParams::default();
+        let rows: [(&str, Describe); 12] = [
             ("ScanContext descriptor", &|c| {
                 std::hint::black_box(scancontext::describe(c, &p));
             }),
@@ -127,6 +129,9 @@ fn main() {
             }),
             ("RING grid, Radon sinogram and its FFT magnitudes", &|c| {
                 std::hint::black_box(ring::describe(c, &rp));
+            }),
+            ("RING++ features, six grids, their sinograms and FFT magnitudes", &|c| {
+                std::hint::black_box(ring_plus::describe(c, &rpp).ok());
             }),
             ("toporec-plus (its searches: `cargo bench --bench toporec_plus`)", &|c| {
                 std::hint::black_box(toporec::methods::toporec_plus::describe(c, &plus).ok());
@@ -250,21 +255,45 @@ fn main() {
         let ring_base: Vec<Vec<f32>> = clouds.iter().map(|c| ring::describe(c, &rp)).collect();
         for ring_n in [1_000, 10_000] {
             let t = Instant::now();
-            let mut s = ring::Searcher::new(Vec::new(), rp.clone());
+            let mut s = rp.searcher(Vec::new());
             for i in 0..ring_n {
                 s.push(&ring_base[i % ring_base.len()]);
             }
             let build = t.elapsed().as_secs_f64();
-            let total = query_ms(&ring_base, |q| s.search(q, 25, None).len());
+            let total = query_ms(&ring_base, |q| s.search(q, 25, None).0.len());
             println!(
                 "RING search, {ring_n} entries (added in {build:.2} s), k = 25, every entry: {:.3} ms per query (the circular correlation with each, then the poses of the hits), mean of {} queries",
                 mean(&total),
                 total.len()
             );
             s.set_budget(toporec::methods::SearchBudget::Matched(50), ring_n);
-            let total = query_ms(&ring_base, |q| s.search(q, 25, None).len());
+            let total = query_ms(&ring_base, |q| s.search(q, 25, None).0.len());
             println!(
                 "RING search, {ring_n} entries, k = 25, matched:50: {:.3} ms per query (the keys' 50 nearest, then their correlation and the hits' poses), mean of {} queries",
+                mean(&total),
+                total.len()
+            );
+        }
+        // RING++: as RING, six feature channels an entry (~1 MB resident each); one query
+        // scan, searched ten times.
+        let plus_base: Vec<Vec<f32>> = clouds.iter().map(|c| ring_plus::describe(c, &rpp).expect("a RING++ descriptor")).collect();
+        for plus_n in [1_000, 10_000] {
+            let t = Instant::now();
+            let mut s = rpp.searcher(Vec::new());
+            for i in 0..plus_n {
+                s.push(&plus_base[i % plus_base.len()]);
+            }
+            let build = t.elapsed().as_secs_f64();
+            let total = query_ms(&plus_base[..1], |q| s.search(q, 25, None).0.len());
+            println!(
+                "RING++ search, {plus_n} entries (added in {build:.2} s), k = 25, every entry: {:.3} ms per query (the six circular correlations with each, then the poses of the hits), mean of {} queries",
+                mean(&total),
+                total.len()
+            );
+            s.set_budget(toporec::methods::SearchBudget::Matched(50), plus_n);
+            let total = query_ms(&plus_base[..1], |q| s.search(q, 25, None).0.len());
+            println!(
+                "RING++ search, {plus_n} entries, k = 25, matched:50: {:.3} ms per query, mean of {} queries",
                 mean(&total),
                 total.len()
             );

@@ -6,8 +6,8 @@
 //!   preprocessing: toporec's own [`toporec_plus`], and the baselines place recognition is
 //!   usually compared against — [`scancontext`] (Kim & Kim 2018), [`scancontext_pp`] (Scan
 //!   Context++, Kim, Choi, Kim 2021: its polar and its Cartesian context), [`m2dp`] (He et al.
-//!   2016), [`solid`] (Kim, Choi, Kim 2024), [`lidar_iris`] (Wang et al. 2020) and [`ring`] (Lu
-//!   et al. 2022).
+//!   2016), [`solid`] (Kim, Choi, Kim 2024), [`lidar_iris`] (Wang et al. 2020), [`ring`] (Lu
+//!   et al. 2022) and [`ring_plus`] (RING++, Xu, Lu et al. 2023).
 //! * Descriptors made elsewhere (PointNetVLAD, PCAN, MinkLoc3D, …), imported into an index with
 //!   `toporec import`: stored, searched by Euclidean k-NN, never computed.
 //!
@@ -21,6 +21,7 @@ pub mod euclidean;
 pub mod lidar_iris;
 pub mod m2dp;
 pub mod ring;
+pub mod ring_plus;
 pub mod scancontext;
 pub mod scancontext_pp;
 pub mod searcher;
@@ -159,6 +160,7 @@ pub const REGISTRY: &[Registered] = &[
     entry::<solid::SolidParams>(),
     entry::<lidar_iris::IrisParams>(),
     entry::<ring::RingParams>(),
+    entry::<ring_plus::RingPlusParams>(),
 ];
 
 impl Registered {

@@ -36,7 +36,6 @@
 //! entries nearest by a yaw-invariant key — the sinogram's normalized columns averaged over the
 //! angles — then correlates those.
 
-use super::Computed;
 use super::searcher::{Allowed, Hit, SearchBudget, SearchTimes, allowed_rows, timed};
 use crate::types::Point;
 use rayon::prelude::*;
@@ -76,7 +75,7 @@ impl Default for RingParams {
 
 impl RingParams {
     /// Sinogram values (angles × side).
-    fn sinogram_len(&self) -> usize {
+    pub(crate) fn sinogram_len(&self) -> usize {
         self.angles * self.side
     }
 
@@ -113,20 +112,20 @@ pub fn grid(points: &[Point], p: &RingParams) -> Vec<u8> {
     out
 }
 
-/// The Radon transform of a square image as scikit-image's `radon(image, theta, circle=True)`
+/// The Radon transform of a square image (`[row][column]`) as scikit-image's `radon(image, theta, circle=True)`
 /// computes it, `[angle][offset]`: for angle θᵢ = i · 360° / angles, the image turned about
 /// cell (n/2, n/2) by bilinear sampling (zero outside), summed over its rows.
 ///
-/// Computed from the occupied cells: each spreads its weight to the few output samples whose
+/// Computed from the nonzero cells: each spreads its value to the few output samples whose
 /// sampling point falls within one cell of it (found through the inverse turn, each checked
 /// with the forward one, as skimage's `warp` computes it). The sums equal the gathered ones up
 /// to the order of addition.
-pub fn radon(image: &[u8], p: &RingParams) -> Vec<f64> {
+pub fn radon(image: &[f64], p: &RingParams) -> Vec<f64> {
     let n = p.side;
     let nf = n as f64;
     let centre = (n / 2) as f64;
-    let occupied: Vec<(f64, f64)> =
-        (0..n * n).filter(|&k| image[k] != 0).map(|k| ((k / n) as f64, (k % n) as f64)).collect();
+    let occupied: Vec<(f64, f64, f64)> =
+        (0..n * n).filter(|&k| image[k] != 0.0).map(|k| ((k / n) as f64, (k % n) as f64, image[k])).collect();
     // The preimage of a cell's ±1 square is a turned square within √2 of its centre.
     const REACH: f64 = 1.4143;
     let mut out = vec![0.0f64; p.angles * n];
@@ -134,7 +133,7 @@ pub fn radon(image: &[u8], p: &RingParams) -> Vec<f64> {
         let theta = (i as f64 * (360.0 / p.angles as f64)) * (std::f64::consts::PI / 180.0);
         let (c, s) = (theta.cos(), theta.sin());
         let (r02, r12) = (-centre * (c + s - 1.0), -centre * (c - s - 1.0));
-        for &(r, col_in) in &occupied {
+        for &(r, col_in, weight) in &occupied {
             // The output sample at (row, col) reads x = c·col + s·row + r02, y = −s·col + c·row + r12.
             let (u, v) = (col_in - r02, r - r12);
             let (col_c, row_c) = (c * u - s * v, s * u + c * v);
@@ -150,7 +149,7 @@ pub fn radon(image: &[u8], p: &RingParams) -> Vec<f64> {
                     sum += share(y, r) * share(x, col_in);
                     rf += 1.0;
                 }
-                row_out[cf as usize] += sum;
+                row_out[cf as usize] += weight * sum;
                 cf += 1.0;
             }
         }
@@ -169,12 +168,12 @@ fn share(t: f64, at: f64) -> f64 {
 /// [`radon`] gathered as skimage's `warp` samples: every output sample bilinear from its four
 /// neighbours, summed over the rows in order.
 #[cfg(test)]
-fn radon_gathered(image: &[u8], p: &RingParams) -> Vec<f64> {
+fn radon_gathered(image: &[f64], p: &RingParams) -> Vec<f64> {
     let n = p.side;
     let centre = (n / 2) as f64;
     let at = |r: f64, c: f64| -> f64 {
         if r >= 0.0 && c >= 0.0 && (r as usize) < n && (c as usize) < n {
-            image[r as usize * n + c as usize] as f64
+            image[r as usize * n + c as usize]
         } else {
             0.0
         }
@@ -226,7 +225,8 @@ pub fn invariant(sinogram: &[f64], p: &RingParams) -> Vec<f64> {
 /// the occupancy grid, 16 cells a value (bit b of value v is cell 16v + b).
 pub fn describe(points: &[Point], p: &RingParams) -> Vec<f32> {
     let g = grid(points, p);
-    let mut out: Vec<f32> = invariant(&radon(&g, p), p).into_iter().map(|v| v as f32).collect();
+    let cells: Vec<f64> = g.iter().map(|&v| v as f64).collect();
+    let mut out: Vec<f32> = invariant(&radon(&cells, p), p).into_iter().map(|v| v as f32).collect();
     out.extend(
         g.chunks(CELLS_PER_VALUE)
             .map(|c| c.iter().enumerate().fold(0u32, |acc, (b, &v)| acc | ((v as u32) << b)) as f32),
@@ -249,7 +249,7 @@ struct Spectra {
 }
 
 /// FFT plans of one setting, shared.
-struct Plans {
+pub(crate) struct Plans {
     angles_forward: Arc<dyn Fft<f64>>,
     angles_inverse: Arc<dyn Fft<f64>>,
     side_forward: Arc<dyn Fft<f64>>,
@@ -268,20 +268,19 @@ impl Plans {
     }
 }
 
-/// The sinogram part normalized as `InstanceNorm2d` does: mean 0, divided by
+/// One sinogram normalized as `InstanceNorm2d` does: mean 0, divided by
 /// √(biased variance + 1e-5).
-fn normalized(descriptor: &[f32], p: &RingParams) -> Vec<f64> {
-    let v = &descriptor[..p.sinogram_len()];
-    let n = v.len() as f64;
-    let mean = v.iter().map(|&x| x as f64).sum::<f64>() / n;
-    let var = v.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / n;
+fn normalized(sinogram: &[f32]) -> Vec<f64> {
+    let n = sinogram.len() as f64;
+    let mean = sinogram.iter().map(|&x| x as f64).sum::<f64>() / n;
+    let var = sinogram.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / n;
     let sd = (var + 1e-5).sqrt();
-    v.iter().map(|&x| (x as f64 - mean) / sd).collect()
+    sinogram.iter().map(|&x| (x as f64 - mean) / sd).collect()
 }
 
-fn spectra(descriptor: &[f32], p: &RingParams, plans: &Plans) -> Spectra {
+fn spectra(sinogram: &[f32], p: &RingParams, plans: &Plans) -> Spectra {
     let (a, n) = (p.angles, p.side);
-    let v = normalized(descriptor, p);
+    let v = normalized(sinogram);
     let half = a / 2 + 1;
     let scale = 1.0 / (a as f64).sqrt();
     let mut bins = Vec::with_capacity(n * half);
@@ -346,8 +345,9 @@ fn correlation(q: &Spectra, m: &Spectra, p: &RingParams, plans: &Plans) -> Vec<f
     corr
 }
 
-/// The score's peak and its shift (`angles/2 −` the first maximum's place after fftshift).
-fn peak(corr: &[f64], p: &RingParams) -> (f64, i64) {
+/// The score's peak and its shift (`angles/2 −` the first maximum's place after fftshift); the
+/// score is divided by 0.15 · channels · angles · side, as the reference's `circorr2` does.
+fn peak(corr: &[f64], channels: usize, p: &RingParams) -> (f64, i64) {
     let a = p.angles;
     let h = a / 2;
     let (mut best, mut at) = (f64::NEG_INFINITY, 0usize);
@@ -358,25 +358,63 @@ fn peak(corr: &[f64], p: &RingParams) -> (f64, i64) {
             at = k;
         }
     }
-    let score = best / (0.15 * (a * p.side) as f64);
+    let score = best / (0.15 * (channels * a * p.side) as f64);
     (1.0 - score, h as i64 - at as i64)
+}
+
+/// How a RING-family descriptor is laid out: `channels` invariant sinograms (angles × side
+/// float32 values each), then its grids, which `grids` reads back (`channels` images of
+/// side × side cells, `[x cell][y cell]`).
+#[derive(Clone, Copy)]
+pub(crate) struct Layout {
+    pub channels: usize,
+    pub grids: fn(&[f32], &RingParams) -> Vec<f64>,
+}
+
+/// RING's layout: one sinogram, then the occupancy grid as bits.
+const RING_LAYOUT: Layout = Layout { channels: 1, grids: occupancy };
+
+fn occupancy(descriptor: &[f32], p: &RingParams) -> Vec<f64> {
+    stored_grid(descriptor, p).iter().map(|&v| v as f64).collect()
+}
+
+/// The channel spectra of a descriptor's sinograms.
+fn all_spectra(descriptor: &[f32], layout: Layout, p: &RingParams, plans: &Plans) -> Vec<Spectra> {
+    descriptor.chunks_exact(p.sinogram_len()).take(layout.channels).map(|s| spectra(s, p, plans)).collect()
+}
+
+/// The correlation over the angle shifts summed over the channels (`torch.sum(corr, dim=-3)`).
+fn correlation_all(q: &[Spectra], m: &[Spectra], p: &RingParams, plans: &Plans) -> Vec<f64> {
+    let mut total = vec![0.0f64; p.angles];
+    for (x, y) in q.iter().zip(m) {
+        for (t, c) in total.iter_mut().zip(correlation(x, y, p, plans)) {
+            *t += c;
+        }
+    }
+    total
+}
+
+/// The distance of two descriptors of a layout and the angle shift of the best correlation
+/// (the reference's `batch_circorr`).
+pub(crate) fn distance_of(query: &[f32], candidate: &[f32], layout: Layout, p: &RingParams) -> (f64, i64) {
+    let plans = Plans::new(p);
+    let (q, m) = (all_spectra(query, layout, p, &plans), all_spectra(candidate, layout, p, &plans));
+    peak(&correlation_all(&q, &m, p, &plans), layout.channels, p)
 }
 
 /// The RING distance of two descriptors and the angle shift of the best correlation (the
 /// reference's `batch_circorr`).
 pub fn distance(query: &[f32], candidate: &[f32], p: &RingParams) -> (f64, i64) {
-    let plans = Plans::new(p);
-    let corr = correlation(&spectra(query, p, &plans), &spectra(candidate, p, &plans), p, &plans);
-    peak(&corr, p)
+    distance_of(query, candidate, RING_LAYOUT, p)
 }
 
-/// A square image turned by `degrees` as torchvision's `rotate` turns it (nearest cell, about
-/// the centre, zero outside).
-fn rotate(image: &[u8], n: usize, degrees: f64) -> Vec<f64> {
+/// Square images (`channels` of n × n) turned by `degrees` as torchvision's `rotate` turns
+/// them (nearest cell, about the centre, zero outside).
+fn rotate(images: &[f64], n: usize, degrees: f64) -> Vec<f64> {
     let (s, c) = degrees.to_radians().sin_cos();
     let half = (n as f64 - 1.0) / 2.0;
     let w = n as f64;
-    let mut out = vec![0.0; n * n];
+    let mut out = vec![0.0; images.len()];
     for i in 0..n {
         let yc = i as f64 - half;
         for j in 0..n {
@@ -386,18 +424,24 @@ fn rotate(image: &[u8], n: usize, degrees: f64) -> Vec<f64> {
             let ix = (((gx + 1.0) * w - 1.0) / 2.0).round_ties_even();
             let iy = (((gy + 1.0) * w - 1.0) / 2.0).round_ties_even();
             if ix >= 0.0 && ix < w && iy >= 0.0 && iy < w {
-                out[i * n + j] = image[iy as usize * n + ix as usize] as f64;
+                let from = iy as usize * n + ix as usize;
+                for (o, image) in out.chunks_exact_mut(n * n).zip(images.chunks_exact(n * n)) {
+                    o[i * n + j] = image[from];
+                }
             }
         }
     }
     out
 }
 
-/// The 2-D FFT (norm "ortho") of a square image normalized by its mean and unbiased standard
-/// deviation.
-fn image_spectrum(image: &[f64], n: usize, plans: &Plans, inverse: bool) -> Vec<Complex64> {
-    let mut data: Vec<Complex64> = image.iter().map(|&v| Complex64::new(v, 0.0)).collect();
-    fft2(&mut data, n, plans, inverse);
+/// The 2-D FFTs (norm "ortho") of square images, each channel on its own, after all of them
+/// are normalized together by their mean and unbiased standard deviation (the reference's
+/// `fn.normalize(a, mean=a.mean(), std=a.std())`).
+fn image_spectra(images: &[f64], n: usize, plans: &Plans) -> Vec<Complex64> {
+    let mut data: Vec<Complex64> = standardized(images).into_iter().map(|v| Complex64::new(v, 0.0)).collect();
+    for image in data.chunks_exact_mut(n * n) {
+        fft2(image, n, plans, false);
+    }
     data
 }
 
@@ -429,19 +473,24 @@ fn standardized(image: &[f64]) -> Vec<f64> {
     image.iter().map(|v| (v - mean) / sd).collect()
 }
 
-/// The reference's `solve_translation` against an entry's standardized grid spectrum: the
-/// offset (x, y cells) of the 2-D correlation's first highest peak (row-major after fftshift),
-/// and the peak.
+/// The reference's `solve_translation` against an entry's grid spectra: the offset (x, y
+/// cells) of the first highest peak (row-major after fftshift) of the 2-D correlations'
+/// magnitudes summed over the channels, and the peak.
 fn translation(query: &[f64], entry: &[Complex64], n: usize, plans: &Plans) -> (i64, i64, f64) {
-    let a = image_spectrum(&standardized(query), n, plans, false);
-    let mut prod: Vec<Complex64> = a.iter().zip(entry).map(|(x, y)| x * y.conj()).collect();
-    fft2(&mut prod, n, plans, true);
+    let a = image_spectra(query, n, plans);
+    let mut total = vec![0.0f64; n * n];
+    for (x, y) in a.chunks_exact(n * n).zip(entry.chunks_exact(n * n)) {
+        let mut prod: Vec<Complex64> = x.iter().zip(y).map(|(x, y)| x * y.conj()).collect();
+        fft2(&mut prod, n, plans, true);
+        for (t, z) in total.iter_mut().zip(&prod) {
+            *t += (z.re * z.re + z.im * z.im).sqrt();
+        }
+    }
     let h = n / 2;
     let (mut best, mut at) = (f64::NEG_INFINITY, (0, 0));
     for i in 0..n {
         for j in 0..n {
-            let z = prod[((i + h) % n) * n + (j + h) % n];
-            let v = (z.re * z.re + z.im * z.im).sqrt();
+            let v = total[((i + h) % n) * n + (j + h) % n];
             if v > best {
                 best = v;
                 at = (i, j);
@@ -455,19 +504,30 @@ fn translation(query: &[f64], entry: &[Complex64], n: usize, plans: &Plans) -> (
 /// `shift − angles/2` steps), the one whose turned query grid correlates better with the
 /// entry's, with the offset in cells found for it: `(steps, x cells, y cells)`.
 pub fn pose(query: &[f32], candidate: &[f32], shift: i64, p: &RingParams) -> (i64, i64, i64) {
-    pose_planned(query, candidate, shift, p, &Plans::new(p))
+    pose_of(query, candidate, shift, RING_LAYOUT, p)
+}
+
+/// [`pose`] for descriptors of a layout.
+pub(crate) fn pose_of(
+    query: &[f32],
+    candidate: &[f32],
+    shift: i64,
+    layout: Layout,
+    p: &RingParams,
+) -> (i64, i64, i64) {
+    pose_planned(query, candidate, shift, layout, p, &Plans::new(p))
 }
 
 fn pose_planned(
     query: &[f32],
     candidate: &[f32],
     shift: i64,
+    layout: Layout,
     p: &RingParams,
     plans: &Plans,
 ) -> (i64, i64, i64) {
-    let qg = stored_grid(query, p);
-    let entry: Vec<f64> = stored_grid(candidate, p).iter().map(|&v| v as f64).collect();
-    let entry = image_spectrum(&standardized(&entry), p.side, plans, false);
+    let qg = (layout.grids)(query, p);
+    let entry = image_spectra(&(layout.grids)(candidate, p), p.side, plans);
     let step = 360.0 / p.angles as f64;
     let solve = |steps: i64| translation(&rotate(&qg, p.side, steps as f64 * step), &entry, p.side, plans);
     let extra = shift - (p.angles / 2) as i64;
@@ -480,54 +540,61 @@ fn pose_planned(
 
 /// The hit of a pair: the yaw in degrees ([0, 360), the turn that brings the entry's view onto
 /// the query's) and the query's position in the entry's frame (m).
+#[allow(clippy::too_many_arguments)]
 fn hit(
     row: usize,
     distance: f64,
     query: &[f32],
     candidate: &[f32],
     shift: i64,
+    layout: Layout,
     p: &RingParams,
     plans: &Plans,
 ) -> Hit {
-    let (steps, x, y) = pose_planned(query, candidate, shift, p, plans);
+    let (steps, x, y) = pose_planned(query, candidate, shift, layout, p, plans);
     // `+ 0.0` turns a −0.0 into 0.0.
     let yaw = (-(steps as f64) * 360.0 / p.angles as f64).rem_euclid(360.0) + 0.0;
     let cell = p.cell();
     Hit { row, distance, yaw_degrees: Some(yaw), offset: Some([x as f64 * cell, y as f64 * cell]) }
 }
 
-/// The yaw-invariant key of a descriptor: the normalized sinogram's columns averaged over the
+/// The yaw-invariant key of a descriptor: each normalized sinogram's columns averaged over the
 /// angles.
-fn key(descriptor: &[f32], p: &RingParams) -> Vec<f32> {
-    let v = normalized(descriptor, p);
+fn key(descriptor: &[f32], layout: Layout, p: &RingParams) -> Vec<f32> {
     let (a, n) = (p.angles, p.side);
-    (0..n).map(|col| ((0..a).map(|i| v[i * n + col]).sum::<f64>() / a as f64) as f32).collect()
+    let mut out = Vec::with_capacity(layout.channels * n);
+    for sinogram in descriptor.chunks_exact(p.sinogram_len()).take(layout.channels) {
+        let v = normalized(sinogram);
+        out.extend((0..n).map(|col| ((0..a).map(|i| v[i * n + col]).sum::<f64>() / a as f64) as f32));
+    }
+    out
 }
 
-/// RING descriptors searched by correlation with every entry (or with the `matched:N`
+/// RING-family descriptors searched by correlation with every entry (or with the `matched:N`
 /// candidates nearest by the key).
-pub struct Searcher {
+pub(crate) struct Searcher {
     params: RingParams,
+    layout: Layout,
+    len: usize,
     plans: Plans,
     descriptors: Vec<f32>,
-    spectra: Vec<Spectra>,
+    spectra: Vec<Vec<Spectra>>,
     keys: Vec<f32>,
     candidates: Option<usize>,
 }
 
 impl Searcher {
-    /// A searcher over `descriptors` (row-major, `params.len()` a row).
-    pub fn new(descriptors: Vec<f32>, params: RingParams) -> Self {
+    /// A searcher over `descriptors` (row-major, `len` values a row) of a layout.
+    pub(crate) fn new(descriptors: Vec<f32>, params: RingParams, layout: Layout, len: usize) -> Self {
         let plans = Plans::new(&params);
-        let len = params.len();
-        let spectra = descriptors.par_chunks_exact(len).map(|d| spectra(d, &params, &plans)).collect();
-        let keys = descriptors.chunks_exact(len).flat_map(|d| key(d, &params)).collect();
-        Searcher { params, plans, descriptors, spectra, keys, candidates: None }
+        let spectra =
+            descriptors.par_chunks_exact(len).map(|d| all_spectra(d, layout, &params, &plans)).collect();
+        let keys = descriptors.chunks_exact(len).flat_map(|d| key(d, layout, &params)).collect();
+        Searcher { params, layout, len, plans, descriptors, spectra, keys, candidates: None }
     }
 
     fn row(&self, i: usize) -> &[f32] {
-        let len = self.params.len();
-        &self.descriptors[i * len..(i + 1) * len]
+        &self.descriptors[i * self.len..(i + 1) * self.len]
     }
 
     /// The rows a search correlates: all (or those allowed), or the `matched:N` nearest by key.
@@ -536,11 +603,11 @@ impl Searcher {
         match self.candidates {
             None => rows.collect(),
             Some(n) => {
-                let q = key(query, &self.params);
-                let side = self.params.side;
+                let q = key(query, self.layout, &self.params);
+                let width = q.len();
                 let mut by_key: Vec<(f32, usize)> = rows
                     .map(|r| {
-                        let k = &self.keys[r * side..(r + 1) * side];
+                        let k = &self.keys[r * width..(r + 1) * width];
                         (k.iter().zip(&q).map(|(a, b)| (a - b) * (a - b)).sum::<f32>(), r)
                     })
                     .collect();
@@ -554,15 +621,17 @@ impl Searcher {
         }
     }
 
-    /// The `k` best rows for `query` by the RING distance (ties by row), with their poses.
-    pub fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> Vec<Hit> {
+    /// The `k` best rows for `query` by the distance (ties by row), with their poses.
+    pub(crate) fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> Vec<Hit> {
         let p = &self.params;
-        let qs = spectra(query, p, &self.plans);
+        let layout = self.layout;
+        let qs = all_spectra(query, layout, p, &self.plans);
         let rows = self.rows(query, allowed);
         let mut scored: Vec<(usize, f64, i64)> = rows
             .par_iter()
             .map(|&r| {
-                let (d, shift) = peak(&correlation(&qs, &self.spectra[r], p, &self.plans), p);
+                let (d, shift) =
+                    peak(&correlation_all(&qs, &self.spectra[r], p, &self.plans), layout.channels, p);
                 (r, d, shift)
             })
             .collect();
@@ -574,7 +643,7 @@ impl Searcher {
         scored.sort_by(order);
         scored
             .into_par_iter()
-            .map(|(r, d, shift)| hit(r, d, query, self.row(r), shift, p, &self.plans))
+            .map(|(r, d, shift)| hit(r, d, query, self.row(r), shift, layout, p, &self.plans))
             .collect()
     }
 }
@@ -586,8 +655,8 @@ impl super::Searcher for Searcher {
 
     fn push(&mut self, descriptor: &[f32]) {
         self.descriptors.extend_from_slice(descriptor);
-        self.spectra.push(spectra(descriptor, &self.params, &self.plans));
-        self.keys.extend(key(descriptor, &self.params));
+        self.spectra.push(all_spectra(descriptor, self.layout, &self.params, &self.plans));
+        self.keys.extend(key(descriptor, self.layout, &self.params));
     }
 
     fn search(&self, query: &[f32], k: usize, allowed: Allowed<'_>) -> (Vec<Hit>, SearchTimes) {
@@ -638,7 +707,7 @@ impl super::Computed for RingParams {
     }
 
     fn searcher(&self, descriptors: Vec<f32>) -> Box<dyn super::Searcher> {
-        Box::new(Searcher::new(descriptors, self.clone()))
+        Box::new(Searcher::new(descriptors, self.clone(), RING_LAYOUT, self.len()))
     }
 
     /// Calibrated at precision 0.99 on the seed-11 drive of docs/loops.md: 0.4544 (the
@@ -657,7 +726,16 @@ mod tests {
         let p = RingParams { side: 40, angles: 36, ..RingParams::default() };
         let mut rng = crate::rng::SplitMix64(5);
         for fill in [0.02, 0.3, 1.0] {
-            let image: Vec<u8> = (0..40 * 40).map(|_| (rng.next_f64() < fill) as u8).collect();
+            // Occupancy (RING) and nonnegative values (RING++'s features).
+            let image: Vec<f64> = (0..40 * 40)
+                .map(|_| {
+                    if rng.next_f64() < fill {
+                        if fill < 1.0 { 1.0 } else { rng.next_f64() * 3.0 }
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
             let (a, b) = (radon(&image, &p), radon_gathered(&image, &p));
             let worst = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
             assert!(worst < 1e-9, "fill {fill}: {worst:e}");
