@@ -99,7 +99,7 @@ fn main() {
         let plus = toporec::methods::toporec_plus::PlusParams::default();
         let rp = RingParams::default();
         let rpp = RingPlusParams::default();
-        let rows: [(&str, Describe); 12] = [
+        let rows: [(&str, Describe); 13] = [
             ("ScanContext descriptor", &|c| {
                 std::hint::black_box(scancontext::describe(c, &p));
             }),
@@ -132,6 +132,9 @@ fn main() {
             }),
             ("RING++ features, six grids, their sinograms and FFT magnitudes", &|c| {
                 std::hint::black_box(ring_plus::describe(c, &rpp).ok());
+            }),
+            ("RING++ point features alone (scaled cloud, 30 neighbours, eigenvalues)", &|c| {
+                std::hint::black_box(ring_plus::point_features(&ring_plus::scaled_cloud(c, &rpp), &rpp).ok());
             }),
             ("toporec-plus (its searches: `cargo bench --bench toporec_plus`)", &|c| {
                 std::hint::black_box(toporec::methods::toporec_plus::describe(c, &plus).ok());

@@ -269,6 +269,8 @@ fn perturbation_protocol_on_kitti() {
     // sensor by metres the 1.17 m cells and the crop to 70 m see (its invariance is to the
     // phases of a cropped grid, not to a new view).
     assert_eq!(r1("ring"), [48.0, 48.0, 44.0, 43.0, 2.0, 48.0, 48.0, 48.0], "RING R@1");
+    // RING++: RING's steps on six feature grids; after the shift it finds 25 of 48 (RING 2).
+    assert_eq!(r1("ring-plus"), [48.0, 48.0, 45.0, 43.0, 25.0, 47.0, 48.0, 47.0], "RING++ R@1");
     for k in ["describe", "search"] {
         let m2dp = methods.iter().position(|m| *m == "m2dp").unwrap();
         assert!(report["methods"][m2dp]["timing_ms"][k]["p95"].as_f64().unwrap() > 0.0, "m2dp {k}");

@@ -14,13 +14,13 @@ import toporec
 
 @pytest.fixture(scope="module")
 def loops_index(repo: pathlib.Path, tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
-    """The sample drive indexed with toporec-plus, ScanContext and RING."""
+    """The sample drive indexed with toporec-plus, ScanContext, RING and RING++."""
     folder = tmp_path_factory.mktemp("loops")
     sessions = repo / "samples" / "town" / "velodyne_data"
     pipeline = folder / "loops.toml"
     pipeline.write_text(
         f'[output]\nindex = "index"\n[[sources]]\nkind = "nclt"\nsessions = ["{sessions.as_posix()}"]\n'
-        '[descriptors]\nmethods = ["toporec-plus", "scancontext", "ring"]\n'
+        '[descriptors]\nmethods = ["toporec-plus", "scancontext", "ring", "ring-plus"]\n'
     )
     index = folder / "index"
     toporec.run(pipeline, threads=2, index=index)
@@ -35,7 +35,7 @@ def sample_scans(repo: pathlib.Path):
             yield session, int(path.stem), path
 
 
-@pytest.mark.parametrize("method", ["toporec-plus", "scancontext", "ring"])
+@pytest.mark.parametrize("method", ["toporec-plus", "scancontext", "ring", "ring-plus"])
 def test_detector_equals_toporec_loops(repo, loops_index, binary, tmp_path, method):
     out = tmp_path / "loops.csv"
     subprocess.run(
@@ -65,8 +65,9 @@ def test_default_thresholds_and_errors():
     assert toporec.LoopDetector("toporec-plus").threshold == 0.3619
     assert toporec.LoopDetector("scancontext").threshold == 0.5335
     assert toporec.LoopDetector("ring").threshold == 0.4544
-    with pytest.raises(ValueError, match="no default threshold"):
-        toporec.LoopDetector("solid")
+    for method in ("solid", "ring-plus"):
+        with pytest.raises(ValueError, match="no default threshold"):
+            toporec.LoopDetector(method)
     with pytest.raises(ValueError, match="unknown method"):
         toporec.LoopDetector("nope", threshold=1.0)
     with pytest.raises(ValueError, match="expected an"):
@@ -98,11 +99,12 @@ def test_add_releases_the_gil():
     assert during > 100, f"{during} main-thread steps during a {end - start:.3f} s add"
 
 
-def test_ring_query_gives_the_scan_itself_with_its_pose(repo, loops_index):
-    """`Index.query` with RING: a stored scan finds itself first, with no turn and no offset
-    (x_m, y_m, yaw_deg filled as for toporec-plus)."""
+@pytest.mark.parametrize("method", ["ring", "ring-plus"])
+def test_ring_query_gives_the_scan_itself_with_its_pose(repo, loops_index, method):
+    """`Index.query` with RING and RING++: a stored scan finds itself first, with no turn and no
+    offset (x_m, y_m, yaw_deg filled as for toporec-plus)."""
     _, _, path = list(sample_scans(repo))[5]
-    hits = toporec.Index(loops_index).query([path], k=2, method="ring")
+    hits = toporec.Index(loops_index).query([path], k=2, method=method)
     assert hits["scan_id"][0].as_py().endswith(path.stem)
     assert hits["yaw_deg"][0].as_py() == 0.0
     assert (hits["x_m"][0].as_py(), hits["y_m"][0].as_py()) == (0.0, 0.0)

@@ -494,7 +494,7 @@ class LoopDetector:
 
     Args:
         method: ``"toporec-plus"`` (default), ``"scancontext"``, ``"scancontext-pp"``,
-            ``"scancontext-pp-cart"``, ``"solid"``, ``"lidar-iris"``, ``"ring"`` or ``"m2dp"``.
+            ``"scancontext-pp-cart"``, ``"solid"``, ``"lidar-iris"``, ``"ring"``, ``"ring-plus"`` or ``"m2dp"``.
         exclude_seconds: earlier scans of the same session closer in time are left out.
         threshold: a match below this descriptor distance is a loop; default the method's
             documented one at the default settings (toporec-plus 0.3619, ScanContext 0.5335, RING 0.4544;
