@@ -98,11 +98,16 @@ fn courtyard() -> Vec<Point> {
     scene
 }
 
+/// The distance and shift of a query against an entry.
+type Distance<'a> = &'a dyn Fn(&[f32], &[f32]) -> (f64, i64);
+/// The pose (steps, x cells, y cells) of a query against an entry at a shift.
+type Pose<'a> = &'a dyn Fn(&[f32], &[f32], i64) -> (i64, i64, i64);
+
 /// A RING-family method as the hand-worked test uses it.
 struct Family<'a> {
     describe: &'a dyn Fn(&[Point]) -> Vec<f32>,
-    distance: &'a dyn Fn(&[f32], &[f32]) -> (f64, i64),
-    pose: &'a dyn Fn(&[f32], &[f32], i64) -> (i64, i64, i64),
+    distance: Distance<'a>,
+    pose: Pose<'a>,
     method: &'a dyn toporec::methods::Computed,
 }
 
