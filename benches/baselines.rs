@@ -16,7 +16,8 @@
 //! LiDAR-Iris's are the scans' own descriptors, repeated (the cost of its re-rank does not
 //! depend on what the candidates hold).
 //!
-//! Run: `cargo bench --bench baselines`.
+//! Run: `cargo bench --bench baselines` (`TOPOREC_BENCH_DESCRIBE_ONLY=1`: the per-scan table
+//! alone).
 
 mod common;
 
@@ -142,6 +143,9 @@ fn main() {
         ];
         for (label, f) in rows {
             println!("| {label} | {:.3} ms | {:.3} ms |", per(&small, f), per(&clouds, f));
+        }
+        if std::env::var_os("TOPOREC_BENCH_DESCRIBE_ONLY").is_some() {
+            return;
         }
 
         // Search: 100,000 turned and shifted ScanContexts.

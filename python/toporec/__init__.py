@@ -497,8 +497,8 @@ class LoopDetector:
             ``"scancontext-pp-cart"``, ``"solid"``, ``"lidar-iris"``, ``"ring"``, ``"ring-plus"`` or ``"m2dp"``.
         exclude_seconds: earlier scans of the same session closer in time are left out.
         threshold: a match below this descriptor distance is a loop; default the method's
-            documented one at the default settings (toporec-plus 0.3619, ScanContext 0.5335, RING 0.4544;
-            docs/loops.md), else required.
+            documented one at the default settings (toporec-plus 0.3619, ScanContext 0.5335, RING 0.4544,
+            RING++ 0.4390; docs/loops.md), else required.
         exclude_scans: leave out this many preceding scans of the session instead of seconds.
         index: take the method's settings from this index (so the descriptors match its own).
         **settings: the method's settings (the keys of its pipeline-file section).
