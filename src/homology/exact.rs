@@ -207,6 +207,46 @@ pub(crate) fn compare_radius2_exact(va: &[Point], vb: &[Point]) -> Ordering {
     (na * db).cmp(&(nb * da))
 }
 
+/// A squared circumradius held exactly: `num / den · 2^exp2` (`den > 0`).
+pub(crate) struct ExactRadius2 {
+    num: BigInt,
+    den: BigInt,
+    exp2: i32,
+}
+
+impl ExactRadius2 {
+    /// The exact squared circumradius of a simplex (2 to 4 vertices).
+    pub(crate) fn new(v: &[Point]) -> Self {
+        let e = Exact::new(v);
+        let (num, den) = exact_radius2(&e, 0, v.len());
+        ExactRadius2 { num, den, exp2: 2 * e.emin }
+    }
+}
+
+impl Ord for ExactRadius2 {
+    /// Cross-multiplied, the smaller power of two brought up to the larger.
+    fn cmp(&self, other: &Self) -> Ordering {
+        let a = &self.num * &other.den;
+        let b = &other.num * &self.den;
+        match self.exp2.cmp(&other.exp2) {
+            Ordering::Equal => a.cmp(&b),
+            Ordering::Greater => (a << (self.exp2 - other.exp2) as u32).cmp(&b),
+            Ordering::Less => a.cmp(&(b << (other.exp2 - self.exp2) as u32)),
+        }
+    }
+}
+impl PartialOrd for ExactRadius2 {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl PartialEq for ExactRadius2 {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+impl Eq for ExactRadius2 {}
+
 /// The squared circumradius of a simplex (2 to 4 vertices), computed exactly and rounded to
 /// the nearest double (ties to even) — the value GUDHI's `precision='exact'` reports.
 pub(crate) fn radius2_correctly_rounded(v: &[Point]) -> f64 {

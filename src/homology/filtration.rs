@@ -10,10 +10,11 @@
 
 use super::complex::{DelaunayComplex, OUTSIDE};
 use super::exact::{
-    Point, Radius2, compare_radius2_exact, edge_obtuse, radius2, radius2_correctly_rounded, tet_circumsphere,
+    ExactRadius2, Point, Radius2, compare_radius2_exact, edge_obtuse, radius2, radius2_correctly_rounded, tet_circumsphere,
     triangle_gabriel,
 };
 use rayon::prelude::*;
+use std::cell::OnceCell;
 use std::cmp::Ordering;
 
 /// One filtration value: an `f64` with an error bound and the simplex it comes from.
@@ -203,52 +204,120 @@ impl<'a> Filtration<'a> {
 /// Simplex ids sorted by (exact value, id): a radix sort on the high 32 bits of the
 /// `f64` (values are non-negative, so the bits order like the values), runs of equal
 /// high bits sorted by the full value, then an exact re-sort inside each cluster whose
-/// error intervals overlap (rare outside ties).
+/// error intervals overlap (rare outside ties). The sort moves whole keys (value, id, error
+/// bound), so no pass gathers from `values` in sorted order: above 20,000 points those
+/// gathers, one cache miss each, cost more than the sort.
 fn order(complex: &DelaunayComplex, values: &[Value]) -> Vec<u32> {
-    let keyed: Vec<u64> =
-        values.iter().enumerate().map(|(i, v)| (v.value.to_bits() >> 32) << 32 | i as u64).collect();
-    let mut o: Vec<u32> = radix_sort_high32(keyed).into_iter().map(|k| k as u32).collect();
-    let bits = |i: u32| values[i as usize].value.to_bits();
-    let n = o.len();
+    let keys: Vec<SortKey> = values
+        .iter()
+        .enumerate()
+        .map(|(i, v)| SortKey { bits: v.value.to_bits(), id: i as u32, rel_err: v.rel_err })
+        .collect();
+    let mut sorted = radix_sort_high32(keys);
+    let n = sorted.len();
     let mut start = 0;
     while start < n {
-        let high = bits(o[start]) >> 32;
+        let high = sorted[start].bits >> 32;
         let mut end = start + 1;
-        while end < n && bits(o[end]) >> 32 == high {
+        while end < n && sorted[end].bits >> 32 == high {
             end += 1;
         }
         if end - start > 1 {
-            o[start..end].sort_unstable_by_key(|&i| (bits(i), i));
+            sorted[start..end].sort_unstable_by_key(|k| (k.bits, k.id));
         }
         start = end;
     }
-    let sorted: Vec<(f64, f64)> = o
-        .iter()
-        .map(|&i| {
-            let v = values[i as usize];
-            (v.value, v.abs_err())
-        })
-        .collect();
     let mut suffix_min_lower = vec![f64::INFINITY; n + 1];
     for k in (0..n).rev() {
-        suffix_min_lower[k] = suffix_min_lower[k + 1].min(sorted[k].0 - sorted[k].1);
+        let (value, err) = sorted[k].value_and_err();
+        suffix_min_lower[k] = suffix_min_lower[k + 1].min(value - err);
     }
+    let mut o: Vec<u32> = sorted.iter().map(|k| k.id).collect();
     let mut start = 0;
     let mut max_upper = f64::NEG_INFINITY;
     for k in 0..n {
-        max_upper = max_upper.max(sorted[k].0 + sorted[k].1);
+        let (value, err) = sorted[k].value_and_err();
+        max_upper = max_upper.max(value + err);
         // Split after k when nothing before can exceed anything after.
         if max_upper < suffix_min_lower[k + 1] {
             if k > start {
-                o[start..=k].sort_unstable_by(|&i, &j| {
-                    compare(complex, values[i as usize], values[j as usize]).then(i.cmp(&j))
-                });
+                sort_cluster(complex, values, &mut o[start..=k]);
             }
             start = k + 1;
             max_upper = f64::NEG_INFINITY;
         }
     }
     o
+}
+
+/// What [`order`] sorts: a value's bits, its simplex and its error bound.
+#[derive(Clone, Copy, Default)]
+struct SortKey {
+    bits: u64,
+    id: u32,
+    rel_err: f32,
+}
+
+impl SortKey {
+    /// The value and its absolute error bound (as [`Value::abs_err`]).
+    #[inline]
+    fn value_and_err(&self) -> (f64, f64) {
+        let value = f64::from_bits(self.bits);
+        (value, self.rel_err as f64 * value.abs())
+    }
+}
+
+/// Sorts a cluster of simplices whose error intervals overlap by (exact value, id). A pair the
+/// `f64` bounds decide costs no exact work; otherwise each member's value is evaluated exactly
+/// once, when first needed. The cluster comes in (f64 value, id) order, the exact order but for
+/// sub-ulp differences and ties, so the stable sort (which finds sorted runs) makes about one
+/// comparison per member.
+fn sort_cluster(complex: &DelaunayComplex, values: &[Value], cluster: &mut [u32]) {
+    // Most clusters are values shared by simplices (a tetrahedron's value on the facets it
+    // attaches), already in order: checked without allocating.
+    let decided = cluster.windows(2).all(|w| {
+        let (a, b) = (values[w[0] as usize], values[w[1] as usize]);
+        compare_bounds(a, b).is_some_and(|o| o.then(w[0].cmp(&w[1])) == Ordering::Less)
+    });
+    if decided {
+        return;
+    }
+    let exact: Vec<OnceCell<ExactRadius2>> = (0..cluster.len()).map(|_| OnceCell::new()).collect();
+    let exact_of = |k: usize, v: Value| {
+        exact[k].get_or_init(|| {
+            let mut p = [[0.0; 3]; 4];
+            let n = source_points(complex, v.source, &mut p);
+            ExactRadius2::new(&p[..n])
+        })
+    };
+    let mut keyed: Vec<(usize, u32)> = cluster.iter().copied().enumerate().collect();
+    keyed.sort_by(|&(ka, i), &(kb, j)| {
+        let (a, b) = (values[i as usize], values[j as usize]);
+        match compare_bounds(a, b) {
+            Some(o) => o,
+            None => exact_of(ka, a).cmp(exact_of(kb, b)),
+        }
+        .then(i.cmp(&j))
+    });
+    for (slot, k) in cluster.iter_mut().zip(keyed) {
+        *slot = k.1;
+    }
+}
+
+/// The order of two set values when their sources or error bounds decide it.
+#[inline]
+fn compare_bounds(a: Value, b: Value) -> Option<Ordering> {
+    if a.source == b.source {
+        return Some(Ordering::Equal);
+    }
+    let margin = a.abs_err() + b.abs_err();
+    if b.value - a.value > margin {
+        Some(Ordering::Less)
+    } else if a.value - b.value > margin {
+        Some(Ordering::Greater)
+    } else {
+        None
+    }
 }
 
 /// Exact comparison of two filtration values of `complex`; an unset value is above every set
@@ -309,31 +378,31 @@ fn own(r: Radius2, dim: u32, index: usize) -> Value {
     Value { value: r.value, rel_err, source: (dim << DIM_SHIFT) | index as u32 }
 }
 
-/// LSD radix sort of `key << 32 | id` words by their high 32 bits (11-bit digits; digits
-/// equal across all keys are skipped). Stable, so equal keys stay in id order.
-fn radix_sort_high32(mut a: Vec<u64>) -> Vec<u64> {
-    let mut b = vec![0u64; a.len()];
+/// LSD radix sort of keys by the high 32 bits of their value (11-bit digits; digits equal
+/// across all keys are skipped). Stable, so equal high bits stay in id order.
+fn radix_sort_high32(mut a: Vec<SortKey>) -> Vec<SortKey> {
+    let mut b = vec![SortKey::default(); a.len()];
     let (mut and_all, mut or_all) = (u64::MAX, 0u64);
-    for &k in &a {
-        and_all &= k;
-        or_all |= k;
+    for k in &a {
+        and_all &= k.bits;
+        or_all |= k.bits;
     }
     let varying = (and_all ^ or_all) >> 32;
     for shift in [32, 43, 54] {
-        let digit = |k: u64| ((k >> shift) & 0x7ff) as usize;
+        let digit = |k: &SortKey| ((k.bits >> shift) & 0x7ff) as usize;
         if (varying << 32 >> shift) & 0x7ff == 0 {
             continue;
         }
         let mut count = vec![0usize; 2049];
-        for &k in &a {
+        for k in &a {
             count[digit(k) + 1] += 1;
         }
         for d in 0..2048 {
             count[d + 1] += count[d];
         }
-        for &k in &a {
+        for k in &a {
             let d = digit(k);
-            b[count[d]] = k;
+            b[count[d]] = *k;
             count[d] += 1;
         }
         std::mem::swap(&mut a, &mut b);
