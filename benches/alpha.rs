@@ -14,7 +14,8 @@
 //! Run: `cargo bench --bench alpha` (add `-- --quick` for fewer repetitions).
 //! Clouds: synthetic (uniform cube, the LiDAR-like fixture, a simulated scan of `samples/`)
 //! always; real KITTI / NCLT scans from `../shared/data` when present, subsampled with a fixed
-//! seed, and whole (23,546 and 124,668 points).
+//! seed, and whole (the NCLT scan, 23,546 points; frame 0 of KITTI sequences 00, 05 and 08,
+//! 123,000-127,000 points each).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::{BufRead, BufReader, Write};
@@ -163,9 +164,16 @@ fn clouds() -> Vec<Cloud> {
     if let Some(k) = &nclt_pts {
         out.push(Cloud { name: format!("nclt_2012-01-15_full_{}", k.len()), points: k.clone() });
     }
-    // A whole HDL-64E scan, above 100,000 points: where two threads should pay most.
+    // Whole HDL-64E scans, above 100,000 points: where two threads should pay most. Frame 0
+    // of sequences 00 (a suburb), 05 and 08 (other streets and seasons).
     if let Some(k) = &kitti_pts {
         out.push(Cloud { name: format!("kitti_00_000000_full_{}", k.len()), points: k.clone() });
+    }
+    for sequence in ["05", "08"] {
+        let path = data.join(format!("kitti/sequences/{sequence}/velodyne/000000.bin"));
+        if let Ok(k) = toporec::sources::read_cloud(&path, None) {
+            out.push(Cloud { name: format!("kitti_{sequence}_000000_full_{}", k.len()), points: k });
+        }
     }
     if kitti_pts.is_none() {
         println!("note: ../shared/data absent: real-scan clouds skipped");
@@ -312,21 +320,22 @@ fn main() {
     }
     println!("one thread unless said; medians; ratios are medians of interleaved per-round ratios");
     println!(
-        "| cloud | points | Delaunay ms | filtration ms | persistence ms | whole ms, 1 thread | whole ms, 2 threads | 2-thread speed-up | CGAL triangulation ms | Delaunay / CGAL | whole / CGAL | whole (2 threads) / CGAL | tetrahedra (toporec; CGAL) | peak bytes / point |"
+        "| cloud | points | Delaunay ms | filtration ms | persistence ms | (filtration + persistence) / Delaunay | whole ms, 1 thread | whole ms, 2 threads | 2-thread speed-up | CGAL triangulation ms | Delaunay / CGAL | whole / CGAL | whole (2 threads) / CGAL | tetrahedra (toporec; CGAL) | peak bytes / point |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|");
     for r in &rows {
         let (cg, ratios, cells) = match r.cgal {
             Some((m, q, cells)) => (format!("{m:.2}"), q.map(|x| format!("{x:.2}")), cells.to_string()),
             None => ("n/a".into(), ["n/a".to_string(), "n/a".into(), "n/a".into()], "n/a".into()),
         };
         println!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2}x | {} | {} | {} | {} | {}; {} | {:.0} |",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2}x | {} | {} | {} | {} | {}; {} | {:.0} |",
             r.cloud.name,
             r.cloud.points.len(),
             ms(r.steps.delaunay),
             ms(r.steps.filtration),
             ms(r.steps.persistence),
+            (r.steps.filtration + r.steps.persistence).as_secs_f64() / r.steps.delaunay.as_secs_f64(),
             r.whole[0],
             r.whole[1],
             r.speedup,

@@ -10,6 +10,12 @@
 //! and waiting all count as overhead.
 //!
 //! Run: `cargo bench --bench pipeline` (about 2 minutes on 2 cores).
+//!
+//! `cargo bench --bench pipeline -- --whole` measures the indexing rate on whole scans
+//! instead: 100 simulated HDL-32E scans with a finer azimuth (0.35 deg, about 21,000 points
+//! each) through the same pipeline without the 4,096-point subsample, on 1 and 2 threads,
+//! as scans/s and scans/s per core (about 4 minutes). `TOPOREC_BENCH_BIN` runs another build
+//! of `toporec` on the same data (a before / after comparison).
 
 use std::path::Path;
 use std::process::Command;
@@ -56,31 +62,64 @@ fn run(bin: &str, pipeline: &Path, index: &Path, threads: usize, extra: &[&str])
     Run { wall, rss_kb, scans_per_s: read / wall, cpu: s["cpu_seconds"].clone() }
 }
 
+/// Simulated NCLT-format scans under `data` (made once).
+fn simulate(bin: &str, data: &Path, scans: usize, azimuth_res: &str) {
+    if data.join("velodyne_data").is_dir() {
+        return;
+    }
+    let st = Command::new(bin)
+        .args(["simulate", "-o", data.to_str().unwrap(), "--sessions", "1", "--scans", &scans.to_string()])
+        .args(["--azimuth-res", azimuth_res, "--seed", "3"])
+        .status()
+        .unwrap();
+    assert!(st.success());
+}
+
+/// The paper's pipeline on whole scans: no subsample.
+fn whole_scans(bin: &str, root: &Path) {
+    let data = root.join("data-whole-100");
+    simulate(env!("CARGO_BIN_EXE_toporec"), &data, 100, "0.35");
+    let sessions = data.join("velodyne_data");
+    let points: u64 = std::fs::read_dir(sessions.join("2026-01-01/velodyne_sync"))
+        .unwrap()
+        .map(|e| e.unwrap().metadata().unwrap().len() / 8)
+        .sum();
+    let pipeline = root.join("bench-whole.toml");
+    std::fs::write(
+        &pipeline,
+        format!(
+            "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [\"{}\"]\n[preprocess]\nnormalize = true\n[vectorize]\nb = 50\n",
+            sessions.display()
+        ),
+    )
+    .unwrap();
+    println!("whole scans: 100 simulated HDL-32E scans, {} points a scan on average; {bin}", points / 100);
+    for threads in [1, 2] {
+        let r = run(bin, &pipeline, &root.join(format!("index-whole-{threads}")), threads, &[]);
+        println!(
+            "{threads} thread(s): {:.2} scans/s, {:.2} scans/s per core, wall {:.1} s, peak RSS {} MB; persistence cpu {:.1} s",
+            r.scans_per_s,
+            r.scans_per_s / threads as f64,
+            r.wall,
+            r.rss_kb / 1024,
+            r.cpu["persistence"].as_f64().unwrap_or(0.0)
+        );
+    }
+}
+
 fn main() {
-    let bin = env!("CARGO_BIN_EXE_toporec");
+    let own = env!("CARGO_BIN_EXE_toporec");
+    let other = std::env::var("TOPOREC_BENCH_BIN").ok();
+    let bin = other.as_deref().unwrap_or(own);
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/tmp/bench-pipeline");
+    if std::env::args().any(|a| a == "--whole") {
+        whole_scans(bin, &root);
+        return;
+    }
     let mut results = Vec::new();
     for scans in [200usize, 2000] {
         let data = root.join(format!("data-{scans}"));
-        if !data.join("velodyne_data").is_dir() {
-            let st = Command::new(bin)
-                .args([
-                    "simulate",
-                    "-o",
-                    data.to_str().unwrap(),
-                    "--sessions",
-                    "1",
-                    "--scans",
-                    &scans.to_string(),
-                    "--azimuth-res",
-                    "0.4",
-                    "--seed",
-                    "3",
-                ])
-                .status()
-                .unwrap();
-            assert!(st.success());
-        }
+        simulate(own, &data, scans, "0.4");
         let pipeline = root.join(format!("bench-{scans}.toml"));
         std::fs::write(
             &pipeline,

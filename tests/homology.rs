@@ -484,14 +484,14 @@ fn located_bits(pts: &[Point]) -> Vec<(u8, u64, u64, Option<[u64; 3]>)> {
 
 #[test]
 fn diagrams_and_located_pairs_are_bit_identical_for_any_thread_count() {
-    // Large enough that the filtration and persistence split across threads (tens of
-    // thousands of simplices), general position and degenerate: a 2 cm-quantized LiDAR-like
-    // cloud has many co-spherical and tied simplices.
+    // Large enough that the filtration and persistence split across threads (at least 2,048
+    // points, tens of thousands of simplices), general position and degenerate: a 2
+    // cm-quantized LiDAR-like cloud has many co-spherical and tied simplices.
     let lidar = read_cloud(&root().join("tests/fixtures/clouds/lidar_like_4096.csv"));
     let quantized: Vec<Point> = lidar.iter().map(|p| p.map(|c| (c * 50.0).round() / 50.0)).collect();
     let mut lattice = Vec::new();
-    for i in 0..1000 {
-        lattice.push([(i % 10) as f64, (i / 10 % 10) as f64, (i / 100) as f64]);
+    for i in 0..13 * 13 * 13 {
+        lattice.push([(i % 13) as f64, (i / 13 % 13) as f64, (i / 169) as f64]);
     }
     for (name, pts) in [
         ("lidar_like_4096", lidar),

@@ -10,8 +10,8 @@
 
 use super::complex::{DelaunayComplex, OUTSIDE};
 use super::exact::{
-    ExactRadius2, Point, Radius2, compare_radius2_exact, edge_obtuse, radius2, radius2_correctly_rounded, tet_circumsphere,
-    triangle_gabriel,
+    ExactRadius2, Point, Radius2, compare_radius2_exact, edge_obtuse, radius2, radius2_correctly_rounded,
+    tet_circumsphere, triangle_gabriel,
 };
 use rayon::prelude::*;
 use std::cell::OnceCell;
@@ -32,8 +32,40 @@ const DIM_SHIFT: u32 = 30;
 /// Error bounds wider than this are tightened by exact evaluation (see [`tighten`]).
 const TIGHT_REL_ERR: f64 = 1e-9;
 const INDEX_MASK: u32 = (1 << DIM_SHIFT) - 1;
-/// Simplices per rayon task: small clouds stay on one thread, large ones split evenly.
+/// Simplices per rayon task: large clouds split evenly.
 const PAR_CHUNK: usize = 4096;
+/// Below this many points a cloud stays on the calling thread: at 1,024 points two threads
+/// were no faster than one and their calls' times spread wider, at 2,048 they were ~8 %
+/// faster (`cargo bench --bench calls`, docs/engine.md).
+const PARALLEL_FROM_POINTS: usize = 2048;
+
+/// Whether the engine spreads the work on `complex` over the rayon pool.
+pub(crate) fn in_parallel(complex: &DelaunayComplex) -> bool {
+    complex.points.len() >= PARALLEL_FROM_POINTS
+}
+
+/// `rayon::join` on the pool when `parallel`, else the two calls in turn on this thread.
+pub(crate) fn join_if<A: Send, B: Send>(
+    parallel: bool,
+    a: impl FnOnce() -> A + Send,
+    b: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    if parallel { rayon::join(a, b) } else { (a(), b()) }
+}
+
+/// `f` over `(index, item)` of `items`, in parallel chunks when `parallel`; the same results
+/// in the same order either way.
+fn map_indexed<T: Sync, U: Send>(
+    items: &[T],
+    parallel: bool,
+    f: impl Fn((usize, &T)) -> U + Sync + Send,
+) -> Vec<U> {
+    if parallel {
+        items.par_iter().with_min_len(PAR_CHUNK).enumerate().map(f).collect()
+    } else {
+        items.iter().enumerate().map(f).collect()
+    }
+}
 
 impl Value {
     fn unset() -> Self {
@@ -75,58 +107,47 @@ impl<'a> Filtration<'a> {
     /// (the values and orders do not depend on how many).
     pub fn new(complex: &'a DelaunayComplex) -> Self {
         let pts = &complex.points;
+        let parallel = in_parallel(complex);
         // Tetrahedra: own circumradius, and which of their facets they attach: a facet is
         // attached when the opposite vertex is strictly inside its smallest circumsphere
         // (decided from the tetrahedron's circumcentre, exactly when that is too close to
         // call). Independent per tetrahedron.
-        let per_tet: Vec<(Value, u8)> = complex
-            .tets
-            .par_iter()
-            .with_min_len(PAR_CHUNK)
-            .enumerate()
-            .map(|(ti, t)| {
-                let v = t.map(|x| pts[x as usize]);
-                let (r, gabriel) = tet_circumsphere(&v);
-                let mut attaches = 0u8;
-                for i in 0..4 {
-                    let is_gabriel = gabriel[i].unwrap_or_else(|| {
-                        let w = complex.triangles[complex.tet_tris[ti][i] as usize];
-                        triangle_gabriel(&pts[w[0] as usize], &pts[w[1] as usize], &pts[w[2] as usize], &v[i])
-                    });
-                    attaches |= u8::from(!is_gabriel) << i;
-                }
-                (own(tighten(r, &v), 3, ti), attaches)
-            })
-            .collect();
+        let per_tet: Vec<(Value, u8)> = map_indexed(&complex.tets, parallel, |(ti, t)| {
+            let v = t.map(|x| pts[x as usize]);
+            let (r, gabriel) = tet_circumsphere(&v);
+            let mut attaches = 0u8;
+            for i in 0..4 {
+                let is_gabriel = gabriel[i].unwrap_or_else(|| {
+                    let w = complex.triangles[complex.tet_tris[ti][i] as usize];
+                    triangle_gabriel(&pts[w[0] as usize], &pts[w[1] as usize], &pts[w[2] as usize], &v[i])
+                });
+                attaches |= u8::from(!is_gabriel) << i;
+            }
+            (own(tighten(r, &v), 3, ti), attaches)
+        });
         let tets: Vec<Value> = per_tet.iter().map(|p| p.0).collect();
         let cmp = |a: Value, b: Value| compare(complex, a, b);
         // Triangles: the least value of the tetrahedra that attach them (the lower-numbered
         // one on a tie), else their own smallest-circumsphere radius².
-        let triangles: Vec<Value> = complex
-            .triangles
-            .par_iter()
-            .with_min_len(PAR_CHUNK)
-            .enumerate()
-            .map(|(i, t)| {
-                let mut best = Value::unset();
-                if let Some(cofaces) = complex.tri_cofaces.get(i) {
-                    // Cofaces come in increasing order (the outside last).
-                    for &c in cofaces.iter().filter(|&&c| c != OUTSIDE) {
-                        let slot = complex.tet_tris[c as usize].iter().position(|&x| x as usize == i);
-                        let attached = slot.is_some_and(|s| per_tet[c as usize].1 >> s & 1 == 1);
-                        if attached && cmp(tets[c as usize], best) == Ordering::Less {
-                            best = tets[c as usize];
-                        }
+        let triangles: Vec<Value> = map_indexed(&complex.triangles, parallel, |(i, t)| {
+            let mut best = Value::unset();
+            if let Some(cofaces) = complex.tri_cofaces.get(i) {
+                // Cofaces come in increasing order (the outside last).
+                for &c in cofaces.iter().filter(|&&c| c != OUTSIDE) {
+                    let slot = complex.tet_tris[c as usize].iter().position(|&x| x as usize == i);
+                    let attached = slot.is_some_and(|s| per_tet[c as usize].1 >> s & 1 == 1);
+                    if attached && cmp(tets[c as usize], best) == Ordering::Less {
+                        best = tets[c as usize];
                     }
                 }
-                if best.is_set() {
-                    best
-                } else {
-                    let v = t.map(|x| pts[x as usize]);
-                    own(tighten(radius2(&v), &v), 2, i)
-                }
-            })
-            .collect();
+            }
+            if best.is_set() {
+                best
+            } else {
+                let v = t.map(|x| pts[x as usize]);
+                own(tighten(radius2(&v), &v), 2, i)
+            }
+        });
         drop(per_tet);
         // Edges: attached iff some triangle coface is not Gabriel (the opposite angle is
         // obtuse); then the minimum over all triangle cofaces (that minimum is reached at a
@@ -135,20 +156,15 @@ impl<'a> Filtration<'a> {
         // in triangle order, the lower-numbered triangle kept on a tie.
         // (The tests are branch-free unless their filters cannot decide: the outcomes are
         // unpredictable, and they run three times per triangle.)
-        let obtuse: Vec<u8> = complex
-            .triangles
-            .par_iter()
-            .with_min_len(PAR_CHUNK)
-            .map(|t| {
-                let v = t.map(|x| pts[x as usize]);
-                let mut mask = 0u8;
-                for i in 0..3 {
-                    let (p, q) = ((i + 1) % 3, (i + 2) % 3);
-                    mask |= u8::from(edge_obtuse(&v[p], &v[q], &v[i])) << i;
-                }
-                mask
-            })
-            .collect();
+        let obtuse: Vec<u8> = map_indexed(&complex.triangles, parallel, |(_, t)| {
+            let v = t.map(|x| pts[x as usize]);
+            let mut mask = 0u8;
+            for i in 0..3 {
+                let (p, q) = ((i + 1) % 3, (i + 2) % 3);
+                mask |= u8::from(edge_obtuse(&v[p], &v[q], &v[i])) << i;
+            }
+            mask
+        });
         let mut edges = vec![Value::unset(); complex.edges.len()];
         let mut attached = vec![false; complex.edges.len()];
         for (ti, &cand) in triangles.iter().enumerate() {
@@ -165,8 +181,9 @@ impl<'a> Filtration<'a> {
                 edges[i] = own(radius2(&[pts[e[0] as usize], pts[e[1] as usize]]), 1, i);
             }
         }
-        let ((edge_order, triangle_order), tet_order) = rayon::join(
-            || rayon::join(|| order(complex, &edges), || order(complex, &triangles)),
+        let ((edge_order, triangle_order), tet_order) = join_if(
+            parallel,
+            || join_if(parallel, || order(complex, &edges), || order(complex, &triangles)),
             || order(complex, &tets),
         );
         Filtration { complex, edges, triangles, tets, edge_order, triangle_order, tet_order }

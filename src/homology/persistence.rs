@@ -13,7 +13,7 @@
 //! `min_persistence = 0`); H0 gets one essential class (0, +inf).
 
 use super::complex::OUTSIDE;
-use super::filtration::{Filtration, Value};
+use super::filtration::{Filtration, Value, in_parallel, join_if};
 use super::{Diagram, Pair};
 use std::cmp::Ordering;
 
@@ -46,8 +46,9 @@ pub(crate) fn located_pairs(f: &Filtration) -> Vec<(Pair, Killer)> {
 }
 
 /// Runs the passes, handing each pair and its killer to `emit`. In 3D the H0 pass and the
-/// dual (H2) pass are independent and run side by side on the current rayon pool; their
-/// pairs are handed on in the same order whatever the number of threads.
+/// dual (H2) pass are independent and run side by side on the current rayon pool (from
+/// 2,048 points, see `in_parallel`); their pairs are handed on in the same order whatever
+/// the number of threads.
 fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
     let c = f.complex;
     if c.dim == 0 {
@@ -65,7 +66,7 @@ fn pairs_of(f: &Filtration, mut emit: impl FnMut(Pair, Killer)) {
             killer: Killer::Tet,
         };
         let ((h0, positive_rank), (h2, tri_rank, negative)) =
-            rayon::join(|| h0_pass(f), || dual_pass(f, &tets));
+            join_if(in_parallel(c), || h0_pass(f), || dual_pass(f, &tets));
         for (pair, killer) in h0.into_iter().chain(h2) {
             emit(pair, killer);
         }
