@@ -43,6 +43,26 @@ pub enum Error {
         /// What is wrong.
         message: String,
     },
+    /// A committed part file whose bytes are not the ones its commit recorded (a flipped bit,
+    /// a truncated copy, another file in its place): nothing of it is used.
+    #[error(
+        "{}: damaged {what}: the file changed after it was committed ({found}; its commit recorded \
+         {expected}); nothing was read from it. `toporec repair --index {}` rebuilds it",
+        path.display(),
+        index.display()
+    )]
+    Damaged {
+        /// The part file.
+        path: PathBuf,
+        /// The index it belongs to.
+        index: PathBuf,
+        /// Which table it is a part of (`scans part`, `descriptors part of toporec-plus`).
+        what: String,
+        /// The checksum and size its commit recorded.
+        expected: String,
+        /// The checksum and size found (or `missing`).
+        found: String,
+    },
     /// An index folder is not usable as asked.
     #[error("{}: {message}", path.display())]
     Index {

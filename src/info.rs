@@ -5,6 +5,7 @@
 
 use crate::error::{Error, Result};
 use crate::sinks::index::IndexReader;
+use crate::sinks::index::damage::Damage;
 use crate::sinks::index::manifest::{Counts, Manifest};
 use crate::sinks::parquet::Status;
 use crate::sinks::schema::tables;
@@ -55,7 +56,12 @@ pub struct MethodInfo {
 
 /// Reads what the index at `index` holds.
 pub fn info(index: &Path) -> Result<IndexInfo> {
-    IndexReader::read_consistent(index, |reader| {
+    info_with(index, &Damage::refuse())
+}
+
+/// [`info`], doing with damaged parts as `damage` says.
+pub fn info_with(index: &Path, damage: &Damage) -> Result<IndexInfo> {
+    IndexReader::read_consistent_with(index, damage, |reader| {
         let manifest = committed(reader)?;
         let mut sessions: BTreeMap<String, Counts> = BTreeMap::new();
         for scan in reader.scans()? {

@@ -38,7 +38,8 @@
 //!
 //! Downstream of the index: [`query`], [`eval`] (Recall@N, Recall@1 %, conditions), [`loops`]
 //! (loop closures over an index, and the online [`Detector`]), [`plot`]; [`import`] adds
-//! descriptors made elsewhere; [`maintenance`] verifies, compacts and revectorizes an index;
+//! descriptors made elsewhere; [`maintenance`] verifies, compacts and revectorizes an index,
+//! and [`repair`] rebuilds its damaged parts;
 //! [`info`] and [`inspect`] describe indexes and files, and [`diagram_csv`] reads and writes
 //! diagrams as CSV. Beside it: [`offline`] fits codebooks and
 //! vectorizes stored diagrams, [`simulate`] makes multi-session drives in the formats the
@@ -68,6 +69,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod preprocess;
 pub mod query;
+pub mod repair;
 pub mod rng;
 pub mod search;
 pub mod simulate;

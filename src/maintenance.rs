@@ -15,7 +15,7 @@ use crate::sinks::index::{MANIFEST_FILE, reader};
 use crate::sinks::parquet::Status;
 use crate::sinks::schema::tables;
 use crate::vectorize::codebook::Codebook;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 /// Arguments of `toporec revectorize`.
@@ -163,6 +163,7 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
     // Search caches: current, stale (the next query rebuilds it), or damaged (a problem; the next
     // query rebuilds it too, with a warning).
     let caches = index.join(crate::sinks::index::SEARCHERS_DIR);
+    let mut current_caches: Vec<(String, String)> = Vec::new();
     for e in std::fs::read_dir(&caches).into_iter().flatten().flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
         let rel = format!("{}/{name}", crate::sinks::index::SEARCHERS_DIR);
@@ -176,7 +177,8 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
         use crate::sinks::index::searchers::{Check, check};
         match check(&e.path()) {
             Check::Intact(h) if h.generation == manifest.generation && layout(&h.method) == Some(h.layout.as_str()) => {
-                v.notes.push(format!("{rel}: search cache of {} ({} rows), current", h.method, h.rows))
+                v.notes.push(format!("{rel}: search cache of {} ({} rows), current", h.method, h.rows));
+                current_caches.push((rel, h.method));
             }
             Check::Intact(h) if h.generation == manifest.generation => v.notes.push(format!(
                 "{rel}: search cache of {} made by another version of toporec: stale, rebuilt by the next query",
@@ -212,19 +214,38 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
         ));
     }
     let mut intact: Vec<&crate::sinks::index::manifest::FileEntry> = Vec::new();
+    // The methods with a descriptors part that fails its check: a cache of theirs was built
+    // from parts that are not as committed now.
+    let mut damaged_methods: HashSet<String> = HashSet::new();
+    // The partitions with a damaged part: their scans' missing rows are that damage, said once.
+    let mut damaged_partitions: HashSet<(String, String, String)> = HashSet::new();
+    let repair = format!("`toporec repair --index {}` rebuilds it", index.display());
     for f in &manifest.files {
         let path = crate::sinks::index::resolve(index, &f.path);
+        let partition = (f.table.clone(), f.method_name().to_string(), f.session.clone());
+        let mut damaged = |v: &mut Verification, what: String| {
+            v.problems.push(format!("{}: {what}; {repair}", f.path));
+            damaged_partitions.insert(partition.clone());
+        };
         if !path.is_file() {
-            v.problems.push(format!("{}: missing", f.path));
+            damaged(&mut v, "missing".into());
+            if f.table == tables::DESCRIPTORS {
+                damaged_methods.insert(f.method_name().to_string());
+            }
             continue;
         }
         let (bytes, xxh3) = file_checksum(&path)?;
-        if bytes != f.bytes {
-            v.problems.push(format!("{}: {bytes} bytes, the manifest says {}", f.path, f.bytes));
-            continue;
-        }
-        if xxh3 != f.xxh3 {
-            v.problems.push(format!("{}: checksum {xxh3}, the manifest says {}", f.path, f.xxh3));
+        if bytes != f.bytes || xxh3 != f.xxh3 {
+            damaged(
+                &mut v,
+                format!(
+                    "{bytes} bytes, checksum {xxh3}; the manifest says {} bytes, checksum {}",
+                    f.bytes, f.xxh3
+                ),
+            );
+            if f.table == tables::DESCRIPTORS {
+                damaged_methods.insert(f.method_name().to_string());
+            }
             continue;
         }
         // A descriptors file: its method's length and id (the codebook's, for TopoRec).
@@ -256,11 +277,19 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
             Err(e) => v.problems.push(e.to_string()),
         }
     }
+    for (rel, method) in current_caches.iter().filter(|(_, m)| damaged_methods.contains(m)) {
+        v.problems.push(format!(
+            "{rel}: search cache of {method}, whose descriptors parts fail their checks: not to be \
+             trusted ({repair} and the cache)"
+        ));
+    }
     // Rows: every ok scan with its diagram and descriptor, counts as the manifest says.
     let mut status: HashMap<String, Status> = HashMap::new();
+    let mut session_of: HashMap<String, String> = HashMap::new();
     let mut counts = crate::sinks::index::manifest::Counts::default();
     for f in intact.iter().filter(|f| f.table == tables::SCANS) {
         for r in read_scans(&crate::sinks::index::resolve(index, &f.path), &f.session)? {
+            session_of.insert(r.scan_id.clone(), r.session.clone());
             if status.insert(r.scan_id.clone(), r.status).is_some() {
                 v.problems.push(format!("scan {}: more than one row in scans", r.scan_id));
             }
@@ -287,6 +316,13 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
         }
         Ok(out)
     };
+    // Whether a scan's rows of a table (and method) would be in a damaged part of its session.
+    let in_damaged = |table: &str, method: &str, id: &str| {
+        let method = if table == tables::DESCRIPTORS { method } else { TOPOREC };
+        session_of
+            .get(id)
+            .is_some_and(|s| damaged_partitions.contains(&(table.to_string(), method.to_string(), s.clone())))
+    };
     let stored_h0 = Pipeline::of_index(index)
         .map(|p| p.methods.toporec && p.persistence.dims.contains(&0))
         .unwrap_or(true);
@@ -295,7 +331,7 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
     ok.sort();
     for id in &ok {
         // Every ok scan has H0 pairs (its points are born at 0), when H0 is stored.
-        if stored_h0 && !with_pairs.contains_key(*id) {
+        if stored_h0 && !with_pairs.contains_key(*id) && !in_damaged(tables::DIAGRAMS, TOPOREC, id) {
             v.problems.push(format!("scan {id}: ok, but no rows in diagrams"));
         }
     }
@@ -309,7 +345,9 @@ pub fn verify(index: &Path, allow_orphans: bool) -> Result<Verification> {
             if method == TOPOREC { "descriptors".to_string() } else { format!("{method} descriptors") };
         for id in &ok {
             match with_descriptor.get(*id) {
-                None if *complete => v.problems.push(format!("scan {id}: ok, but no row in {what}")),
+                None if *complete && !in_damaged(tables::DESCRIPTORS, method, id) => {
+                    v.problems.push(format!("scan {id}: ok, but no row in {what}"))
+                }
                 Some(n) if *n > 1 => v.problems.push(format!("scan {id}: {n} rows in {what}")),
                 _ => {}
             }

@@ -32,6 +32,8 @@ pub struct QueryArgs {
     pub sessions: Vec<String>,
     /// MCAP topic.
     pub topic: Option<String>,
+    /// Answer from the intact parts when some part fails its checksum (the command names them).
+    pub skip_damaged: bool,
     /// Output CSV (default stdout).
     pub out: Option<PathBuf>,
 }

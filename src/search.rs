@@ -12,6 +12,7 @@
 use crate::describe::{DescribeError, Describer};
 use crate::error::{Error, Result};
 use crate::methods::{Hit, Method, MethodKind, SearchBudget, Searcher, TOPOREC};
+use crate::sinks::index::damage::Damage;
 use crate::sinks::index::searchers;
 use crate::sinks::index::{IndexReader, IndexedScan};
 use crate::sources::Scan;
@@ -92,23 +93,30 @@ impl Engine {
     /// Opens `index` to search with `method` (only `sessions` as the database, when not
     /// empty).
     pub fn open(index: &Path, sessions: &[String], method: &str) -> Result<Self> {
-        if let Some(engine) =
-            Self::open_cached(index, method, &|s| sessions.is_empty() || sessions.contains(&s.session))?
-        {
+        Self::open_with(index, sessions, method, &Damage::refuse())
+    }
+
+    /// [`Engine::open`], doing with damaged parts as `damage` says (refuse them, or skip and
+    /// record them).
+    pub fn open_with(index: &Path, sessions: &[String], method: &str, damage: &Damage) -> Result<Self> {
+        let chosen = |s: &IndexedScan| sessions.is_empty() || sessions.contains(&s.session);
+        if let Some(engine) = Self::open_cached(index, method, &chosen, damage)? {
             return Ok(engine);
         }
-        let loaded = load_method(index, method, sessions)?;
+        let loaded = load_method(index, method, sessions, damage)?;
         Self::from_loaded(index, loaded)
     }
 
     /// For a method whose search structure is cached in the index ([`searchers`],
     /// [`crate::methods::Computed::cache_layout`]), an engine over its rows `chosen` keeps,
     /// mapped from the cache (built and written first, when the cache is missing or stale);
-    /// `None` for the other methods.
+    /// `None` for the other methods. A cache is built only from parts that pass their checks:
+    /// when `damage` skipped one, the structure is used but not written.
     pub fn open_cached(
         index: &Path,
         method: &str,
         chosen: &dyn Fn(&IndexedScan) -> bool,
+        damage: &Damage,
     ) -> Result<Option<Self>> {
         let reader = IndexReader::open(index)?;
         let Some(manifest) = reader.manifest() else { return Ok(None) };
@@ -140,7 +148,9 @@ impl Engine {
                 (searcher, cached.rows)
             }
             None => {
-                let loaded = load_method(index, method, &[])?;
+                let skipped_before = damage.found().len();
+                let loaded = load_method(index, method, &[], damage)?;
+                let whole = damage.found().len() == skipped_before;
                 let vectors: Vec<f32> =
                     loaded.scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
                 let searcher = computed.searcher(vectors);
@@ -154,12 +164,14 @@ impl Engine {
                     layout,
                     rows.len(),
                 );
-                // An index that cannot be written (read-only, another user's) gets no cache.
-                let bytes = searcher.bytes().expect("a cached method's searcher has bytes");
-                if let Err(e) = searchers::write(&path, &header, &rows, &bytes) {
-                    tracing::info!("{}: not cached ({e})", path.display());
+                // An index that cannot be written (read-only, another user's) gets no cache; nor
+                // does one read without a damaged part (the cache would pass for the whole).
+                if whole {
+                    let bytes = searcher.bytes().expect("a cached method's searcher has bytes");
+                    if let Err(e) = searchers::write(&path, &header, &rows, &bytes) {
+                        tracing::info!("{}: not cached ({e})", path.display());
+                    }
                 }
-                drop(bytes);
                 (searcher, rows)
             }
         };
@@ -173,7 +185,14 @@ impl Engine {
         };
         let engine = engine.retain(chosen)?;
         if engine.scans.is_empty() {
-            return Err(Error::index(index, format!("no {method} descriptors among the scans chosen")));
+            let skipped = match damage.found().len() {
+                0 => String::new(),
+                n => format!(" ({n} damaged parts left out; `toporec verify` names them)"),
+            };
+            return Err(Error::index(
+                index,
+                format!("no {method} descriptors among the scans chosen{skipped}"),
+            ));
         }
         Ok(Some(engine))
     }
@@ -331,8 +350,13 @@ fn methods_of(reader: &IndexReader) -> Result<Vec<Method>> {
 /// One method's descriptors of an index (only `sessions`, when not empty), checked to have
 /// been made by one codebook or parameter set, of one length; rows with non-finite values are
 /// left out with a warning.
-pub(crate) fn load_method(index: &Path, method: &str, sessions: &[String]) -> Result<Loaded> {
-    IndexReader::read_consistent(index, |reader| load_method_from(reader, method, sessions))
+pub(crate) fn load_method(
+    index: &Path,
+    method: &str,
+    sessions: &[String],
+    damage: &Damage,
+) -> Result<Loaded> {
+    IndexReader::read_consistent_with(index, damage, |reader| load_method_from(reader, method, sessions))
 }
 
 /// [`load_method`] on an opened index.
@@ -373,7 +397,11 @@ fn load_method_from(reader: &IndexReader, method: &str, sessions: &[String]) -> 
     });
     if scans.is_empty() {
         let which = if sessions.is_empty() { String::new() } else { format!(" in sessions {sessions:?}") };
-        return Err(Error::index(index, format!("no {method} descriptors{which}")));
+        let skipped = match reader.damage().found().len() {
+            0 => String::new(),
+            n => format!(" outside the {n} damaged parts left out (`toporec verify` names them)"),
+        };
+        return Err(Error::index(index, format!("no {method} descriptors{which}{skipped}")));
     }
     let what = if codebook.is_some() { "codebook" } else { "method id" };
     if let Some(s) = scans.iter().find(|s| s.codebook_id != id) {

@@ -7,6 +7,7 @@ mod baselines;
 mod cli;
 mod clouds;
 mod codebook;
+mod damage;
 mod docs;
 mod eval;
 mod homology;

@@ -159,3 +159,36 @@ def test_readers_race_writers(tmp_path, binary):
             assert n >= 2, counts
     print(counts)
     assert subprocess.run([binary, "verify", "--index", index], capture_output=True).returncode == 0
+
+
+def test_a_damaged_part_is_never_read_and_repair_restores_it(sample_index, binary, tmp_path):
+    """A part whose bytes changed after its commit: the Index refuses it by name (with the
+    repair to run), the Spark job's merge refuses to take the index's scans from it, and
+    `toporec repair` makes the tables equal to the intact ones again."""
+    import shutil
+
+    index = tmp_path / "index"
+    shutil.copytree(sample_index, index, ignore=shutil.ignore_patterns("searchers"))
+    intact = toporec.Index(index).descriptors().sort_by("scan_id")
+    part = sorted(toporec.Index(index).files("descriptors", method="toporec"))[0]
+    data = bytearray(pathlib.Path(part).read_bytes())
+    data[len(data) // 2] ^= 0x04
+    pathlib.Path(part).write_bytes(bytes(data))
+    for read in (lambda: toporec.Index(index).descriptors(), lambda: toporec.Index(index).query(str(REPO / "samples" / "town" / "velodyne_data" / "2026-01-02"), k=1)):
+        try:
+            read()
+        except ValueError as e:
+            assert part in str(e) and "damaged" in str(e) and f"toporec repair --index {index}" in str(e), e
+        else:
+            raise AssertionError("a damaged part was read")
+    # The Spark job's merge opens the index as a writer: it reads the committed scans first.
+    staging = tmp_path / "staging"
+    staging.mkdir()
+    try:
+        toporec._toporec.merge_written(str(index), str(staging))
+    except ValueError as e:
+        assert "damaged" in str(e), e
+    else:
+        raise AssertionError("merged into a damaged index")
+    subprocess.run([binary, "repair", "--index", index], check=True, capture_output=True)
+    assert toporec.Index(index).descriptors().sort_by("scan_id").equals(intact)

@@ -29,6 +29,10 @@ pub struct QueryArgs {
     /// The point-cloud topic of an MCAP or bag (default: its only one).
     #[arg(long)]
     pub topic: Option<String>,
+    /// Answer from the intact parts when some part of the index fails its checksum: every
+    /// damaged part and the scans it held are named, and the command exits 1.
+    #[arg(long)]
+    pub skip_damaged: bool,
     /// Output CSV (default stdout).
     #[arg(long, short)]
     pub out: Option<PathBuf>,
@@ -99,6 +103,10 @@ pub struct PlacesArgs {
     /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
     #[arg(long, value_enum, default_value = "places")]
     pub protocol: Protocol,
+    /// Answer from the intact parts when some part of the index fails its checksum: every
+    /// damaged part and the scans it held are named, and the command exits 1.
+    #[arg(long)]
+    pub skip_damaged: bool,
     /// Output folder for report.json, report.txt and the plots.
     #[arg(long, short)]
     pub out: PathBuf,
@@ -289,6 +297,10 @@ pub struct LoopsArgs {
     /// Write every scan's best match, accepted or not (an `accepted` column says which).
     #[arg(long)]
     pub all: bool,
+    /// Answer from the intact parts when some part of the index fails its checksum: every
+    /// damaged part and the scans it held are named, and the command exits 1.
+    #[arg(long)]
+    pub skip_damaged: bool,
     /// Output: `.parquet` (zstd) or `.csv`.
     #[arg(long, short, default_value = "loops.parquet")]
     pub out: PathBuf,
@@ -484,6 +496,7 @@ impl From<QueryArgs> for toporec::query::QueryArgs {
             method: a.method,
             sessions: a.sessions,
             topic: a.topic,
+            skip_damaged: a.skip_damaged,
             out: a.out,
         }
     }
@@ -510,6 +523,7 @@ impl From<PlacesArgs> for toporec::eval::PlacesArgs {
             methods: a.methods,
             search: a.search,
             protocol: a.protocol.into(),
+            skip_damaged: a.skip_damaged,
             out: a.out,
         }
     }
@@ -600,6 +614,7 @@ impl From<LoopsArgs> for toporec::loops::LoopsArgs {
             g2o: a.g2o,
             all: a.all,
             progress: !a.no_progress,
+            skip_damaged: a.skip_damaged,
             out: a.out,
         }
     }

@@ -84,6 +84,20 @@ enum Command {
     /// Store descriptors made elsewhere (Parquet, .npy with scan ids, CSV) as one more method
     /// of an index, matched to its scans by id.
     Import(args::ImportArgs),
+    /// Rebuild the parts of an index that fail their checksums, from its stored diagrams and
+    /// its pipeline's sources, in one commit; scans whose source is gone or changed are named.
+    Repair(RepairArgs),
+}
+
+/// Arguments of `toporec repair`.
+#[derive(clap::Args, Debug)]
+struct RepairArgs {
+    /// The index.
+    #[arg(long)]
+    index: PathBuf,
+    /// Worker threads, [1, ∞) (default: all cores).
+    #[arg(long, short, value_parser = ranges::count)]
+    threads: Option<usize>,
 }
 
 /// An index folder.
@@ -110,6 +124,10 @@ struct InfoArgs {
     /// With `--files descriptors`: only this method's files.
     #[arg(long, requires = "files")]
     method: Option<String>,
+    /// Count the scans of the intact parts when some part fails its checksum (each damaged
+    /// part named; exit 1).
+    #[arg(long)]
+    skip_damaged: bool,
 }
 
 /// Arguments of `toporec verify`.
@@ -280,9 +298,10 @@ pub fn main() -> ExitCode {
         Command::Revectorize(args) => revectorize(args.into()).map(|()| Done::All),
         Command::Compact(args) => compact(args).map(|()| Done::All),
         Command::Verify(args) => verify(args),
-        Command::Info(args) => info(args).map(|()| Done::All),
+        Command::Info(args) => info(args),
         Command::Import(args) => import(args.into()).map(|()| Done::All),
-        Command::Loops(args) => loops(args.into()).map(|()| Done::All),
+        Command::Loops(args) => loops(args.into()),
+        Command::Repair(args) => repair(args),
     };
     match result {
         Ok(Done::All) => ExitCode::SUCCESS,
@@ -390,10 +409,11 @@ fn validate(args: ValidateArgs) -> Result<()> {
     ))
 }
 
-fn loops(a: toporec::loops::LoopsArgs) -> Result<()> {
+fn loops(a: toporec::loops::LoopsArgs) -> Result<Done> {
     let summary = toporec::loops::run(&a)?;
     eprint!("{summary}");
-    print(&format!("written: {}\n", a.out.display()))
+    print(&format!("written: {}\n", a.out.display()))?;
+    Ok(if report_damage(&summary.damaged) { Done::Partial } else { Done::All })
 }
 
 fn import(a: toporec::import::ImportArgs) -> Result<()> {
@@ -409,9 +429,9 @@ fn import(a: toporec::import::ImportArgs) -> Result<()> {
 }
 
 fn places(a: PlacesArgs) -> Result<Done> {
-    let table = toporec::eval::places(&a)?;
+    let (table, damaged) = toporec::eval::places(&a)?;
     print(&format!("{table}written: {}\n", a.out.join("report.json").display()))?;
-    Ok(Done::All)
+    Ok(if report_damage(&damaged) { Done::Partial } else { Done::All })
 }
 
 fn perturbation(a: PerturbationArgs) -> Result<Done> {
@@ -435,8 +455,25 @@ fn simulate(a: SimulateArgs) -> Result<()> {
     Ok(())
 }
 
+/// Names each damaged part a skipping read left out, and the scans it held, on stderr;
+/// whether there was any.
+fn report_damage(damaged: &[toporec::sinks::index::damage::DamagedPart]) -> bool {
+    for d in damaged {
+        eprintln!("warning: {}", d.describe());
+    }
+    if !damaged.is_empty() {
+        eprintln!(
+            "partial: {} damaged parts left out; `toporec repair --index {}` rebuilds them",
+            damaged.len(),
+            damaged[0].index.display()
+        );
+    }
+    !damaged.is_empty()
+}
+
 fn query(a: QueryArgs) -> Result<Done> {
-    let engine = toporec::search::Engine::open(&a.index, &a.sessions, &a.method)?;
+    let damage = toporec::sinks::index::damage::Damage::skipping(a.skip_damaged);
+    let engine = toporec::search::Engine::open_with(&a.index, &a.sessions, &a.method, &damage)?;
     let report = match &a.out {
         Some(path) => {
             let mut file = AtomicFile::create(path)?;
@@ -450,7 +487,9 @@ fn query(a: QueryArgs) -> Result<Done> {
         }
     };
     eprintln!("{report}");
+    let damaged = report_damage(&toporec::sinks::index::damage::held_scans(damage.found())?);
     match (report.failed, report.answered) {
+        (0, _) if damaged => Ok(Done::Partial),
         (0, _) => Ok(Done::All),
         (f, 0) => bail!("all {f} queries failed"),
         (f, n) => {
@@ -580,14 +619,57 @@ fn compact(args: IndexArgs) -> Result<()> {
     Ok(())
 }
 
-fn info(args: InfoArgs) -> Result<()> {
+fn info(args: InfoArgs) -> Result<Done> {
     if let Some(table) = &args.files {
         let table = Some(table.as_str()).filter(|t| !t.is_empty());
         let files = toporec::info::files(&args.index, table, args.method.as_deref())?;
-        return print(&files.iter().map(|p| format!("{}\n", p.display())).collect::<String>());
+        print(&files.iter().map(|p| format!("{}\n", p.display())).collect::<String>())?;
+        return Ok(Done::All);
     }
-    let info = toporec::info::info(&args.index)?;
-    if args.json { print(&(serde_json::to_string_pretty(&info)? + "\n")) } else { print(&info.to_string()) }
+    let damage = toporec::sinks::index::damage::Damage::skipping(args.skip_damaged);
+    let info = toporec::info::info_with(&args.index, &damage)?;
+    if args.json {
+        print(&(serde_json::to_string_pretty(&info)? + "\n"))?;
+    } else {
+        print(&info.to_string())?;
+    }
+    let damaged = toporec::sinks::index::damage::held_scans(damage.found())?;
+    Ok(if report_damage(&damaged) { Done::Partial } else { Done::All })
+}
+
+fn repair(args: RepairArgs) -> Result<Done> {
+    let threads = threads(args.threads);
+    let r = toporec::repair::repair(&toporec::repair::RepairArgs { index: args.index.clone(), threads })?;
+    if r.damaged.is_empty() {
+        print(&format!("{}: every part is as committed; nothing to repair\n", args.index.display()))?;
+        return Ok(Done::All);
+    }
+    let mut text = String::new();
+    for d in &r.damaged {
+        text.push_str(&format!(
+            "damaged: {} ({}: {}; its commit recorded {}): {} scans\n",
+            d.path,
+            d.what(),
+            d.found,
+            d.expected,
+            d.scans.len()
+        ));
+    }
+    text.push_str(&format!(
+        "{}: repaired in one commit in {:.2} s: {} scans read again from their sources, {} descriptors made from stored diagrams\n",
+        args.index.display(),
+        r.seconds,
+        r.from_sources,
+        r.from_diagrams
+    ));
+    for m in &r.imported {
+        text.push_str(&format!("imported method {m}: its damaged rows cannot be rebuilt; import it again\n"));
+    }
+    for l in &r.lost {
+        text.push_str(&format!("lost: {} (session {}): {}\n", l.scan_id, l.session, l.why));
+    }
+    print(&text)?;
+    Ok(if r.lost.is_empty() && r.imported.is_empty() { Done::All } else { Done::Partial })
 }
 
 fn verify(args: VerifyArgs) -> Result<Done> {

@@ -32,6 +32,7 @@ use crate::methods::Hit;
 use crate::methods::TOPOREC;
 use crate::search::{Engine, Loaded, StepTimes, load_method, step_summary};
 use crate::sinks::index::IndexedScan;
+use crate::sinks::index::damage::{Damage, DamagedPart, held_scans};
 use rayon::prelude::*;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -92,6 +93,9 @@ pub struct PlacesArgs {
     /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
     /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
     pub protocol: Protocol,
+    /// Leave out damaged parts of the indexes (named, with their scans, in the report), instead
+    /// of failing.
+    pub skip_damaged: bool,
     /// Output folder for report.json, report.txt and the plots.
     pub out: PathBuf,
 }
@@ -168,9 +172,10 @@ fn parse_conditions(asked: &[String]) -> Result<Vec<Condition>> {
 }
 
 /// Runs the places protocol; returns the report text (also written beside the JSON).
-pub fn places(a: &PlacesArgs) -> Result<String> {
+pub fn places(a: &PlacesArgs) -> Result<(String, Vec<DamagedPart>)> {
+    let damage = Damage::skipping(a.skip_damaged);
     if a.protocol == Protocol::Pointnetvlad {
-        return pointnetvlad_places(a);
+        return pointnetvlad_places(a, &damage);
     }
     let conditions = parse_conditions(&a.conditions)?;
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
@@ -186,7 +191,11 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
     );
     std::fs::create_dir_all(&a.out).at(&a.out)?;
     let prepared: Vec<Prepared> =
-        methods.iter().map(|m| Prepared::new(a, &queries_index, m)).collect::<Result<_>>()?;
+        methods.iter().map(|m| Prepared::new(a, &queries_index, m, &damage)).collect::<Result<_>>()?;
+    let damaged = held_scans(damage.found())?;
+    if !damaged.is_empty() {
+        line!(table, "left out: {} damaged parts (report.json lists them and their scans)", damaged.len());
+    }
     let (redescribed, mean_unit) = if conditions.iter().any(|c| *c != Condition::AsRecorded) {
         redescribe(a, &queries_index, &prepared, &conditions)?
     } else {
@@ -257,9 +266,10 @@ pub fn places(a: &PlacesArgs) -> Result<String> {
         threads: rayon::current_num_threads(),
         methods: entries,
         plots: file_names(&plots),
+        damaged: damaged.clone(),
     };
     report::write(&a.out, &Report::Places(report), &table)?;
-    Ok(table)
+    Ok((table, damaged))
 }
 
 /// One (condition, method) line of the summary: R@1 per threshold, nearest, F1 max and
@@ -343,11 +353,11 @@ struct Evaluated {
 }
 
 impl Prepared {
-    fn new(a: &PlacesArgs, queries_index: &Path, method: &str) -> Result<Prepared> {
+    fn new(a: &PlacesArgs, queries_index: &Path, method: &str, damage: &Damage) -> Result<Prepared> {
         // A method with a cached search structure (toporec-plus) searches a copy of the chosen
         // rows of it; the others build theirs from the descriptors.
         let in_sessions = |s: &IndexedScan| a.db_sessions.is_empty() || a.db_sessions.contains(&s.session);
-        let cached = Engine::open_cached(&a.db, method, &in_sessions)?;
+        let cached = Engine::open_cached(&a.db, method, &in_sessions, damage)?;
         let db_loaded = match &cached {
             Some(e) => Loaded {
                 method: e.method.clone(),
@@ -356,9 +366,9 @@ impl Prepared {
                 codebook: None,
                 scans: e.scans.clone(),
             },
-            None => load_method(&a.db, method, &a.db_sessions)?,
+            None => load_method(&a.db, method, &a.db_sessions, damage)?,
         };
-        let q_loaded = load_method(queries_index, method, &a.query_sessions)?;
+        let q_loaded = load_method(queries_index, method, &a.query_sessions, damage)?;
         if q_loaded.id != db_loaded.id {
             let hint = if method == TOPOREC {
                 format!(
@@ -873,21 +883,23 @@ fn scan_header(scan: &crate::sources::Scan) -> crate::sources::Scan {
 }
 
 /// `eval places --protocol pointnetvlad`: the benchmark's own database and query sets.
-fn pointnetvlad_places(a: &PlacesArgs) -> Result<String> {
+fn pointnetvlad_places(a: &PlacesArgs, damage: &Damage) -> Result<(String, Vec<DamagedPart>)> {
     if a.queries.is_some() || !a.db_sessions.is_empty() || !a.query_sessions.is_empty() {
         return Err(Error::invalid(
             "--protocol pointnetvlad pairs the benchmark's own runs: --queries, --db-session and --query-session do not apply",
         ));
     }
     let methods = names(&chosen_methods(&[&a.db], &a.methods)?);
-    let (table, report, curves) = super::pointnetvlad::evaluate(&a.db, &methods, a.search)?;
+    let (table, report, curves) = super::pointnetvlad::evaluate(&a.db, &methods, a.search, damage)?;
     std::fs::create_dir_all(&a.out).at(&a.out)?;
     let plots =
         crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
     let mut report = report;
     report.plots = file_names(&plots);
+    report.damaged = held_scans(damage.found())?;
+    let damaged = report.damaged.clone();
     report::write(&a.out, &Report::PointNetVlad(report), &table)?;
-    Ok(table)
+    Ok((table, damaged))
 }
 
 #[cfg(test)]

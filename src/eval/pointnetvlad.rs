@@ -19,6 +19,7 @@ use super::report::DatasetRecall;
 use crate::error::{Error, Result};
 use crate::search::{Engine, Loaded, load_method};
 use crate::sinks::index::IndexedScan;
+use crate::sinks::index::damage::Damage;
 use crate::sources::SourceSpec;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -118,8 +119,9 @@ pub(crate) fn evaluate_method(
     method: &str,
     sets: &[Dataset],
     budget: crate::methods::SearchBudget,
+    damage: &Damage,
 ) -> Result<(String, Vec<DatasetRecall>)> {
-    let loaded = load_method(index, method, &[])?;
+    let loaded = load_method(index, method, &[], damage)?;
     let (id, length, method_def) = (loaded.id.clone(), loaded.length, loaded.method.clone());
     let mut by_run: BTreeMap<String, Vec<IndexedScan>> = BTreeMap::new();
     for s in loaded.scans.into_iter().filter(|s| s.pose.is_some()) {
@@ -195,6 +197,7 @@ pub fn evaluate(
     index: &Path,
     methods: &[String],
     budget: crate::methods::SearchBudget,
+    damage: &Damage,
 ) -> Result<(String, super::report::PointNetVladReport, Vec<super::Curve>)> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
     let Some(SourceSpec::PointNetVlad(spec)) =
@@ -229,7 +232,7 @@ pub fn evaluate(
         "method", "dataset", "pairs", "R@1", "R@5", "R@25", "R@1%"
     ));
     for method in methods {
-        let (id, results) = evaluate_method(index, method, &sets, budget)?;
+        let (id, results) = evaluate_method(index, method, &sets, budget, damage)?;
         for r in &results {
             table.push_str(&format!(
                 "{:<14} {:<12} {:>6} {:>9.2} {:>9.2} {:>9.2} {:>9.2}\n",
@@ -260,6 +263,7 @@ pub fn evaluate(
         notes,
         methods: entries,
         plots: Vec::new(),
+        damaged: Vec::new(),
     };
     Ok((table, report, curves))
 }

@@ -4,6 +4,7 @@
 //! reading reports has a contract.
 
 use super::metrics::{LoopClosure, Recall};
+use crate::sinks::index::damage::DamagedPart;
 use schemars::JsonSchema;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -91,6 +92,8 @@ pub struct PlacesReport {
     pub methods: Vec<PlacesMethod>,
     /// The plot files written beside the report.
     pub plots: Vec<String>,
+    /// Damaged parts left out (`--skip-damaged`), each with the scans it held.
+    pub damaged: Vec<DamagedPart>,
 }
 
 /// The database of `eval places`.
@@ -303,6 +306,8 @@ pub struct PointNetVladReport {
     pub methods: Vec<PointNetVladMethod>,
     /// The plot files written beside the report.
     pub plots: Vec<String>,
+    /// Damaged parts left out (`--skip-damaged`), each with the scans it held.
+    pub damaged: Vec<DamagedPart>,
 }
 
 /// A test set and its runs.

@@ -21,6 +21,7 @@ pub use detector::{Detector, Match};
 
 use crate::error::{Error, Result, ResultExt};
 use crate::search::Engine;
+use crate::sinks::index::damage::Damage;
 use crate::sinks::index::reader::IndexedScan;
 use std::collections::HashMap;
 use std::io::Write;
@@ -60,6 +61,9 @@ pub struct LoopsArgs {
     pub all: bool,
     /// Progress bars on a terminal (searching, and aligning with `verify`).
     pub progress: bool,
+    /// Leave out damaged parts of the index (named, with their scans, in the summary) instead
+    /// of failing.
+    pub skip_damaged: bool,
     /// Output: `.parquet` or `.csv`.
     pub out: PathBuf,
 }
@@ -357,6 +361,8 @@ pub struct Summary {
     pub calibrations: Vec<PathBuf>,
     /// The g2o file written.
     pub g2o: Option<PathBuf>,
+    /// Damaged parts left out (`skip_damaged`), each with the scans it held.
+    pub damaged: Vec<crate::sinks::index::damage::DamagedPart>,
 }
 
 impl std::fmt::Display for Summary {
@@ -493,9 +499,10 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
     let mut summary = Summary::default();
     let mut all_rows = Vec::new();
     let mut calibrations = Vec::new();
+    let damage = Damage::skipping(a.skip_damaged);
     for method in &methods {
-        let engine = Engine::open(&a.index, &[], method)?;
-        let queries = query_descriptors(&a.index, &engine)?;
+        let engine = Engine::open_with(&a.index, &[], method, &damage)?;
+        let queries = query_descriptors(&a.index, &engine, &damage)?;
         let rule = Allowed::new(&engine.scans, exclusion);
         let bar = progress_bar(a.progress, engine.scans.len(), &format!("scans searched ({method})"));
         let matches = best_matches_counted(&engine, &queries, &rule, bar.as_ref());
@@ -542,7 +549,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         }
         let below_threshold = rows.iter().filter(|r| r.accepted).count();
         if let Some(limits) = a.verify {
-            let checks = verify::check(&a.index, &rows, limits, a.progress)?;
+            let checks = verify::check(&a.index, &rows, limits, a.progress, &damage)?;
             for (r, c) in rows.iter_mut().zip(checks) {
                 r.check = c;
                 r.accepted &= c.is_some_and(|c| c.passed);
@@ -584,6 +591,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         crate::fsutil::write_atomic(&path, text.as_bytes())?;
         summary.calibrations.push(path);
     }
+    summary.damaged = crate::sinks::index::damage::held_scans(damage.found())?;
     Ok(summary)
 }
 
@@ -618,11 +626,11 @@ fn protocol_scores(
 
 /// The descriptor of each of `engine`'s scans: its own, or read from the index when the
 /// engine searches a cached structure that keeps none (toporec-plus).
-fn query_descriptors(index: &Path, engine: &Engine) -> Result<Vec<Vec<f32>>> {
+fn query_descriptors(index: &Path, engine: &Engine, damage: &Damage) -> Result<Vec<Vec<f32>>> {
     if engine.scans.iter().all(|s| !s.descriptor.is_empty()) {
         return Ok(engine.scans.iter().map(|s| s.descriptor.clone()).collect());
     }
-    let loaded = crate::search::load_method(index, &engine.method.name, &[])?;
+    let loaded = crate::search::load_method(index, &engine.method.name, &[], damage)?;
     let mut by_id: HashMap<String, Vec<f32>> =
         loaded.scans.into_iter().map(|s| (s.scan_id, s.descriptor)).collect();
     engine

@@ -46,8 +46,9 @@ fn load(
     index: &Path,
     ids: &HashSet<&str>,
     voxel: f64,
+    damage: &crate::sinks::index::damage::Damage,
 ) -> Result<HashMap<String, std::result::Result<Vec<Point>, String>>> {
-    let reader = crate::sinks::index::IndexReader::open(index)?;
+    let reader = crate::sinks::index::IndexReader::open_with(index, damage)?;
     let records = reader.scans()?;
     let mut out = HashMap::new();
     let mut mcap: HashMap<String, HashMap<u64, String>> = HashMap::new();
@@ -102,7 +103,13 @@ fn load(
 /// Checks the accepted rows of `rows` (in parallel), returning each one's check (`None` for
 /// the rows not checked); a row whose scans cannot be read or aligned fails its check (each
 /// unreadable scan named once, the alignments that failed counted in one warning).
-pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> Result<Vec<Option<Check>>> {
+pub fn check(
+    index: &Path,
+    rows: &[LoopRow],
+    limits: Limits,
+    progress: bool,
+    damage: &crate::sinks::index::damage::Damage,
+) -> Result<Vec<Option<Check>>> {
     use rayon::prelude::*;
     let p = IcpParams::default();
     let bar = super::progress_bar(progress, rows.iter().filter(|r| r.accepted).count(), "matches aligned");
@@ -111,7 +118,7 @@ pub fn check(index: &Path, rows: &[LoopRow], limits: Limits, progress: bool) -> 
         .filter(|r| r.accepted)
         .flat_map(|r| [r.query_scan.as_str(), r.matched_scan.as_str()])
         .collect();
-    let clouds = load(index, &ids, p.voxel)?;
+    let clouds = load(index, &ids, p.voxel, damage)?;
     // Alignments that failed: how many, and the first one's reason.
     let failed = std::sync::Mutex::new((0usize, String::new()));
     let checks = rows

@@ -107,7 +107,7 @@ pub(super) fn run(p: &Pipeline, opts: &RunOptions, shard: Shard) -> Result<RunSu
             ),
         ));
     }
-    let known = committed_scans(&main, &manifest)?;
+    let known = committed_scans(&main, &manifest, &Default::default())?;
     let dir = shard.dir(&main);
     let shard_opts = RunOptions { index: Some(dir.clone()), shard: None, ..opts.clone() };
     let context = MainIndex { shard, codebook, known };

@@ -12,7 +12,8 @@ use super::RunOptions;
 use crate::error::{Error, Result};
 use crate::homology::Diagram;
 use crate::sinks::index::IndexWriter;
-use crate::sinks::index::reader::{diagrams, diagrams_in};
+use crate::sinks::index::manifest::FileEntry;
+use crate::sinks::index::reader::diagrams_in;
 use crate::sinks::parquet::{DescriptorRow, Status};
 use crate::sinks::schema::tables;
 use crate::types::Pose;
@@ -38,7 +39,7 @@ type FileResult<T> = Result<(T, Vec<String>, Vec<String>, f64)>;
 /// Pass A over `files` (in parallel): `work` gets every wanted scan's diagram in the first
 /// dimensions, except the paper rule's fallbacks, which are returned.
 fn first_pass<T: Send>(
-    files: &[PathBuf],
+    files: &[StoredPart],
     dims: &DimSelection,
     wanted: &(dyn Fn(&str) -> bool + Sync),
     init: &(dyn Fn() -> T + Sync),
@@ -47,11 +48,12 @@ fn first_pass<T: Send>(
     let first = first_dims(dims);
     files
         .par_iter()
-        .map(|path| {
+        .map(|part| {
             let t = ThreadTime::now();
             let mut acc = init();
             let (mut delivered, mut again) = (Vec::new(), Vec::new());
-            for d in diagrams_in(path, Some(&first))? {
+            let (path, bytes) = part.read()?;
+            for d in diagrams_in(&path, bytes, Some(&first))? {
                 let (id, diagram) = d?;
                 if !wanted(&id) {
                     continue;
@@ -72,18 +74,19 @@ fn first_pass<T: Send>(
 
 /// Pass B (in parallel): `work` gets the whole diagram of each scan in `ids`.
 fn whole_pass<T: Send>(
-    files: &[PathBuf],
+    files: &[StoredPart],
     ids: &HashSet<String>,
     init: &(dyn Fn() -> T + Sync),
     work: &(dyn Fn(&mut T, String, Diagram) + Sync),
 ) -> Vec<FileResult<T>> {
     files
         .par_iter()
-        .map(|path| {
+        .map(|part| {
             let t = ThreadTime::now();
             let mut acc = init();
             let mut delivered = Vec::new();
-            for d in diagrams(path)? {
+            let (path, bytes) = part.read()?;
+            for d in diagrams_in(&path, bytes, None)? {
                 let (id, diagram) = d?;
                 if ids.contains(&id) {
                     work(&mut acc, id.clone(), diagram);
@@ -102,8 +105,28 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
         .map_err(|e| Error::invalid(format!("starting {threads} threads: {e}")))
 }
 
-fn diagram_files(writer: &IndexWriter) -> Vec<PathBuf> {
-    writer.manifest().files_of(tables::DIAGRAMS).map(|f| writer.path_of(f)).collect()
+/// A committed diagrams part, read with its bytes checked against its commit.
+struct StoredPart {
+    root: PathBuf,
+    generation: u64,
+    entry: FileEntry,
+}
+
+impl StoredPart {
+    fn read(&self) -> Result<(PathBuf, bytes::Bytes)> {
+        let bytes = crate::sinks::index::writer::verified(&self.root, &self.entry, self.generation)?;
+        Ok((crate::sinks::index::resolve(&self.root, &self.entry.path), bytes))
+    }
+}
+
+fn diagram_files(writer: &IndexWriter) -> Vec<StoredPart> {
+    let (root, generation) = (writer.root().to_owned(), writer.manifest().generation);
+    writer
+        .manifest()
+        .files_of(tables::DIAGRAMS)
+        .filter(|f| !writer.dropping(&f.path))
+        .map(|f| StoredPart { root: root.clone(), generation, entry: f.clone() })
+        .collect()
 }
 
 /// Pairs of stored diagrams kept in memory between a fit and the descriptors made with it
@@ -264,7 +287,7 @@ pub(crate) fn stored_descriptors(
     }
     // Else the files, one per thread at a time, so memory holds one group's descriptors. (A
     // cache holds every scan with pairs: the others get empty diagrams below.)
-    let files: Vec<PathBuf> = if from_memory { Vec::new() } else { files };
+    let files: Vec<StoredPart> = if from_memory { Vec::new() } else { files };
     for group in files.chunks(threads.max(1)) {
         for r in pool.install(|| first_pass(group, &codebook.spec.dims, &wanted, &init, &work)) {
             let (made, _, a, secs) = r?;

@@ -253,6 +253,29 @@ impl SourceSpec {
         })
     }
 
+    /// This source restricted to the sessions in `wanted` (the same scans of those sessions,
+    /// under the same ids); `None` when it yields none of them. A source whose sessions cannot
+    /// be listed is kept whole (its stream is filtered by the caller).
+    pub fn only_sessions(&self, wanted: &std::collections::HashSet<String>) -> Option<SourceSpec> {
+        let Ok(listed) = self.sessions() else { return Some(self.clone()) };
+        let keep: Vec<PathBuf> =
+            listed.iter().filter(|(s, _)| wanted.contains(s)).map(|(_, p)| p.clone()).collect();
+        if keep.is_empty() {
+            return None;
+        }
+        let mut out = self.clone();
+        match &mut out {
+            SourceSpec::Nclt(s) => s.sessions = keep,
+            SourceSpec::Kitti(s) => s.sequences = keep,
+            SourceSpec::Mcap(s) => s.files = keep,
+            SourceSpec::Rosbag(s) => s.paths = keep,
+            SourceSpec::Clouds(s) => s.folders = keep,
+            // Runs are named by their set and folder: the stream is filtered instead.
+            SourceSpec::PointNetVlad(_) => {}
+        }
+        Some(out)
+    }
+
     /// Makes relative paths relative to `base` (the pipeline file's folder).
     pub fn resolve_paths(&mut self, base: &Path) {
         self.clean_paths(|p| if p.is_relative() { base.join(p) } else { p.to_owned() });

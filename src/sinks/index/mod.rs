@@ -9,7 +9,8 @@
 //!   .staging/part-<n>.staged                 files of a commit not yet in place
 //! ```
 //!
-//! [`writer`] stages a run's files and commits them; `recovery` completes a commit a kill
+//! [`writer`] stages a run's files and commits them; [`damage`] checks a committed part's
+//! bytes against its commit before any reader or writer uses them; `recovery` completes a commit a kill
 //! interrupted and tells toporec's own files from foreign ones; [`reader`] reads the committed
 //! files back, checking every table against the schemas of [`super::schema`] so that a foreign
 //! or rewritten table gives an error, never a panic. This module owns the layout they agree on.
@@ -17,6 +18,7 @@
 //! Staged files live outside the table folders, under names that do not end in `.parquet`, so
 //! a glob of the tables (`scans/*/*.parquet`, `**/*.parquet`) never sees an uncommitted row.
 
+pub mod damage;
 pub mod manifest;
 pub mod reader;
 pub(crate) mod recovery;

@@ -1,7 +1,9 @@
 //! Reading an index back: the descriptors (`query`, `eval`), the diagrams (`fit`, `vectorize`,
 //! `plot`), the scans (`verify`, incremental runs).
 //!
-//! Every table file is checked before it is read: its `toporec.table` and
+//! Every committed part is checked against its commit's checksum before any of its rows is
+//! used (`super::damage`): refused when damaged, or skipped and recorded for a command run with
+//! `--skip-damaged`. Every table file is then checked as a table: its `toporec.table` and
 //! `toporec.schema_version` metadata (when present: a table rewritten by another tool may have
 //! lost it), and each needed column's presence and type. Types are accepted by family and cast
 //! to toporec's own (a string column written as `LargeUtf8` by Polars reads as `Utf8`, a
@@ -11,7 +13,8 @@
 //! Over 800 lines: every table's checked reader shares the one checking and casting path
 //! (`CheckedTable`), which splitting by table would repeat.
 
-use super::manifest::Manifest;
+use super::damage::{Checked, Damage, checked_bytes, load};
+use super::manifest::{FileEntry, Manifest};
 use super::{CODEBOOK_FILE, MANIFEST_FILE, resolve, table_files};
 use crate::error::{Error, FileError, Result, ResultExt};
 use crate::homology::{Diagram, Pair};
@@ -21,6 +24,7 @@ use crate::types::Pose;
 use crate::vectorize::codebook::Codebook;
 use arrow::array::{Array, ArrayRef, AsArray, RecordBatch};
 use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, Int64Type, UInt8Type, UInt64Type};
+use bytes::Bytes;
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{ParquetRecordBatchReader, ParquetRecordBatchReaderBuilder};
 use std::collections::VecDeque;
@@ -44,13 +48,6 @@ pub struct IndexedScan {
     pub codebook_id: String,
 }
 
-/// Files sorted by (session, path).
-fn sorted(files: impl Iterator<Item = (String, PathBuf)>) -> Vec<(String, PathBuf)> {
-    let mut files: Vec<(String, PathBuf)> = files.collect();
-    files.sort();
-    files
-}
-
 /// How many times [`IndexReader::read_consistent`] starts a read over before it gives up.
 pub(crate) const READ_ATTEMPTS: u32 = 20;
 
@@ -64,6 +61,16 @@ pub type ScanRecord = ScanRow;
 pub struct IndexReader {
     root: PathBuf,
     manifest: Option<Manifest>,
+    damage: Damage,
+}
+
+/// A part file as a reader takes it: its session, where its bytes are, and its commit's
+/// record (none in a folder of tables without a manifest).
+#[derive(Clone, Debug)]
+pub(crate) struct Part {
+    pub session: String,
+    pub path: PathBuf,
+    pub entry: Option<FileEntry>,
 }
 
 impl IndexReader {
@@ -71,6 +78,12 @@ impl IndexReader {
     /// kill left half done is completed first, when the writer's lock is free (see
     /// `super::recovery`); the files it names are read where they are meanwhile.
     pub fn open(root: &Path) -> Result<Self> {
+        Self::open_with(root, &Damage::refuse())
+    }
+
+    /// [`IndexReader::open`], doing with damaged parts as `damage` says (refuse them, or skip
+    /// and record them).
+    pub fn open_with(root: &Path, damage: &Damage) -> Result<Self> {
         if !root.is_dir() {
             return Err(Error::index(root, "no such index folder"));
         }
@@ -81,17 +94,26 @@ impl IndexReader {
         {
             manifest = Some(recovered);
         }
-        Ok(IndexReader { root: root.to_owned(), manifest })
+        Ok(IndexReader { root: root.to_owned(), manifest, damage: damage.clone() })
     }
 
     /// Runs `read` on the index at `root`, opened afresh. When a file its manifest named is
     /// gone — a commit replaced it since — the index is opened again and `read` starts over on
     /// the newer generation, up to `READ_ATTEMPTS` times: a read never mixes two generations
     /// and never fails because a writer committed meanwhile.
-    pub fn read_consistent<T>(root: &Path, mut read: impl FnMut(&IndexReader) -> Result<T>) -> Result<T> {
+    pub fn read_consistent<T>(root: &Path, read: impl FnMut(&IndexReader) -> Result<T>) -> Result<T> {
+        Self::read_consistent_with(root, &Damage::refuse(), read)
+    }
+
+    /// [`IndexReader::read_consistent`], doing with damaged parts as `damage` says.
+    pub fn read_consistent_with<T>(
+        root: &Path,
+        damage: &Damage,
+        mut read: impl FnMut(&IndexReader) -> Result<T>,
+    ) -> Result<T> {
         let mut attempt = 1;
         loop {
-            let reader = IndexReader::open(root)?;
+            let reader = IndexReader::open_with(root, damage)?;
             match read(&reader) {
                 Err(e) if e.is_not_found() && reader.manifest.is_some() && attempt < READ_ATTEMPTS => {
                     tracing::debug!("{}: {e}; reading the newer generation", root.display());
@@ -127,25 +149,63 @@ impl IndexReader {
     /// The part files of a table, with their sessions, sorted by (session, part); for
     /// `descriptors`, the TopoRec method's (see [`IndexReader::descriptor_files`]).
     pub fn files(&self, table: &str) -> Result<Vec<(String, PathBuf)>> {
-        if table == tables::DESCRIPTORS {
-            return self.descriptor_files(crate::methods::TOPOREC);
-        }
-        match &self.manifest {
-            Some(m) => {
-                Ok(sorted(m.files_of(table).map(|f| (f.session.clone(), resolve(&self.root, &f.path)))))
-            }
-            None => table_files(&self.root, table, None),
-        }
+        let method = (table == tables::DESCRIPTORS).then_some(crate::methods::TOPOREC);
+        Ok(self.parts(table, method)?.into_iter().map(|p| (p.session, p.path)).collect())
     }
 
     /// The descriptors files of `method`, with their sessions, sorted by (session, part).
     pub fn descriptor_files(&self, method: &str) -> Result<Vec<(String, PathBuf)>> {
-        match &self.manifest {
-            Some(m) => Ok(sorted(
-                m.descriptor_files_of(method).map(|f| (f.session.clone(), resolve(&self.root, &f.path))),
-            )),
-            None => table_files(&self.root, tables::DESCRIPTORS, Some(method)),
+        Ok(self.parts(tables::DESCRIPTORS, Some(method))?.into_iter().map(|p| (p.session, p.path)).collect())
+    }
+
+    /// The parts of a table (for `descriptors`, of `method`), sorted by (session, path).
+    pub(crate) fn parts(&self, table: &str, method: Option<&str>) -> Result<Vec<Part>> {
+        let Some(m) = &self.manifest else {
+            let listed = table_files(&self.root, table, method)?;
+            return Ok(listed
+                .into_iter()
+                .map(|(session, path)| Part { session, path, entry: None })
+                .collect());
+        };
+        let entries: Vec<&FileEntry> = match (table, method) {
+            (tables::DESCRIPTORS, m_) => {
+                m.descriptor_files_of(m_.unwrap_or(crate::methods::TOPOREC)).collect()
+            }
+            _ => m.files_of(table).collect(),
+        };
+        let mut parts: Vec<Part> = entries
+            .into_iter()
+            .map(|f| Part {
+                session: f.session.clone(),
+                path: resolve(&self.root, &f.path),
+                entry: Some(f.clone()),
+            })
+            .collect();
+        parts.sort_by(|a, b| (&a.session, &a.path).cmp(&(&b.session, &b.path)));
+        Ok(parts)
+    }
+
+    /// The bytes of a part: a committed one's checked against its commit (refused or, when the
+    /// reader skips damage, `None` and recorded, when they differ); a part of a folder without
+    /// a manifest as it is.
+    pub(crate) fn bytes_of(&self, part: &Part) -> Result<Option<Bytes>> {
+        let Some(entry) = part.entry.as_ref().filter(|_| self.damage.checks()) else {
+            return load(&part.path).map(Some);
+        };
+        let generation = self.manifest.as_ref().map_or(0, |m| m.generation);
+        match checked_bytes(&self.root, entry, generation)? {
+            Checked::Intact(bytes) => Ok(Some(bytes)),
+            Checked::Damaged(d) if self.damage.skips() => {
+                self.damage.record(d);
+                Ok(None)
+            }
+            Checked::Damaged(d) => Err(d.error()),
         }
+    }
+
+    /// What this reader does with damaged parts, and those it left out.
+    pub fn damage(&self) -> &Damage {
+        &self.damage
     }
 
     /// A whole table — `scans`, `diagrams`, or `descriptors` of `method` (TopoRec by default)
@@ -158,16 +218,16 @@ impl IndexReader {
         method: Option<&str>,
     ) -> Result<(Arc<arrow::datatypes::Schema>, Vec<RecordBatch>)> {
         let method = method.unwrap_or(crate::methods::TOPOREC);
-        let (files, length) = match table {
+        let (parts, length) = match table {
             tables::DESCRIPTORS => {
                 let length = match self.manifest.as_ref().and_then(|m| m.methods.get(method)) {
                     Some(entry) => Some(entry.length),
                     None if method == crate::methods::TOPOREC => self.codebook().ok().map(|c| c.len()),
                     None => None,
                 };
-                (self.descriptor_files(method)?, length)
+                (self.parts(table, Some(method))?, length)
             }
-            tables::SCANS | tables::DIAGRAMS => (self.files(table)?, None),
+            tables::SCANS | tables::DIAGRAMS => (self.parts(table, None)?, None),
             other => return Err(Error::index(&self.root, format!("`{other}` is not a table of an index"))),
         };
         let definition = match table {
@@ -189,8 +249,10 @@ impl IndexReader {
         };
         let mut schema = schema_of(definition.columns.iter().map(|c| c.data_type.clone()).collect());
         let mut batches = Vec::new();
-        for (session, path) in files {
-            let mut checked = CheckedTable::open(&path, &definition, &names, length)?;
+        for part in parts {
+            let Some(bytes) = self.bytes_of(&part)? else { continue };
+            let (session, path) = (part.session, part.path);
+            let mut checked = CheckedTable::open(&path, bytes, &definition, &names, length)?;
             while let Some(columns) = checked.next_batch() {
                 let mut columns = columns?;
                 for (column, def) in columns.iter_mut().zip(&definition.columns) {
@@ -240,9 +302,10 @@ impl IndexReader {
         length: Option<usize>,
     ) -> Result<Vec<IndexedScan>> {
         let mut out = Vec::new();
-        for (session, path) in self.descriptor_files(method)? {
-            if sessions.is_empty() || sessions.contains(&session) {
-                out.extend(read_descriptors(&path, &session, length)?);
+        for part in self.parts(tables::DESCRIPTORS, Some(method))? {
+            if sessions.is_empty() || sessions.contains(&part.session) {
+                let Some(bytes) = self.bytes_of(&part)? else { continue };
+                out.extend(read_descriptors(&part.path, bytes, &part.session, length)?);
             }
         }
         Ok(out)
@@ -250,10 +313,16 @@ impl IndexReader {
 
     /// Every diagram of the index, streamed scan by scan, in (session, part, row) order.
     pub fn diagrams(&self) -> Result<impl Iterator<Item = Result<(String, Diagram)>> + use<>> {
-        let files = self.files(tables::DIAGRAMS)?;
-        Ok(files.into_iter().flat_map(|(_, f)| -> Box<dyn Iterator<Item = Result<(String, Diagram)>>> {
-            match diagrams(&f) {
-                Ok(it) => Box::new(it),
+        let parts = self.parts(tables::DIAGRAMS, None)?;
+        let reader = self.clone();
+        Ok(parts.into_iter().flat_map(move |part| -> Box<dyn Iterator<Item = Result<(String, Diagram)>>> {
+            let stream = reader.bytes_of(&part).and_then(|bytes| match bytes {
+                Some(bytes) => diagrams_in(&part.path, bytes, None).map(Some),
+                None => Ok(None),
+            });
+            match stream {
+                Ok(Some(it)) => Box::new(it),
+                Ok(None) => Box::new(std::iter::empty()),
                 Err(e) => Box::new(std::iter::once(Err(e))),
             }
         }))
@@ -273,8 +342,9 @@ impl IndexReader {
     /// Every row of `scans`, in (session, part, row) order.
     pub fn scans(&self) -> Result<Vec<ScanRecord>> {
         let mut out = Vec::new();
-        for (session, path) in self.files(tables::SCANS)? {
-            out.extend(read_scans(&path, &session)?);
+        for part in self.parts(tables::SCANS, None)? {
+            let Some(bytes) = self.bytes_of(&part)? else { continue };
+            out.extend(read_scans_in(&part.path, bytes, &part.session)?);
         }
         Ok(out)
     }
@@ -321,20 +391,23 @@ struct CheckedTable {
 }
 
 impl CheckedTable {
-    /// Opens `path` as table `table`, reading only `names`.
+    /// Opens the bytes of `path` as table `table`, reading only `names`.
     fn open(
         path: &Path,
+        bytes: Bytes,
         table: &schema::Table,
         names: &[&'static str],
         length: Option<usize>,
     ) -> Result<Self> {
-        Self::open_any(path, table, Some(table.name), names, length, false, None)
+        Self::open_any(path, bytes, table, Some(table.name), names, length, false, None)
     }
 
-    /// Opens `path`, reading `names` as `table` declares them; `table_name`: the table it must
-    /// be (when its metadata names one).
+    /// Opens the bytes of `path`, reading `names` as `table` declares them; `table_name`: the
+    /// table it must be (when its metadata names one).
+    #[allow(clippy::too_many_arguments)]
     fn open_any(
         path: &Path,
+        bytes: Bytes,
         table: &schema::Table,
         table_name: Option<&str>,
         names: &[&'static str],
@@ -342,8 +415,7 @@ impl CheckedTable {
         dictionary_ids: bool,
         only_dims: Option<Vec<u8>>,
     ) -> Result<Self> {
-        let file = std::fs::File::open(path).at(path)?;
-        let builder = ParquetRecordBatchReaderBuilder::try_new(file).at(path)?;
+        let builder = ParquetRecordBatchReaderBuilder::try_new(bytes.clone()).at(path)?;
         let kv = builder.metadata().file_metadata().key_value_metadata();
         let get =
             |key: &str| kv.and_then(|kv| kv.iter().find(|e| e.key == key)).and_then(|e| e.value.clone());
@@ -407,11 +479,10 @@ impl CheckedTable {
                 if let Some(w) = wanted.iter_mut().find(|w| w.name == C::SCAN_ID) {
                     w.data_type = dictionary;
                 }
-                let file = std::fs::File::open(path).at(path)?;
                 let options = parquet::arrow::arrow_reader::ArrowReaderOptions::new()
                     .with_schema(hint)
                     .with_page_index_policy(parquet::file::metadata::PageIndexPolicy::Optional);
-                ParquetRecordBatchReaderBuilder::try_new_with_options(file, options).at(path)?
+                ParquetRecordBatchReaderBuilder::try_new_with_options(bytes, options).at(path)?
             }
             _ => builder,
         };
@@ -513,14 +584,15 @@ fn descriptor_type(
     Ok(DataType::FixedSizeList(Arc::new(Field::new("item", item, true)), size))
 }
 
-/// Reads one `descriptors` file of `session`.
+/// Reads the bytes of one `descriptors` file of `session`.
 pub(crate) fn read_descriptors(
     path: &Path,
+    bytes: Bytes,
     session: &str,
     length: Option<usize>,
 ) -> Result<Vec<IndexedScan>> {
     let names = [C::SCAN_ID, C::UTIME, C::POSE_X, C::POSE_Y, C::POSE_Z, C::DESCRIPTOR, C::CODEBOOK_ID];
-    let mut table = CheckedTable::open(path, &schema::descriptors(1), &names, length)?;
+    let mut table = CheckedTable::open(path, bytes, &schema::descriptors(1), &names, length)?;
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
         let c = columns?;
@@ -583,6 +655,16 @@ fn as_declared(column: ArrayRef, declared: &DataType) -> ArrayRef {
 
 /// Reads a whole table file, checking every column of `table`'s schema (types, nulls).
 pub(crate) fn check_file(path: &Path, table: &str, descriptor_length: Option<usize>) -> Result<FileInfo> {
+    check_bytes(path, load(path)?, table, descriptor_length)
+}
+
+/// [`check_file`] on the bytes of `path`.
+pub(crate) fn check_bytes(
+    path: &Path,
+    bytes: Bytes,
+    table: &str,
+    descriptor_length: Option<usize>,
+) -> Result<FileInfo> {
     let schema = match table {
         tables::SCANS => schema::scans(),
         tables::DIAGRAMS => schema::diagrams(),
@@ -590,7 +672,7 @@ pub(crate) fn check_file(path: &Path, table: &str, descriptor_length: Option<usi
         other => return Err(Error::table(path, format!("`{other}` is not a table of an index"))),
     };
     let names: Vec<&'static str> = schema.columns.iter().map(|c| c.name).collect();
-    let mut checked = CheckedTable::open(path, &schema, &names, descriptor_length)?;
+    let mut checked = CheckedTable::open(path, bytes, &schema, &names, descriptor_length)?;
     let mut info = FileInfo { rows: 0, codebook_id: None };
     let codebook_column = names.iter().position(|n| *n == C::CODEBOOK_ID);
     while let Some(columns) = checked.next_batch() {
@@ -613,7 +695,13 @@ pub(crate) fn check_file(path: &Path, table: &str, descriptor_length: Option<usi
 
 /// The `scan_id` column of any table file (one entry per row).
 pub fn scan_ids(path: &Path) -> Result<Vec<String>> {
-    let mut table = CheckedTable::open_any(path, &schema::diagrams(), None, &[C::SCAN_ID], None, true, None)?;
+    scan_ids_in(path, load(path)?)
+}
+
+/// [`scan_ids`] of the bytes of `path`.
+pub(crate) fn scan_ids_in(path: &Path, bytes: Bytes) -> Result<Vec<String>> {
+    let mut table =
+        CheckedTable::open_any(path, bytes, &schema::diagrams(), None, &[C::SCAN_ID], None, true, None)?;
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
         let columns = columns?;
@@ -632,6 +720,11 @@ pub fn scan_ids(path: &Path) -> Result<Vec<String>> {
 
 /// Reads one `scans` file of `session`.
 pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
+    read_scans_in(path, load(path)?, session)
+}
+
+/// [`read_scans`] of the bytes of `path`.
+pub(crate) fn read_scans_in(path: &Path, bytes: Bytes, session: &str) -> Result<Vec<ScanRecord>> {
     let names = [
         C::SCAN_ID,
         C::FINGERPRINT,
@@ -649,7 +742,7 @@ pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
         C::STATUS,
         C::ERROR,
     ];
-    let mut table = CheckedTable::open(path, &schema::scans(), &names, None)?;
+    let mut table = CheckedTable::open(path, bytes, &schema::scans(), &names, None)?;
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
         let c = columns?;
@@ -697,16 +790,24 @@ pub fn read_scans(path: &Path, session: &str) -> Result<Vec<ScanRecord>> {
 /// Streams the diagrams of one `diagrams` file, one scan at a time, in file order (a
 /// scan's pairs are contiguous).
 pub fn diagrams(path: &Path) -> Result<DiagramStream> {
-    diagrams_in(path, None)
+    diagrams_in(path, load(path)?, None)
 }
 
-/// As [`diagrams`], with only the pairs of `dims` (all of them when `None`): a scan with no
-/// pair in `dims` is left out.
-pub(crate) fn diagrams_in(path: &Path, dims: Option<&[u8]>) -> Result<DiagramStream> {
+/// As [`diagrams`], of the bytes of `path`, with only the pairs of `dims` (all of them when
+/// `None`): a scan with no pair in `dims` is left out.
+pub(crate) fn diagrams_in(path: &Path, bytes: Bytes, dims: Option<&[u8]>) -> Result<DiagramStream> {
     let names = [C::SCAN_ID, C::DIM, C::BIRTH, C::DEATH];
     let dims = dims.map(<[u8]>::to_vec);
-    let table =
-        CheckedTable::open_any(path, &schema::diagrams(), Some(tables::DIAGRAMS), &names, None, true, dims)?;
+    let table = CheckedTable::open_any(
+        path,
+        bytes,
+        &schema::diagrams(),
+        Some(tables::DIAGRAMS),
+        &names,
+        None,
+        true,
+        dims,
+    )?;
     Ok(DiagramStream { table, current: None, ready: VecDeque::new(), done: false })
 }
 

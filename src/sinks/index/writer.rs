@@ -26,8 +26,9 @@
 //! `.staging/` and the on-disk manifest keeps naming the old files until
 //! [`IndexWriter::finish`] switches to the new ones in one commit.
 
+use super::damage::{Checked, DamagedPart, checked_bytes};
 use super::manifest::{Counts, FileEntry, MANIFEST_VERSION, Manifest, MethodEntry, file_checksum};
-use super::reader::{read_scans, scan_ids};
+use super::reader::{read_scans, read_scans_in, scan_ids, scan_ids_in};
 use super::recovery::{self, take_lock};
 use super::{CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path};
 use crate::error::{Error, Result, ResultExt};
@@ -151,6 +152,11 @@ pub struct IndexWriter {
     chunk_scans: Vec<(String, CommittedScan)>,
     /// Committed scans to drop at the next commit (replaced or pruned).
     removals: HashSet<String>,
+    /// Sessions of removed scans that have no committed `scans` row (its part was damaged).
+    removal_sessions: HashSet<String>,
+    /// Whether the next commit counts the scans anew from the rows it keeps (a repair: the
+    /// counts of a damaged `scans` part cannot be taken off one by one).
+    recount: bool,
     /// The codebook (and pipeline text) to commit with the next chunk.
     pending_codebook: Option<(Codebook, Option<String>)>,
     /// The effective pipeline to write with the next commit.
@@ -171,16 +177,32 @@ impl IndexWriter {
     /// Opens (or creates) the index at `root` for writing. `full`: delete what it holds first.
     /// Fails at once when another writer holds the index.
     pub fn open(root: &Path, settings_hash: &str, full: bool) -> Result<Self> {
-        Self::open_with(root, settings_hash, full, false)
+        Self::open_with(root, settings_hash, full, false, false).map(|(w, _)| w)
     }
 
     /// [`IndexWriter::open`], waiting for another writer to finish instead of failing (the
     /// merge step of a sharded run: shards take turns at the manifest).
     pub fn open_waiting(root: &Path, settings_hash: &str) -> Result<Self> {
-        Self::open_with(root, settings_hash, false, true)
+        Self::open_with(root, settings_hash, false, true, false).map(|(w, _)| w)
     }
 
-    fn open_with(root: &Path, settings_hash: &str, full: bool, wait: bool) -> Result<Self> {
+    /// Opens an index to repair it: every committed part is checked first, and the writer's
+    /// view of the committed scans is taken from the intact ones. Returns the damaged parts
+    /// too (`toporec repair` drops them at its commit).
+    pub fn open_for_repair(root: &Path) -> Result<(Self, Vec<DamagedPart>)> {
+        let Some(manifest) = Manifest::load(&root.join(MANIFEST_FILE))? else {
+            return Err(Error::index(root, "no manifest.json: not an index toporec wrote"));
+        };
+        Self::open_with(root, &manifest.settings_hash, false, false, true)
+    }
+
+    fn open_with(
+        root: &Path,
+        settings_hash: &str,
+        full: bool,
+        wait: bool,
+        repair: bool,
+    ) -> Result<(Self, Vec<DamagedPart>)> {
         recovery::check_writable_folder(root)?;
         std::fs::create_dir_all(root).at(root)?;
         let lock = take_lock(root, wait)?;
@@ -200,8 +222,11 @@ impl IndexWriter {
             Some(m) if !full => (m, None),
             _ => (Manifest::empty(settings_hash), None),
         };
-        let committed = committed_scans(root, &manifest)?;
-        Ok(IndexWriter {
+        // Checked under the lock: no other writer changes the parts meanwhile.
+        let damaged = if repair { super::damage::damaged_parts(root, &manifest)? } else { Vec::new() };
+        let skip: HashSet<String> = damaged.iter().map(|d| d.path.clone()).collect();
+        let committed = committed_scans(root, &manifest, &skip)?;
+        let writer = IndexWriter {
             root: root.to_owned(),
             _lock: lock,
             manifest,
@@ -213,6 +238,8 @@ impl IndexWriter {
             chunk_started: Instant::now(),
             chunk_scans: Vec::new(),
             removals: HashSet::new(),
+            removal_sessions: HashSet::new(),
+            recount: false,
             pending_codebook: None,
             pending_pipeline: None,
             dropped: HashSet::new(),
@@ -220,7 +247,8 @@ impl IndexWriter {
             pending_methods: None,
             copies_stale: false,
             commits: 0,
-        })
+        };
+        Ok((writer, damaged))
     }
 
     /// The index folder.
@@ -273,7 +301,13 @@ impl IndexWriter {
     /// file a rewrite reads (compaction, replaced rows, a new codebook's descriptors) is
     /// checked first, so damage is refused, never copied into a file with a fresh checksum.
     pub fn verified_path(&self, entry: &FileEntry) -> Result<PathBuf> {
-        verified(&self.path_of(entry), entry)
+        self.verified_bytes(entry).map(|_| self.path_of(entry))
+    }
+
+    /// The bytes of a committed file, checked against its commit (see
+    /// [`IndexWriter::verified_path`]): what a rewrite reads.
+    pub fn verified_bytes(&self, entry: &FileEntry) -> Result<bytes::Bytes> {
+        verified(&self.root, entry, self.manifest.generation)
     }
 
     fn session_files(&mut self, session: &str) -> &mut SessionFiles {
@@ -307,7 +341,7 @@ impl IndexWriter {
                         "made with another codebook than the index it merges into",
                     ));
                 }
-                let scans = committed_scans(other, &theirs)?;
+                let scans = committed_scans(other, &theirs, &HashSet::new())?;
                 (theirs.files, scans)
             }
             None => self.written_elsewhere(other)?,
@@ -320,7 +354,7 @@ impl IndexWriter {
             let method = (table == tables::DESCRIPTORS).then(|| f.method_name().to_string());
             let source = resolve(other, &f.path);
             if !f.xxh3.is_empty() {
-                verified(&source, f)?;
+                verified(other, f, 0)?;
             }
             let (rel, staged) = self.next_part(table, method.as_deref(), &f.session);
             let file = StagedFile::link(&source, &staged)?;
@@ -447,17 +481,27 @@ impl IndexWriter {
         }
         let session = row.session.clone();
         if let Some(d) = diagram {
-            if self.session_files(&session).diagrams.is_none() {
-                let (rel, staged) = self.next_part(tables::DIAGRAMS, None, &session);
-                let f = DiagramsFile::create(&staged)?;
-                self.session_files(&session).diagrams = Some((rel, f));
-            }
-            self.session_files(&session).diagrams.as_mut().expect("opened").1.push(&row.scan_id, d, dims)?;
+            self.push_diagram(&session, &row.scan_id, d, dims)?;
         }
         let has_descriptor = descriptors.iter().any(|d| d.method == TOPOREC);
         for d in descriptors {
             self.push_descriptor(&session, &d.method, d.row, || d.id.clone())?;
         }
+        self.push_scan(row, has_descriptor)
+    }
+
+    fn push_diagram(&mut self, session: &str, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> Result<()> {
+        if self.session_files(session).diagrams.is_none() {
+            let (rel, staged) = self.next_part(tables::DIAGRAMS, None, session);
+            let f = DiagramsFile::create(&staged)?;
+            self.session_files(session).diagrams = Some((rel, f));
+        }
+        self.session_files(session).diagrams.as_mut().expect("opened").1.push(scan_id, diagram, dims)
+    }
+
+    /// Adds a `scans` row to the open chunk, with what the writer keeps of it.
+    fn push_scan(&mut self, row: ScanRow, has_descriptor: bool) -> Result<()> {
+        let session = row.session.clone();
         if self.session_files(&session).scans.is_none() {
             let (rel, staged) = self.next_part(tables::SCANS, None, &session);
             let f = ScansFile::create(&staged)?;
@@ -536,6 +580,55 @@ impl IndexWriter {
         }
     }
 
+    /// Marks the rows of scan `scan_id` of `session` for removal at the next commit, whether or
+    /// not it has a committed `scans` row (a repair: that row may have been in a damaged part).
+    pub(crate) fn remove_in(&mut self, scan_id: &str, session: &str) {
+        self.removals.insert(scan_id.to_string());
+        self.removal_sessions.insert(session.to_string());
+    }
+
+    /// Drops the committed part `path` at the next commit (a repair: a damaged part, its rows
+    /// rebuilt in the same commit), and counts the scans anew then.
+    pub(crate) fn drop_damaged(&mut self, path: &str) {
+        self.dropped.insert(path.to_string());
+        self.recount = true;
+    }
+
+    /// Whether the committed part `path` is dropped at the next commit.
+    pub(crate) fn dropping(&self, path: &str) -> bool {
+        self.dropped.contains(path)
+    }
+
+    /// Adds rows of a committed scan to the open chunk, without replacing it (a repair): its
+    /// `scans` row when given (`has_descriptor`: whether the index holds its TopoRec
+    /// descriptor), its pairs in `dims`, its descriptors.
+    pub(crate) fn add_rows(
+        &mut self,
+        session: &str,
+        scan_id: &str,
+        scan_row: Option<(ScanRow, bool)>,
+        diagram: Option<&Diagram>,
+        dims: &[u8],
+        descriptors: Vec<MethodDescriptor>,
+    ) -> Result<()> {
+        if let Some(d) = diagram {
+            self.push_diagram(session, scan_id, d, dims)?;
+        }
+        for d in descriptors {
+            self.chunk_rows += 1;
+            if d.method == TOPOREC
+                && let Some(c) = self.committed.get_mut(scan_id)
+            {
+                c.has_descriptor = true;
+            }
+            self.push_descriptor(session, &d.method, d.row, || d.id.clone())?;
+        }
+        if let Some((row, has_descriptor)) = scan_row {
+            self.push_scan(row, has_descriptor)?;
+        }
+        Ok(())
+    }
+
     /// Commits `codebook` (and the effective pipeline `pipeline_toml`) with the next commit.
     pub fn set_codebook(&mut self, codebook: Codebook, pipeline_toml: Option<String>) {
         self.pending_codebook = Some((codebook, pipeline_toml));
@@ -567,12 +660,12 @@ impl IndexWriter {
             let (rel, target) = self.next_part(table, method.as_deref(), &session);
             let mut out: Option<TableFile> = None;
             for f in &files {
-                let path = self.verified_path(f)?;
+                let bytes = self.verified_bytes(f)?;
+                let path = self.path_of(f);
                 // Each input is checked as its table first: an error names the input.
-                super::reader::check_file(&path, table, length)?;
-                let file = std::fs::File::open(&path).at(&path)?;
-                let reader =
-                    parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).at(&path)?;
+                super::reader::check_bytes(&path, bytes.clone(), table, length)?;
+                let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(bytes)
+                    .at(&path)?;
                 let schema = reader.schema().clone();
                 let out = match &mut out {
                     Some(o) => o,
@@ -701,8 +794,9 @@ impl IndexWriter {
         let removals = std::mem::take(&mut self.removals);
         let mut superseded: Vec<String> = std::mem::take(&mut self.dropped).into_iter().collect();
         if !removals.is_empty() {
-            let sessions: HashSet<&str> =
+            let mut sessions: HashSet<&str> =
                 removals.iter().filter_map(|id| self.committed.get(id)).map(|c| c.session.as_str()).collect();
+            sessions.extend(self.removal_sessions.iter().map(String::as_str));
             let affected: Vec<FileEntry> = self
                 .manifest
                 .files
@@ -711,8 +805,9 @@ impl IndexWriter {
                 .cloned()
                 .collect();
             for entry in affected {
-                let path = self.verified_path(&entry)?;
-                let ids = scan_ids(&path)?;
+                let bytes = self.verified_bytes(&entry)?;
+                let path = self.path_of(&entry);
+                let ids = scan_ids_in(&path, bytes.clone())?;
                 if !ids.iter().any(|id| removals.contains(id)) {
                     continue;
                 }
@@ -720,7 +815,7 @@ impl IndexWriter {
                 let table = tables::ALL.into_iter().find(|t| *t == entry.table).expect("a table name");
                 let method = (table == tables::DESCRIPTORS).then(|| entry.method_name().to_string());
                 let (rel, target) = self.next_part(table, method.as_deref(), &entry.session);
-                if let Some((file, rows)) = rewrite_without(&path, &target, &removals)? {
+                if let Some((file, rows)) = rewrite_without(&path, bytes, &target, &removals)? {
                     staged.push(Staged::of(table, method, &entry.session, rel, file, rows)?);
                 }
             }
@@ -742,6 +837,14 @@ impl IndexWriter {
         for (_, c) in &self.chunk_scans {
             count(&mut counts, c.status, 1);
         }
+        if std::mem::take(&mut self.recount) {
+            counts = Counts::default();
+            let kept = self.committed.iter().filter(|(id, _)| !removals.contains(*id)).map(|(_, c)| c);
+            for c in kept.chain(self.chunk_scans.iter().map(|(_, c)| c)) {
+                count(&mut counts, c.status, 1);
+            }
+        }
+        self.removal_sessions.clear();
         manifest.counts = counts;
         manifest.generation += 1;
         manifest.manifest_version = MANIFEST_VERSION;
@@ -827,21 +930,13 @@ fn discard(root: &Path, staged: &[Staged]) {
     }
 }
 
-/// `path`, after checking its size and checksum against `entry`'s (see
-/// [`IndexWriter::verified_path`]).
-fn verified(path: &Path, entry: &FileEntry) -> Result<PathBuf> {
-    let (bytes, xxh3) = file_checksum(path)?;
-    if bytes != entry.bytes || xxh3 != entry.xxh3 {
-        return Err(Error::table(
-            path,
-            format!(
-                "{bytes} bytes with checksum {xxh3}, its commit says {} bytes with checksum {}: the file \
-                 changed after it was committed; nothing was rewritten (`toporec verify` lists the damage)",
-                entry.bytes, entry.xxh3
-            ),
-        ));
+/// The bytes of `entry` of the index at `root`, after checking them against the size and
+/// checksum its commit recorded (see [`IndexWriter::verified_path`]).
+pub(crate) fn verified(root: &Path, entry: &FileEntry, generation: u64) -> Result<bytes::Bytes> {
+    match checked_bytes(root, entry, generation)? {
+        Checked::Intact(bytes) => Ok(bytes),
+        Checked::Damaged(d) => Err(d.error()),
     }
-    Ok(path.to_owned())
 }
 
 impl Drop for IndexWriter {
@@ -861,14 +956,24 @@ fn count(c: &mut Counts, status: Status, delta: i64) {
     }
 }
 
-/// What the index at `root` with `manifest` holds for each committed scan.
-pub(crate) fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMap<String, CommittedScan>> {
+/// What the index at `root` with `manifest` holds for each committed scan, read from its
+/// parts checked against their commits (a damaged one is refused), leaving out the parts named
+/// in `skip`.
+pub(crate) fn committed_scans(
+    root: &Path,
+    manifest: &Manifest,
+    skip: &HashSet<String>,
+) -> Result<HashMap<String, CommittedScan>> {
     let mut out = HashMap::new();
-    for f in manifest.files_of(tables::SCANS) {
-        out.extend(read_scans(&resolve(root, &f.path), &f.session)?.into_iter().map(CommittedScan::of_row));
+    let wanted = |f: &&FileEntry| !skip.contains(&f.path);
+    for f in manifest.files_of(tables::SCANS).filter(wanted) {
+        let bytes = verified(root, f, manifest.generation)?;
+        let rows = read_scans_in(&resolve(root, &f.path), bytes, &f.session)?;
+        out.extend(rows.into_iter().map(CommittedScan::of_row));
     }
-    for f in manifest.descriptor_files_of(TOPOREC) {
-        for id in scan_ids(&resolve(root, &f.path))? {
+    for f in manifest.descriptor_files_of(TOPOREC).filter(wanted) {
+        let bytes = verified(root, f, manifest.generation)?;
+        for id in scan_ids_in(&resolve(root, &f.path), bytes)? {
             if let Some(c) = out.get_mut(&id) {
                 c.has_descriptor = true;
             }
@@ -880,13 +985,13 @@ pub(crate) fn committed_scans(root: &Path, manifest: &Manifest) -> Result<HashMa
 /// Writes `target` as `path` without the rows of `removed` scans; `None` when no row is left.
 fn rewrite_without(
     path: &Path,
+    bytes: bytes::Bytes,
     target: &Path,
     removed: &HashSet<String>,
 ) -> Result<Option<(StagedFile, u64)>> {
     use arrow::array::{AsArray, BooleanArray};
     use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
-    let file = std::fs::File::open(path).at(path)?;
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file).at(path)?;
+    let builder = ParquetRecordBatchReaderBuilder::try_new(bytes).at(path)?;
     let schema = builder.schema().clone();
     let mut out = TableFile::with_schema(target, schema)?;
     for batch in builder.build().at(path)? {
