@@ -12,7 +12,8 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use toporec::search::Engine;
 use toporec::sinks::index::IndexReader;
-use toporec::sinks::index::damage::{Damage, held_scans};
+use toporec::sinks::index::damage::Damage;
+use toporec::sinks::index::holdings::held_scans;
 
 /// The methods of the test index: the paper's, toporec's own, and ScanContext.
 const METHODS: [&str; 3] = ["toporec", "toporec-plus", "scancontext"];

@@ -189,12 +189,14 @@ def test_bags_index_as_toporec_run_indexes_them(spark, tmp_path, shared_data):
     a rosbag2 MCAP folder): the folders are listed as one log each (not their storage files),
     split into message ranges, and the index equals `toporec run`'s on a `kind = "rosbag"`
     pipeline."""
-    from toporec.spark import _local_files, _logs, index_files
+    from toporec.spark import LOG_GLOBS, _local_files, _logs, index_files
 
     bags = shared_data / "bags"
     paths = [bags / n for n in ["kitti00_ros1_bz2.bag", "kitti00_ros1_lz4.bag", "kitti00_rosbag2_mcap", "kitti00_rosbag2_sqlite3"]]
-    listed = _logs(_local_files([str(bags)], "*"))
-    assert [p.rsplit("/", 1)[1] for p in listed] == [p.name for p in paths]
+    # The folder's every log, each once (the two with odometry among them); the four above are indexed.
+    listed = _logs([f for g in LOG_GLOBS for f in _local_files([str(bags)], g)])
+    logs = sorted(p.name for p in bags.iterdir() if p.suffix == ".bag" or (p / "metadata.yaml").is_file())
+    assert [p.rsplit("/", 1)[1] for p in listed] == logs and set(p.name for p in paths) < set(logs)
     pipeline = tmp_path / "bags.toml"
     pipeline.write_text(
         '[output]\nindex = "unused"\n\n[[sources]]\nkind = "rosbag"\npaths = [' + ", ".join(f'"{p}"' for p in paths) + "]\n\n"
@@ -205,7 +207,7 @@ def test_bags_index_as_toporec_run_indexes_them(spark, tmp_path, shared_data):
     by_run, by_spark = tmp_path / "run", tmp_path / "spark"
     toporec.fit(pipeline, sample=1.0, index=by_run)
     toporec.run(pipeline, index=by_run)
-    result = index_files(spark, [bags], by_spark, pipeline=pipeline, sample=1.0, messages_per_task=3)
+    result = index_files(spark, paths, by_spark, pipeline=pipeline, sample=1.0, messages_per_task=3)
     assert result["scans"] == 16 and result["ok"] == 16, result
 
     a, b = toporec.Index(by_run), toporec.Index(by_spark)

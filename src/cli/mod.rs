@@ -487,7 +487,7 @@ fn query(a: QueryArgs) -> Result<Done> {
         }
     };
     eprintln!("{report}");
-    let damaged = report_damage(&toporec::sinks::index::damage::held_scans(damage.found())?);
+    let damaged = report_damage(&toporec::sinks::index::holdings::held_scans(damage.found())?);
     match (report.failed, report.answered) {
         (0, _) if damaged => Ok(Done::Partial),
         (0, _) => Ok(Done::All),
@@ -633,7 +633,7 @@ fn info(args: InfoArgs) -> Result<Done> {
     } else {
         print(&info.to_string())?;
     }
-    let damaged = toporec::sinks::index::damage::held_scans(damage.found())?;
+    let damaged = toporec::sinks::index::holdings::held_scans(damage.found())?;
     Ok(if report_damage(&damaged) { Done::Partial } else { Done::All })
 }
 

@@ -591,7 +591,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         crate::fsutil::write_atomic(&path, text.as_bytes())?;
         summary.calibrations.push(path);
     }
-    summary.damaged = crate::sinks::index::damage::held_scans(damage.found())?;
+    summary.damaged = crate::sinks::index::holdings::held_scans(damage.found())?;
     Ok(summary)
 }
 

@@ -19,6 +19,7 @@
 //! a glob of the tables (`scans/*/*.parquet`, `**/*.parquet`) never sees an uncommitted row.
 
 pub mod damage;
+pub mod holdings;
 pub mod manifest;
 pub mod reader;
 pub(crate) mod recovery;
