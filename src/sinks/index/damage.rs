@@ -95,7 +95,7 @@ pub struct DamagedPart {
     pub expected: String,
     /// What is there now: the same form, or `missing`.
     pub found: String,
-    /// The scans it held, as far as the intact parts tell (`super::holdings`; empty until then).
+    /// The scans it held, as far as the intact parts of its index tell.
     pub scans: Vec<String>,
     /// Rows its commit recorded.
     pub rows: u64,
