@@ -8,6 +8,7 @@
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use toporec::sources::Source;
 use toporec::sources::mcap_reader::McapMessages;
 use toporec::sources::pointcloud2::{self, Encoding, PointCloud2, PointField};
 
@@ -90,7 +91,7 @@ fn main() {
             .filter(|e| e.file_type().is_file())
             .map(|e| e.metadata().map_or(0, |m| m.len()))
             .sum();
-        let spec = toporec::sources::rosbag::RosbagSpec::path(&path);
+        let spec = toporec::sources::logs::LogSpec::path(&path);
         rate(name, bytes as usize, || spec.open().unwrap().map(|s| s.unwrap().points.len()).sum());
     }
 }

@@ -23,8 +23,8 @@ use crate::sinks::parquet::{
 use crate::sinks::schema::{self, columns as C};
 use crate::sources::groundtruth::GroundTruth;
 use crate::sources::kitti::Sequence;
-use crate::sources::mcap::McapSpec;
-use crate::sources::{Pose, Scan, ScanFailure, SourceSpec};
+use crate::sources::logs::LogSpec;
+use crate::sources::{CloudFormat, Pose, Scan, ScanFailure};
 use crate::types::Point;
 use arrow::array::{ArrayRef, RecordBatch, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
@@ -38,34 +38,15 @@ use std::sync::{Arc, Mutex};
 /// their diagrams: enough to keep the threads busy, few enough to keep memory flat.
 pub(crate) const STREAM_CHUNK: usize = 16;
 
-/// The file formats a batch may carry.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FileFormat {
-    /// NCLT `velodyne_sync/<utime>.bin`.
-    NcltSync,
-    /// KITTI `velodyne/<frame>.bin`.
-    Kitti,
-}
-
-impl FileFormat {
-    /// Parses `nclt` (or `velodyne_sync`) and `kitti`.
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "nclt" | "velodyne_sync" => Some(FileFormat::NcltSync),
-            "kitti" => Some(FileFormat::Kitti),
-            _ => None,
-        }
-    }
-
-    /// The format a path's layout names: a `velodyne_sync` or `velodyne` parent folder.
-    pub fn of_path(path: &Path) -> Option<Self> {
-        let parent = path.parent()?.file_name()?.to_str()?;
-        match parent {
-            "velodyne_sync" => Some(FileFormat::NcltSync),
-            "velodyne" => Some(FileFormat::Kitti),
-            _ => None,
-        }
-    }
+/// The format of a batch's scan file: given, else the layout's folder it is in
+/// (`velodyne_sync/`: NCLT, `velodyne/`: KITTI). A batch reads the scan files of NCLT sessions
+/// and KITTI sequences (their poses come from the session's side files).
+fn batch_format(path: &Path, given: Option<CloudFormat>) -> Option<CloudFormat> {
+    given.or_else(|| match path.parent()?.file_name()?.to_str()? {
+        "velodyne_sync" => Some(CloudFormat::Nclt),
+        "velodyne" => Some(CloudFormat::Kitti),
+        _ => None,
+    })
 }
 
 /// One scan of a batch.
@@ -78,14 +59,14 @@ pub enum ScanInput {
         /// Its bytes.
         bytes: Vec<u8>,
         /// Its format (`None`: from the path).
-        format: Option<FileFormat>,
+        format: Option<CloudFormat>,
     },
     /// A scan file read by the describer itself (on a file system it mounts).
     Path {
         /// The file (names the scan and its session).
         path: PathBuf,
         /// Its format (`None`: from the path).
-        format: Option<FileFormat>,
+        format: Option<CloudFormat>,
     },
     /// The scans of a message log (an MCAP file, a ROS 1 bag, a rosbag2 folder or `.db3` file)
     /// whose message index (among its point-cloud topic's messages) lies in
@@ -228,12 +209,10 @@ impl BatchDescriber {
             .pipeline
             .sources
             .iter()
-            .find_map(|s| match s {
-                SourceSpec::Mcap(m) if m.files.iter().any(|f| canonical(f) == wanted) => Some(m.settings()),
-                SourceSpec::Rosbag(r) if r.paths.iter().any(|f| canonical(f) == wanted) => Some(r.settings()),
-                _ => None,
-            })
-            .unwrap_or_else(|| McapSpec::file(path).settings());
+            .filter_map(|s| s.get::<LogSpec>())
+            .find(|l| l.paths.iter().any(|f| canonical(f) == wanted))
+            .cloned()
+            .unwrap_or_else(|| LogSpec::path(path));
         let end = first.saturating_add(count);
         match settings.open_range(path, first..end) {
             Ok(stream) => stream
@@ -246,8 +225,7 @@ impl BatchDescriber {
                 })
                 .collect(),
             Err(e) => {
-                let session =
-                    settings.session.clone().unwrap_or_else(|| crate::sources::logs::default_session(path));
+                let session = settings.session_of(path);
                 let id = format!("{session}/messages_{first}-{end}");
                 vec![(position, Err(ScanFailure::of_file(id, &session, path, None, e.to_string())))]
             }
@@ -349,7 +327,9 @@ impl BatchDescriber {
         };
         let dir = session_dir(&path);
         let (session, name) = file_names(&path);
-        let Some(format) = format.or_else(|| FileFormat::of_path(&path)) else {
+        let Some(format) =
+            batch_format(&path, format).filter(|f| matches!(f, CloudFormat::Nclt | CloudFormat::Kitti))
+        else {
             let error = format!(
                 "{}: unknown scan file format (give `format`: nclt or kitti; or the layout's velodyne_sync/ or velodyne/ folder)",
                 path.display()
@@ -371,20 +351,20 @@ impl BatchDescriber {
     }
 
     /// The context of a session folder, read once.
-    fn context(&self, dir: &Path, session: &str, format: FileFormat) -> Arc<Context> {
+    fn context(&self, dir: &Path, session: &str, format: CloudFormat) -> Arc<Context> {
         let mut contexts = self.contexts.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(c) = contexts.get(dir) {
             return c.clone();
         }
         let context = match format {
-            FileFormat::NcltSync => {
+            CloudFormat::Nclt => {
                 let (gt_path, tolerance_ms) = self.nclt_groundtruth(dir, session);
                 // A ground truth that cannot be read leaves the scans without a pose, as a
                 // missing one does; the sources refuse the session instead.
                 let gt = gt_path.and_then(|p| GroundTruth::read(&p).ok());
                 Context::Nclt { gt, tolerance_us: (tolerance_ms * 1000.0).round() as i64 }
             }
-            FileFormat::Kitti => Context::Kitti(Sequence::read(dir).map_err(|e| e.to_string())),
+            _ => Context::Kitti(Sequence::read(dir).map_err(|e| e.to_string())),
         };
         let context = Arc::new(context);
         contexts.insert(dir.to_owned(), context.clone());
@@ -397,7 +377,7 @@ impl BatchDescriber {
         let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
         let wanted = canonical(dir);
         for source in &self.pipeline.sources {
-            let SourceSpec::Nclt(spec) = source else { continue };
+            let Some(spec) = source.get::<crate::sources::nclt::NcltSpec>() else { continue };
             let lists = spec.session_dirs().is_ok_and(|dirs| dirs.iter().any(|d| canonical(d) == wanted));
             if lists {
                 let gt = spec
@@ -507,10 +487,11 @@ pub fn inputs_of(b: &RecordBatch, offset: u64) -> std::result::Result<Vec<(u64, 
     let value = |a: &Option<arrow::array::UInt64Array>, i: usize| {
         a.as_ref().filter(|a| a.is_valid(i)).map(|a| a.value(i))
     };
-    let file_format = |i: usize| -> std::result::Result<Option<FileFormat>, String> {
+    let file_format = |i: usize| -> std::result::Result<Option<CloudFormat>, String> {
         match get(&formats, i) {
             None => Ok(None),
-            Some(f) => FileFormat::parse(&f)
+            Some(f) => CloudFormat::parse(if f == "velodyne_sync" { "nclt" } else { &f })
+                .filter(|f| matches!(f, CloudFormat::Nclt | CloudFormat::Kitti))
                 .map(Some)
                 .ok_or_else(|| format!("row {i}: format {f:?}: expected nclt, kitti or mcap")),
         }

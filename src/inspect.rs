@@ -3,9 +3,8 @@
 use crate::error::Result;
 use crate::sources::logs::LogKind;
 use crate::sources::mcap_reader::is_point_cloud;
-use crate::sources::nclt::NcltReader;
 use crate::sources::pointcloud2::{self, Encoding};
-use crate::sources::{InputKind, Scan, ScanStream, SourceSpec, read_cloud};
+use crate::sources::{Input, Scan, ScanStream, read_cloud};
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -19,25 +18,16 @@ macro_rules! line {
 
 /// The report, as text.
 pub fn inspect(path: &Path) -> Result<String> {
-    let kind = InputKind::detect(path)?;
-    let mut out = format!("path: {}\nformat: {}\n", path.display(), kind.name());
-    let log = match kind {
-        InputKind::Mcap => Some(LogKind::Mcap),
-        InputKind::Bag(log) => Some(log),
-        _ => None,
-    };
-    if let Some(log) = log {
+    let input = Input::detect(path)?;
+    let mut out = format!("path: {}\nformat: {}\n", path.display(), input.name());
+    if let Some(log) = LogKind::detect(path).filter(|_| matches!(input, Input::Source(_))) {
         log_report(path, log, &mut out)?;
         return Ok(out);
     }
-    match kind.source(path, None)? {
+    match input.source(None) {
         Some(spec) => {
-            match &spec {
-                SourceSpec::Nclt(n) if n.reader == NcltReader::Sync => {
-                    line!(out, "sessions: {}", n.session_dirs()?.len())
-                }
-                SourceSpec::Kitti(k) => line!(out, "sequences: {}", k.sequences.len()),
-                _ => {}
+            for l in spec.overview()? {
+                line!(out, "{l}");
             }
             scans_report(spec.open()?, &mut out);
         }

@@ -14,7 +14,8 @@
 //! ```
 //!
 //! * [`sources`] decode scans from the files users have (a bad scan is a stream item, not an
-//!   abort); they know nothing of topology. [`sources::InputKind`] decides what a path is.
+//!   abort); they know nothing of topology. Each kind is a module and one line of
+//!   [`sources::SOURCES`]; [`sources::Input`] decides what a path is.
 //! * [`preprocess`] crops, removes the ground, downsamples, normalizes.
 //! * [`homology`] is the engine: Delaunay triangulation, alpha filtration, persistence pairs,
 //!   equal to GUDHI's `AlphaComplex` in its `exact` precision.

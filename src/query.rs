@@ -10,7 +10,7 @@ use crate::methods::{Hit, Method};
 use crate::search::{Engine, StepTimes, step_summary};
 use crate::sinks::csv;
 use crate::sinks::index::IndexedScan;
-use crate::sources::{InputKind, Scan, ScanFailure, ScanStream, read_cloud_file};
+use crate::sources::{Input, Scan, ScanFailure, ScanStream, read_cloud_file};
 use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt32Array};
 use rayon::prelude::*;
 use std::io::Write;
@@ -41,8 +41,7 @@ pub struct QueryArgs {
 /// A scan stream for a path given on the command line: an MCAP, an NCLT session (or folder of
 /// sessions, or `velodyne_hits.bin`), a KITTI sequence (or `sequences/`), or one cloud file.
 pub fn open_path(path: &Path, topic: Option<&str>) -> Result<ScanStream> {
-    let kind = InputKind::detect(path)?;
-    if let Some(spec) = kind.source(path, topic)? {
+    if let Some(spec) = Input::detect(path)?.source(topic) {
         return Ok(spec.open()?);
     }
     let points = read_cloud_file(path, None);

@@ -5,8 +5,8 @@
 
 use crate::util::*;
 use std::path::{Path, PathBuf};
-use toporec::sources::mcap::McapSpec;
-use toporec::sources::rosbag::RosbagSpec;
+use toporec::sources::Source;
+use toporec::sources::logs::LogSpec;
 use toporec::sources::{Scan, ScanFailure, SourceSpec};
 
 fn collect(spec: SourceSpec) -> (Vec<Scan>, Vec<ScanFailure>) {
@@ -21,12 +21,12 @@ fn collect(spec: SourceSpec) -> (Vec<Scan>, Vec<ScanFailure>) {
 }
 
 fn bag(path: &Path) -> (Vec<Scan>, Vec<ScanFailure>) {
-    collect(SourceSpec::Rosbag(RosbagSpec::path(path)))
+    collect(SourceSpec::new(LogSpec::path(path)))
 }
 
 /// The reference scans: the MCAP's.
 fn reference(data: &Path) -> Vec<Scan> {
-    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&data.join("mcap/kitti_ros2_cdr.mcap"))));
+    let (scans, bad) = collect(SourceSpec::new(LogSpec::path(&data.join("mcap/kitti_ros2_cdr.mcap"))));
     assert!(bad.is_empty(), "{bad:?}");
     assert_eq!(scans.len(), 4);
     scans
@@ -68,8 +68,8 @@ fn every_bag_format_yields_the_mcaps_scans_bit_for_bit() {
     }
     // Each bag also holds a String topic: the point-cloud topic is found, or named.
     let spec =
-        RosbagSpec { topic: Some("/chatter".into()), ..RosbagSpec::path(&bags.join("kitti00_ros1_lz4.bag")) };
-    let (_, bad) = collect(SourceSpec::Rosbag(spec));
+        LogSpec { topic: Some("/chatter".into()), ..LogSpec::path(&bags.join("kitti00_ros1_lz4.bag")) };
+    let (_, bad) = collect(SourceSpec::new(spec));
     assert!(bad[0].error.contains("not a PointCloud2"), "{bad:?}");
 }
 
@@ -543,7 +543,7 @@ proptest::proptest! {
         }
         let target = scratch_dir("bags_fuzz").join(format!("case-{:016x}.bag", fingerprint(&b)));
         std::fs::write(&target, &b).unwrap();
-        let _ = RosbagSpec::path(&target).open().map(|s| s.count());
+        let _ = LogSpec::path(&target).open().map(|s| s.count());
         let _ = toporec::inspect::inspect(&target);
         let _ = std::fs::remove_file(&target);
     }
@@ -565,7 +565,7 @@ proptest::proptest! {
         }
         let target = scratch_dir("db3_fuzz").join(format!("case-{:016x}.db3", fingerprint(&b[..65_536])));
         std::fs::write(&target, &b).unwrap();
-        let _ = RosbagSpec::path(&target).open().map(|s| s.count());
+        let _ = LogSpec::path(&target).open().map(|s| s.count());
         let _ = toporec::inspect::inspect(&target);
         let _ = std::fs::remove_file(&target);
     }
@@ -583,7 +583,7 @@ fn a_folder_of_pcd_files_is_a_session_with_frame_or_timestamp_names_and_tum_or_n
     use toporec::sources::clouds::{CloudsSpec, FileNames, PoseFormat};
     let Some(data) = shared_data("a_folder_of_pcd_files_is_a_session") else { return };
     let city = data.join("pcd/kitti_raw_city");
-    let (got, bad) = collect(SourceSpec::Clouds(CloudsSpec::folder(&city)));
+    let (got, bad) = collect(SourceSpec::new(CloudsSpec::folder(&city)));
     assert!(bad.is_empty(), "{bad:?}");
     let ids: Vec<(&str, i64)> = got.iter().map(|s| (s.id.as_str(), s.utime)).collect();
     // Frame numbers; 100 ms a frame by default.
@@ -611,7 +611,7 @@ fn a_folder_of_pcd_files_is_a_session_with_frame_or_timestamp_names_and_tum_or_n
         poses_format: PoseFormat::Tum,
         ..CloudsSpec::folder(&dir)
     };
-    let (got, bad) = collect(SourceSpec::Clouds(spec.clone()));
+    let (got, bad) = collect(SourceSpec::new(spec.clone()));
     assert_eq!(got.len(), 2);
     assert_eq!(got[0].utime, 1_317_000_000_000_000);
     let p = got[1].pose.expect("a pose within 100 ms");
@@ -624,11 +624,11 @@ fn a_folder_of_pcd_files_is_a_session_with_frame_or_timestamp_names_and_tum_or_n
         bad[0].error
     );
     // Tighter than the 50 ms gap: no pose, and the reason.
-    let (got, _) = collect(SourceSpec::Clouds(CloudsSpec { tolerance_ms: 10.0, ..spec }));
+    let (got, _) = collect(SourceSpec::new(CloudsSpec { tolerance_ms: 10.0, ..spec }));
     assert!(got[1].pose.is_none() && got[0].pose.is_none());
     // By line with frame indices: frame 0 takes the first pose.
     let spec = CloudsSpec { poses: Some(tum), poses_format: PoseFormat::Tum, ..CloudsSpec::folder(&city) };
-    let (got, _) = collect(SourceSpec::Clouds(spec));
+    let (got, _) = collect(SourceSpec::new(spec));
     assert_eq!(got[0].pose.map(|p| p.x), Some(1.0));
     assert!(got[1].pose.is_none(), "frame 153 has no pose line");
     // inspect and query take the folder as they take a session.

@@ -344,3 +344,72 @@ fn split_makes_a_map_and_a_query_session_of_one_drive() {
     ]);
     assert_clean_error(&bad, "first in [0, every)", "split --first 3");
 }
+
+/// Every command's subcommands, from `toporec [COMMAND] --help`'s `Commands:` section
+/// (`help` left out).
+fn subcommands(path: &[&str]) -> Vec<String> {
+    let mut args: Vec<&str> = path.to_vec();
+    args.push("--help");
+    let help = stdout(&toporec(&args));
+    let Some((_, list)) = help.split_once("Commands:\n") else { return Vec::new() };
+    list.lines()
+        .take_while(|l| l.starts_with("  "))
+        .filter(|l| l.len() > 2 && !l[2..].starts_with(' '))
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|c| *c != "help")
+        .map(str::to_string)
+        .collect()
+}
+
+/// The `--help` of every command is kept in `tests/fixtures/help/` (the options, their ranges
+/// and defaults): a change to the command line shows as a change of these files, never as a
+/// silent loss. `TOPOREC_BLESS=1` writes them anew.
+#[test]
+fn every_commands_help_is_as_recorded() {
+    let dir = root().join("tests/fixtures/help");
+    let bless = std::env::var("TOPOREC_BLESS").is_ok_and(|v| v == "1");
+    let mut commands: Vec<Vec<String>> = vec![Vec::new()];
+    let mut i = 0;
+    while i < commands.len() {
+        let path: Vec<&str> = commands[i].iter().map(String::as_str).collect();
+        for sub in subcommands(&path) {
+            let mut next = commands[i].clone();
+            next.push(sub);
+            commands.push(next);
+        }
+        i += 1;
+    }
+    assert!(commands.len() > 20, "{commands:?}");
+    let mut expected: Vec<String> = Vec::new();
+    for command in &commands {
+        let name = if command.is_empty() { "toporec".to_string() } else { command.join("-") };
+        let mut args: Vec<&str> = command.iter().map(String::as_str).collect();
+        args.push("--help");
+        let o = toporec(&args);
+        assert!(o.status.success(), "{args:?}");
+        let file = dir.join(format!("{name}.txt"));
+        expected.push(format!("{name}.txt"));
+        if bless {
+            std::fs::create_dir_all(&dir).unwrap();
+            std::fs::write(&file, &o.stdout).unwrap();
+            continue;
+        }
+        let recorded = std::fs::read_to_string(&file)
+            .unwrap_or_else(|_| panic!("{}: missing; run with TOPOREC_BLESS=1", file.display()));
+        assert_eq!(
+            stdout(&o),
+            recorded,
+            "`toporec {} --help` differs from {}",
+            command.join(" "),
+            file.display()
+        );
+    }
+    let mut on_disk: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    on_disk.sort();
+    expected.sort();
+    assert_eq!(on_disk, expected, "tests/fixtures/help/ holds one file per command");
+}

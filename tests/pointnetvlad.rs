@@ -47,9 +47,12 @@ fn benchmark_from_simulation(dir: &Path, scans: usize) -> PathBuf {
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let root = dir.join("benchmark_datasets");
-    let spec = toporec::sources::SourceSpec::Nclt(
-        toml::from_str(&format!("sessions = [{:?}]", sim.join("velodyne_data").display().to_string()))
-            .unwrap(),
+    let spec = toporec::sources::SourceSpec::new(
+        toml::from_str::<toporec::sources::nclt::NcltSpec>(&format!(
+            "sessions = [{:?}]",
+            sim.join("velodyne_data").display().to_string()
+        ))
+        .unwrap(),
     );
     let mut by_session: std::collections::BTreeMap<String, Vec<Submap>> = Default::default();
     for scan in spec.open().unwrap() {

@@ -6,7 +6,7 @@ use crate::util::*;
 use std::path::{Path, PathBuf};
 use toporec::simulate::scene::{Material, Scene, TownParams};
 use toporec::simulate::{self, Format, SensorModel, SimParams};
-use toporec::sources::{SourceSpec, kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec};
+use toporec::sources::{SourceSpec, kitti::KittiSpec, logs::LogSpec, nclt::NcltSpec};
 
 fn files(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
@@ -122,13 +122,13 @@ fn written_formats_read_back_through_the_sources() {
     let n = simulate::simulate(&p, &[Format::Nclt, Format::Mcap, Format::Kitti], &dir).unwrap();
     assert_eq!(n, 6);
     let read = |spec: SourceSpec| spec.open().unwrap().map(|r| r.unwrap()).collect::<Vec<_>>();
-    let nclt = read(SourceSpec::Nclt(NcltSpec::sessions(vec![dir.join("velodyne_data")])));
+    let nclt = read(SourceSpec::new(NcltSpec::sessions(vec![dir.join("velodyne_data")])));
     let mcaps = [dir.join("mcap/2026-01-01.mcap"), dir.join("mcap/2026-01-02.mcap")];
-    let mcap = read(SourceSpec::Mcap(McapSpec {
+    let mcap = read(SourceSpec::new(LogSpec {
         poses: Some(dir.join("mcap/groundtruth_2026-01-01.csv")),
-        ..McapSpec::file(&mcaps[0])
+        ..LogSpec::path(&mcaps[0])
     }));
-    let kitti = read(SourceSpec::Kitti(KittiSpec {
+    let kitti = read(SourceSpec::new(KittiSpec {
         sequences: vec![dir.join("kitti/sequences/00"), dir.join("kitti/sequences/01")],
     }));
     assert_eq!((nclt.len(), mcap.len(), kitti.len()), (6, 3, 6));

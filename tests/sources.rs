@@ -5,9 +5,10 @@ use crate::util::*;
 use proptest::prelude::*;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use toporec::sources::Source;
 use toporec::sources::groundtruth::GroundTruth;
 use toporec::sources::kitti::KittiSpec;
-use toporec::sources::mcap::McapSpec;
+use toporec::sources::logs::LogSpec;
 use toporec::sources::mcap_reader::McapMessages;
 use toporec::sources::nclt::{HITS_MAGIC, HitsScans, NcltSpec};
 use toporec::sources::pointcloud2::{self, Encoding, PointCloud2, PointField, datatype};
@@ -30,7 +31,7 @@ fn collect(spec: SourceSpec) -> (Vec<Scan>, Vec<ScanFailure>) {
 #[test]
 fn real_nclt_scan() {
     let Some(data) = shared_data("real_nclt_scan") else { return };
-    let (scans, bad) = collect(SourceSpec::Nclt(NcltSpec::sessions(vec![data.join("nclt/2012-01-15")])));
+    let (scans, bad) = collect(SourceSpec::new(NcltSpec::sessions(vec![data.join("nclt/2012-01-15")])));
     assert!(bad.is_empty());
     assert_eq!(scans.len(), 1);
     let s = &scans[0];
@@ -55,7 +56,7 @@ fn real_nclt_scan() {
 fn real_ros1_mcap() {
     let Some(data) = shared_data("real_ros1_mcap") else { return };
     let path = data.join("mcap/ouster_os1_ros1.mcap");
-    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&path)));
+    let (scans, bad) = collect(SourceSpec::new(LogSpec::path(&path)));
     assert!(bad.is_empty(), "{bad:?}");
     assert_eq!(scans.len(), 2, "2 clouds on /os1_cloud_node/points");
     for (i, s) in scans.iter().enumerate() {
@@ -78,7 +79,7 @@ fn kitti_points(path: &Path) -> Vec<[f64; 3]> {
 #[test]
 fn real_ros2_mcap_equals_kitti_files() {
     let Some(data) = shared_data("real_ros2_mcap_equals_kitti_files") else { return };
-    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&data.join("mcap/kitti_ros2_cdr.mcap"))));
+    let (scans, bad) = collect(SourceSpec::new(LogSpec::path(&data.join("mcap/kitti_ros2_cdr.mcap"))));
     assert!(bad.is_empty(), "{bad:?}");
     let counts: Vec<usize> = scans.iter().map(|s| s.points.len()).collect();
     // The KITTI files' record counts (numpy: file size / 16; none is (0, 0, 0)).
@@ -94,7 +95,7 @@ fn real_ros2_mcap_equals_kitti_files() {
 fn real_nclt_session_joins_ground_truth() {
     let Some(data) = shared_data("real_nclt_session_joins_ground_truth") else { return };
     // The folder holding the session: expanded to its sessions; ground truth found beside.
-    let (scans, bad) = collect(SourceSpec::Nclt(NcltSpec::sessions(vec![data.join("nclt_from_kitti")])));
+    let (scans, bad) = collect(SourceSpec::new(NcltSpec::sessions(vec![data.join("nclt_from_kitti")])));
     assert!(bad.is_empty());
     assert_eq!(scans.len(), 14);
     assert!(scans.windows(2).all(|w| w[0].utime < w[1].utime), "sorted by utime");
@@ -114,7 +115,7 @@ fn real_nclt_session_joins_ground_truth() {
 fn real_kitti_sequence_with_times_and_poses() {
     let Some(data) = shared_data("real_kitti_sequence_with_times_and_poses") else { return };
     let dir = data.join("kitti/sequences/00");
-    let (scans, bad) = collect(SourceSpec::Kitti(KittiSpec { sequences: vec![dir.clone()] }));
+    let (scans, bad) = collect(SourceSpec::new(KittiSpec { sequences: vec![dir.clone()] }));
     assert!(bad.is_empty());
     let ids: Vec<&str> = scans.iter().map(|s| s.id.as_str()).collect();
     assert_eq!(
@@ -434,8 +435,8 @@ fn mcap_zstd_lz4_plain_and_summaryless_files_read_alike() {
         let path = dir.join(format!("{name}.mcap"));
         write_mcap(&path, &clouds, &McapOptions { compression, summary, chunk_size: Some(600) });
         assert_eq!(toporec::sources::mcap_reader::summary_channels(&path).is_some(), summary, "{name}");
-        let spec = McapSpec { session: Some("s".into()), ..McapSpec::file(&path) };
-        let (scans, bad) = collect(SourceSpec::Mcap(spec));
+        let spec = LogSpec { session: Some("s".into()), ..LogSpec::path(&path) };
+        let (scans, bad) = collect(SourceSpec::new(spec));
         assert!(bad.is_empty(), "{name}: {bad:?}");
         assert_eq!(scans.len(), 5, "{name}");
         assert_eq!(scans[2].points[0], [0.0, 1.0, 0.0], "{name}: (-2 + 2, 1, 0)");
@@ -457,10 +458,10 @@ fn mcap_message_ranges_partition_the_file() {
         &test_clouds(7),
         &McapOptions { compression: Some(mcap::Compression::Zstd), summary: true, chunk_size: Some(600) },
     );
-    let spec = McapSpec { session: Some("s".into()), ..McapSpec::file(&path) };
-    let (whole, bad) = collect(SourceSpec::Mcap(spec.clone()));
+    let spec = LogSpec { session: Some("s".into()), ..LogSpec::path(&path) };
+    let (whole, bad) = collect(SourceSpec::new(spec.clone()));
     assert!(bad.is_empty());
-    assert_eq!(toporec::sources::mcap::count_scans(&path, None).unwrap(), ("/points".to_string(), 7));
+    assert_eq!(toporec::sources::logs::count_scans(&path, None).unwrap(), ("/points".to_string(), 7));
     let mut pieces = Vec::new();
     for first in (0..9).step_by(3) {
         let part: Vec<Scan> = spec.open_range(&path, first..first + 3).unwrap().map(|s| s.unwrap()).collect();
@@ -490,7 +491,7 @@ fn corrupt_and_truncated_mcap_lose_only_the_bad_chunk() {
     }
     let bad_path = dir.join("corrupt.mcap");
     std::fs::write(&bad_path, &corrupt).unwrap();
-    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&bad_path)));
+    let (scans, bad) = collect(SourceSpec::new(LogSpec::path(&bad_path)));
     assert!(!bad.is_empty(), "the corruption is reported");
     assert!(scans.len() >= 4 && scans.len() < 6, "{} scans survive", scans.len());
     for f in &bad {
@@ -503,8 +504,8 @@ fn corrupt_and_truncated_mcap_lose_only_the_bad_chunk() {
     // Truncated: the scans before the cut, then one error naming the file.
     let cut = dir.join("truncated.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
-    let spec = McapSpec { topic: Some("/points".into()), ..McapSpec::file(&cut) };
-    let (scans, bad) = collect(SourceSpec::Mcap(spec));
+    let spec = LogSpec { topic: Some("/points".into()), ..LogSpec::path(&cut) };
+    let (scans, bad) = collect(SourceSpec::new(spec));
     assert!((2..6).contains(&scans.len()), "{} scans before the cut", scans.len());
     assert_eq!(bad.len(), 1);
     assert!(bad[0].error.contains("truncated.mcap"), "{}", bad[0].error);
@@ -514,7 +515,7 @@ fn corrupt_and_truncated_mcap_lose_only_the_bad_chunk() {
     mixed[1] = cloud_bytes(&sample_points(), &no_xyz, 1, 0, Encoding::Cdr);
     let p = dir.join("mixed.mcap");
     write_mcap(&p, &mixed, &McapOptions { compression: None, summary: true, chunk_size: None });
-    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&p)));
+    let (scans, bad) = collect(SourceSpec::new(LogSpec::path(&p)));
     assert_eq!(scans.len(), 2);
     assert_eq!(bad.len(), 1);
     assert_eq!(bad[0].message_index, Some(1));
@@ -525,7 +526,7 @@ fn corrupt_and_truncated_mcap_lose_only_the_bad_chunk() {
     );
     // Wrong topic names are explained.
     let (scans, bad) =
-        collect(SourceSpec::Mcap(McapSpec { topic: Some("/other".into()), ..McapSpec::file(&p) }));
+        collect(SourceSpec::new(LogSpec { topic: Some("/other".into()), ..LogSpec::path(&p) }));
     assert!(scans.is_empty() && bad.len() == 1, "one failure for the file");
     assert!(bad[0].input_unread && bad[0].error.contains("std_msgs/msg/String"), "{}", bad[0].error);
 }
@@ -568,7 +569,7 @@ fn nclt_session_with_bad_files_and_garbage_ground_truth() {
     assert!(gt.bad_lines[0].contains("groundtruth_2020-01-01.csv:2:"), "{}", gt.bad_lines[0]);
     assert!(gt.bad_lines[1].contains(":5:"), "short row");
     let spec = NcltSpec { tolerance_ms: 150.0, ..NcltSpec::sessions(vec![session.clone()]) };
-    let (scans, bad) = collect(SourceSpec::Nclt(spec));
+    let (scans, bad) = collect(SourceSpec::new(spec));
     assert_eq!(scans.iter().map(|s| s.utime).collect::<Vec<_>>(), [1_000_000, 2_000_000, 3_000_000]);
     assert_eq!(bad.len(), 2);
     assert!(bad.iter().any(|f| f.error.contains("2500000.bin: truncated")), "{bad:?}");
@@ -721,7 +722,7 @@ fn fuzz_mutated_mcap_files_never_panic() {
             b.truncate(rng.below(b.len()));
         }
         std::fs::write(&target, &b).unwrap();
-        let _ = McapSpec::file(&target).open().map(|s| s.count());
+        let _ = LogSpec::path(&target).open().map(|s| s.count());
         let _ = McapMessages::open(&target).map(|m| m.count());
         let _ = toporec::inspect::inspect(&target);
     }
@@ -800,7 +801,7 @@ fn foxglove_pointcloud_protobuf_in_mcap() {
         }
         w.finish().unwrap();
     }
-    let (scans, bad) = collect(SourceSpec::Mcap(McapSpec::file(&path)));
+    let (scans, bad) = collect(SourceSpec::new(LogSpec::path(&path)));
     assert!(bad.is_empty(), "{bad:?}");
     assert_eq!(scans.len(), 3);
     let expected: Vec<[f64; 3]> = points.iter().map(|p| [p[0], p[1], p[2]]).collect();

@@ -376,7 +376,7 @@ fn fit_sample(
 #[pyfunction]
 #[pyo3(signature = (path, topic=None))]
 fn mcap_scan_count(py: Python<'_>, path: PathBuf, topic: Option<String>) -> PyResult<(String, u64)> {
-    py.detach(|| toporec::sources::mcap::count_scans(&path, topic.as_deref()))
+    py.detach(|| toporec::sources::logs::count_scans(&path, topic.as_deref()))
         .map_err(|e| value_error(e.to_string()))
 }
 
@@ -504,8 +504,8 @@ impl ScanReader {
     fn new(py: Python<'_>, path: PathBuf, topic: Option<String>) -> PyResult<Self> {
         let stream = py
             .detach(|| -> Result<toporec::sources::ScanStream, toporec::sources::SourceError> {
-                let kind = toporec::sources::InputKind::detect(&path)?;
-                match kind.source(&path, topic.as_deref())? {
+                let input = toporec::sources::Input::detect(&path)?;
+                match input.source(topic.as_deref()) {
                     Some(spec) => spec.open(),
                     None => Err(toporec::sources::SourceError::invalid(
                         &path,

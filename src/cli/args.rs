@@ -472,21 +472,6 @@ pub enum Protocol {
     Pointnetvlad,
 }
 
-/// A single-cloud file format.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CloudFormat {
-    /// CSV with a header naming columns `x`, `y`, `z`.
-    Csv,
-    /// KITTI `.bin`: float32 x, y, z, reflectance.
-    Kitti,
-    /// NCLT `velodyne_sync` `.bin`: 8-byte records.
-    Nclt,
-    /// PCD (PCL): ascii, binary or binary_compressed.
-    Pcd,
-    /// PLY: ascii or binary, the vertices' x, y, z.
-    Ply,
-}
-
 impl From<QueryArgs> for toporec::query::QueryArgs {
     fn from(a: QueryArgs) -> Self {
         toporec::query::QueryArgs {
@@ -700,18 +685,6 @@ impl From<Protocol> for toporec::eval::places::Protocol {
         match v {
             Protocol::Places => toporec::eval::places::Protocol::Places,
             Protocol::Pointnetvlad => toporec::eval::places::Protocol::Pointnetvlad,
-        }
-    }
-}
-
-impl From<CloudFormat> for toporec::sources::CloudFormat {
-    fn from(v: CloudFormat) -> Self {
-        match v {
-            CloudFormat::Csv => toporec::sources::CloudFormat::Csv,
-            CloudFormat::Kitti => toporec::sources::CloudFormat::Kitti,
-            CloudFormat::Nclt => toporec::sources::CloudFormat::Nclt,
-            CloudFormat::Pcd => toporec::sources::CloudFormat::Pcd,
-            CloudFormat::Ply => toporec::sources::CloudFormat::Ply,
         }
     }
 }

@@ -21,8 +21,8 @@ use toporec::pipeline::config::{Pipeline, Vectorize};
 use toporec::query::QueryArgs;
 use toporec::simulate::SimulateArgs;
 use toporec::sinks::index::IndexReader;
-use toporec::sources::rosbag::RosbagSpec;
-use toporec::sources::{InputKind, read_cloud};
+use toporec::sources::logs::LogSpec;
+use toporec::sources::read_cloud;
 
 /// Topological place descriptors from LiDAR logs.
 #[derive(Parser, Debug)]
@@ -243,7 +243,7 @@ struct DiagramArgs {
     radius: bool,
     /// The file format; detected from the path when omitted (MCAP by its magic).
     #[arg(long, value_enum)]
-    format: Option<args::CloudFormat>,
+    format: Option<toporec::sources::CloudFormat>,
     /// MCAP or bag: the Nth point-cloud message (0-based) of the topic.
     #[arg(long, default_value_t = 0)]
     index: u64,
@@ -529,10 +529,8 @@ fn diagram(args: DiagramArgs) -> Result<()> {
         bail!("--dims: dimension {d} is not one of 0, 1, 2");
     }
     let points = match args.format {
-        Some(f) => read_cloud(&args.cloud, Some(f.into()))?,
-        None if matches!(InputKind::detect(&args.cloud)?, InputKind::Mcap | InputKind::Bag(_)) => {
-            log_cloud(&args)?
-        }
+        Some(f) => read_cloud(&args.cloud, Some(f))?,
+        None if toporec::sources::logs::LogKind::detect(&args.cloud).is_some() => log_cloud(&args)?,
         None => read_cloud(&args.cloud, None)?,
     };
     if points.len() < MIN_POINTS {
@@ -551,7 +549,7 @@ fn diagram(args: DiagramArgs) -> Result<()> {
 
 /// The `--index`th point cloud of a message log (MCAP, ROS 1 bag, rosbag2).
 fn log_cloud(args: &DiagramArgs) -> Result<Vec<toporec::types::Point>> {
-    let spec = RosbagSpec { topic: args.topic.clone(), ..RosbagSpec::path(&args.cloud) };
+    let spec = LogSpec { topic: args.topic.clone(), ..LogSpec::path(&args.cloud) };
     let end = args.index.saturating_add(1);
     for item in spec.open_range(&args.cloud, args.index..end)? {
         match item {

@@ -20,7 +20,6 @@ use crate::error::{Error, Result};
 use crate::search::{Engine, Loaded, load_method};
 use crate::sinks::index::IndexedScan;
 use crate::sinks::index::damage::Damage;
-use crate::sources::SourceSpec;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -200,8 +199,8 @@ pub fn evaluate(
     damage: &Damage,
 ) -> Result<(String, super::report::PointNetVladReport, Vec<super::Curve>)> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
-    let Some(SourceSpec::PointNetVlad(spec)) =
-        pipeline.sources.iter().find(|s| matches!(s, SourceSpec::PointNetVlad(_)))
+    let Some(spec) =
+        pipeline.sources.iter().find_map(|s| s.get::<crate::sources::pointnetvlad::PointNetVladSpec>())
     else {
         return Err(Error::index(
             index,

@@ -67,8 +67,8 @@ fn load(
     }
     for (path, wanted) in mcap {
         // Any message log (MCAP, ROS 1 bag, rosbag2), read by what it is.
-        let spec = crate::sources::rosbag::RosbagSpec::path(Path::new(&path));
-        match spec.open() {
+        let spec = crate::sources::logs::LogSpec::path(Path::new(&path));
+        match crate::sources::Source::open(&spec) {
             Ok(items) => {
                 for item in items {
                     let (index, points) = match item {

@@ -223,8 +223,7 @@ impl Pipeline {
         let index = std::path::absolute(index).unwrap_or_else(|_| index.to_owned());
         output.insert("index".into(), Value::String(clean(&index).display().to_string()));
         doc.insert("output".into(), Value::Table(output));
-        let sources: Vec<Value> =
-            self.sources.iter().map(|s| Value::try_from(s).expect("plain data")).collect();
+        let sources: Vec<Value> = self.sources.iter().map(|s| Value::Table(s.table())).collect();
         doc.insert("sources".into(), Value::Array(sources));
         let pre = Value::try_from(&self.preprocess).expect("plain data");
         doc.insert("preprocess".into(), pre);
@@ -311,10 +310,7 @@ impl Parser {
                     if let Some(mut s) = source_entry(item, i, &mut self.errors) {
                         s.resolve_paths(&self.base);
                         s.clean_paths(clean);
-                        check_source_numbers(&s, i, &mut self.errors);
-                        if self.check_inputs {
-                            check_source_paths(&s, i, &mut self.errors);
-                        }
+                        check_source(&s, i, self.check_inputs, &mut self.errors);
                         sources.push(s);
                     }
                 }
@@ -529,60 +525,18 @@ pub(crate) fn dims_needed(dims: &DimSelection) -> Vec<u8> {
     }
 }
 
-fn check_source_paths(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
-    let mut check = |key: &str, p: &Path| {
-        if !p.exists() {
-            errors.push(format!("sources[{i}].{key}: {} does not exist", p.display()));
-        }
-    };
-    match s {
-        SourceSpec::Nclt(n) => {
-            n.sessions.iter().for_each(|p| check("sessions", p));
-            n.groundtruth.iter().for_each(|p| check("groundtruth", p));
-            if n.sessions.is_empty() {
-                errors.push(format!("sources[{i}].sessions: empty"));
-            }
-        }
-        SourceSpec::Mcap(m) => {
-            m.files.iter().for_each(|p| check("files", p));
-            m.poses.iter().for_each(|p| check("poses", p));
-            if m.files.is_empty() {
-                errors.push(format!("sources[{i}].files: empty"));
-            }
-        }
-        SourceSpec::Kitti(k) => {
-            k.sequences.iter().for_each(|p| check("sequences", p));
-            if k.sequences.is_empty() {
-                errors.push(format!("sources[{i}].sequences: empty"));
-            }
-        }
-        SourceSpec::PointNetVlad(p) => check("root", &p.root),
-        SourceSpec::Clouds(c) => {
-            c.folders.iter().for_each(|p| check("folders", p));
-            c.poses.iter().for_each(|p| check("poses", p));
-            if c.folders.is_empty() {
-                errors.push(format!("sources[{i}].folders: empty"));
-            }
-        }
-        SourceSpec::Rosbag(r) => {
-            r.paths.iter().for_each(|p| check("paths", p));
-            r.poses.iter().for_each(|p| check("poses", p));
-            if r.paths.is_empty() {
-                errors.push(format!("sources[{i}].paths: empty"));
-            }
-        }
-    }
+/// What parsing a source does not catch (numbers; with `inputs`, paths), each with its key path.
+fn check_source(s: &SourceSpec, i: usize, inputs: bool, errors: &mut Vec<String>) {
+    let problems = s.problems(inputs).into_iter();
+    errors.extend(problems.map(|(key, message)| format!("sources[{i}].{key}: {message}")));
 }
 
 /// One `[[sources]]` entry, or every error in it, each with its key path (`sources[0].sessions:
 /// invalid type …`): a key of the wrong type or unknown is reported and left out, and the rest
 /// of the entry is read again, so one bad key does not hide the next.
 fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<SourceSpec> {
-    use crate::sources::{
-        clouds::CloudsSpec, kitti::KittiSpec, mcap::McapSpec, nclt::NcltSpec, pointnetvlad::PointNetVladSpec,
-        rosbag::RosbagSpec,
-    };
-    const KINDS: &str = "nclt, mcap, rosbag, kitti, clouds or pointnetvlad";
+    use crate::sources::SourceKind;
+    let kinds = SourceKind::names();
     let Value::Table(table) = item else {
         errors.push(format!("sources[{i}]: expected a table ([[sources]]), found {}", item.type_str()));
         return None;
@@ -591,37 +545,23 @@ fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<Sour
         Some(Value::String(k)) => k.clone(),
         Some(other) => {
             errors
-                .push(format!("sources[{i}].kind: expected a string ({KINDS}), found {}", other.type_str()));
+                .push(format!("sources[{i}].kind: expected a string ({kinds}), found {}", other.type_str()));
             return None;
         }
         None => {
-            errors.push(format!("sources[{i}].kind: missing ({KINDS})"));
+            errors.push(format!("sources[{i}].kind: missing ({kinds})"));
             return None;
         }
     };
-    fn typed<T: serde::de::DeserializeOwned>(t: &Table) -> Result<T, (String, String)> {
-        serde_path_to_error::deserialize(Value::Table(t.clone())).map_err(|e| {
-            let path = e.path().to_string();
-            (if path == "." { String::new() } else { path }, e.into_inner().message().trim().to_string())
-        })
-    }
+    let Some(entry) = SourceKind::of(&kind) else {
+        errors.push(format!("sources[{i}].kind: unknown kind `{kind}` (expected {kinds})"));
+        return None;
+    };
     let mut rest = table.clone();
     rest.remove("kind");
     let mut left_out: Vec<String> = Vec::new();
     loop {
-        let spec = match kind.as_str() {
-            "nclt" => typed::<NcltSpec>(&rest).map(SourceSpec::Nclt),
-            "mcap" => typed::<McapSpec>(&rest).map(SourceSpec::Mcap),
-            "kitti" => typed::<KittiSpec>(&rest).map(SourceSpec::Kitti),
-            "pointnetvlad" => typed::<PointNetVladSpec>(&rest).map(SourceSpec::PointNetVlad),
-            "rosbag" => typed::<RosbagSpec>(&rest).map(SourceSpec::Rosbag),
-            "clouds" => typed::<CloudsSpec>(&rest).map(SourceSpec::Clouds),
-            other => {
-                errors.push(format!("sources[{i}].kind: unknown kind `{other}` (expected {KINDS})"));
-                return None;
-            }
-        };
-        let (path, message) = match spec {
+        let crate::sources::KeyError { path, message } = match entry.parse(&rest) {
             Ok(spec) => return left_out.is_empty().then_some(spec),
             Err(e) => e,
         };
@@ -647,33 +587,6 @@ fn source_entry(item: &Value, i: usize, errors: &mut Vec<String>) -> Option<Sour
                 return None;
             }
         }
-    }
-}
-
-/// The numeric keys of a source, in their ranges.
-fn check_source_numbers(s: &SourceSpec, i: usize, errors: &mut Vec<String>) {
-    let tolerance = match s {
-        SourceSpec::Nclt(n) => {
-            if let Some(p) = n.hits_period_ms.filter(|p| !(p.is_finite() && *p > 0.0)) {
-                errors.push(format!("sources[{i}].hits_period_ms: must be in (0, inf) ms; found {p}"));
-            }
-            Some(n.tolerance_ms)
-        }
-        SourceSpec::Mcap(m) => Some(m.tolerance_ms),
-        SourceSpec::Rosbag(r) => Some(r.tolerance_ms),
-        SourceSpec::Clouds(c) => {
-            if !(c.frame_period_ms.is_finite() && c.frame_period_ms > 0.0) {
-                errors.push(format!(
-                    "sources[{i}].frame_period_ms: must be in (0, inf) ms; found {}",
-                    c.frame_period_ms
-                ));
-            }
-            Some(c.tolerance_ms)
-        }
-        SourceSpec::Kitti(_) | SourceSpec::PointNetVlad(_) => None,
-    };
-    if let Some(t) = tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {
-        errors.push(format!("sources[{i}].tolerance_ms: must be in [0, inf) ms; found {t}"));
     }
 }
 

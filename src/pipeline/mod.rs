@@ -471,7 +471,7 @@ fn read_sources(
                 continue;
             }
         };
-        let by_file = matches!(spec, crate::sources::SourceSpec::Mcap(_));
+        let by_file = spec.shards_by_session();
         for item in stream {
             if let Err(f) = &item
                 && f.input_unread

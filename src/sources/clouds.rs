@@ -138,6 +138,63 @@ pub fn parse_tum(text: &str, path: &Path) -> GroundTruth {
     gt
 }
 
+impl super::Kind for CloudsSpec {
+    const NAME: &'static str = "clouds";
+    const READS: &'static str = "PCD/PLY file";
+
+    fn detect(path: &Path) -> Option<super::Detected> {
+        (path.is_dir() && is_cloud_folder(path)).then(|| super::Detected {
+            what: "folder of clouds",
+            source: super::SourceSpec::new(CloudsSpec::folder(path)),
+        })
+    }
+}
+
+impl super::Source for CloudsSpec {
+    fn kind(&self) -> &'static str {
+        <Self as super::Kind>::NAME
+    }
+
+    fn keys(&self) -> toml::Table {
+        toml::Table::try_from(self).expect("plain data")
+    }
+
+    fn problems(&self, inputs: bool) -> Vec<(&'static str, String)> {
+        let mut out = super::required("folders", &self.folders, inputs);
+        out.extend(super::missing("poses", self.poses.as_slice(), inputs));
+        if !(self.frame_period_ms.is_finite() && self.frame_period_ms > 0.0) {
+            out.push(("frame_period_ms", format!("must be in (0, inf) ms; found {}", self.frame_period_ms)));
+        }
+        out.extend(super::tolerance(self.tolerance_ms));
+        out
+    }
+
+    fn open(&self) -> Result<ScanStream, SourceError> {
+        CloudsSpec::open(self)
+    }
+
+    fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError> {
+        let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        Ok(self.folders.iter().map(|d| (name(d), d.clone())).collect())
+    }
+
+    fn narrowed(&self, places: Vec<PathBuf>) -> Option<Box<dyn super::Source>> {
+        Some(Box::new(CloudsSpec { folders: places, ..self.clone() }))
+    }
+
+    fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
+        self.folders.iter_mut().chain(self.poses.iter_mut()).collect()
+    }
+
+    fn boxed(&self) -> Box<dyn super::Source> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 impl CloudsSpec {
     /// A spec for one folder with defaults.
     pub fn folder(dir: &Path) -> Self {

@@ -99,6 +99,86 @@ impl Sequence {
     }
 }
 
+/// Whether `dir` is a KITTI sequence folder (it holds `velodyne/`).
+fn is_sequence(dir: &Path) -> bool {
+    dir.join("velodyne").is_dir()
+}
+
+impl super::Kind for KittiSpec {
+    const NAME: &'static str = "kitti";
+    const READS: &'static str = "KITTI sequence";
+
+    fn detect(path: &Path) -> Option<super::Detected> {
+        if !path.is_dir() {
+            return None;
+        }
+        let (what, sequences) = if is_sequence(path) {
+            ("kitti sequence", vec![path.to_owned()])
+        } else {
+            let mut children: Vec<PathBuf> = std::fs::read_dir(path)
+                .ok()?
+                .flatten()
+                .map(|e| e.path())
+                .filter(|p| is_sequence(p))
+                .collect();
+            children.sort();
+            if children.is_empty() {
+                return None;
+            }
+            ("kitti sequences", children)
+        };
+        Some(super::Detected { what, source: super::SourceSpec::new(KittiSpec { sequences }) })
+    }
+}
+
+impl super::Source for KittiSpec {
+    fn kind(&self) -> &'static str {
+        <Self as super::Kind>::NAME
+    }
+
+    fn keys(&self) -> toml::Table {
+        toml::Table::try_from(self).expect("plain data")
+    }
+
+    fn problems(&self, inputs: bool) -> Vec<(&'static str, String)> {
+        super::required("sequences", &self.sequences, inputs)
+    }
+
+    fn open(&self) -> Result<ScanStream, SourceError> {
+        KittiSpec::open(self)
+    }
+
+    fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError> {
+        let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        Ok(self.sequences.iter().map(|d| (name(d), d.clone())).collect())
+    }
+
+    fn narrowed(&self, places: Vec<PathBuf>) -> Option<Box<dyn super::Source>> {
+        Some(Box::new(KittiSpec { sequences: places }))
+    }
+
+    fn count_hint(&self) -> Option<u64> {
+        let count = |d: &Path| super::list_files(&d.join("velodyne"), "bin").ok().map(|f| f.len() as u64);
+        self.sequences.iter().map(|d| count(d)).sum()
+    }
+
+    fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
+        self.sequences.iter_mut().collect()
+    }
+
+    fn overview(&self) -> Result<Vec<String>, SourceError> {
+        Ok(vec![format!("sequences: {}", self.sequences.len())])
+    }
+
+    fn boxed(&self) -> Box<dyn super::Source> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 impl KittiSpec {
     /// Opens the stream over all sequences, in order.
     #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]

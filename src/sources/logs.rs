@@ -40,7 +40,7 @@ impl LogKind {
             Some(LogKind::Rosbag2)
         } else if !path.is_file() {
             None
-        } else if super::detect::is_mcap(path) {
+        } else if super::mcap_reader::is_mcap(path) {
             Some(LogKind::Mcap)
         } else if ros1bag::is_ros1_bag(path) {
             Some(LogKind::Ros1Bag)
@@ -80,7 +80,7 @@ impl LogKind {
     pub fn channels(self, path: &Path) -> Result<Vec<ChannelInfo>, SourceError> {
         let invalid = |e: String| SourceError::invalid(path, e);
         match self {
-            LogKind::Mcap => super::mcap::channels(path),
+            LogKind::Mcap => super::mcap_reader::channels(path),
             LogKind::Ros1Bag => ros1bag::channels(path).map_err(invalid),
             LogKind::Rosbag2 => rosbag2::folder_channels(path).map_err(invalid),
             LogKind::Sqlite3 => rosbag2::sqlite3_file_channels(path).map_err(invalid),
@@ -105,13 +105,176 @@ pub(crate) fn default_session(path: &Path) -> String {
     name.map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
 }
 
-/// How a source reads its logs (the keys `kind = "mcap"` and `kind = "rosbag"` share).
+/// `kind = "rosbag"` (and its other name `kind = "mcap"`, whose key `files` is `paths`) in a
+/// pipeline file: message logs — ROS 1 `.bag` files, rosbag2 folders, rosbag2 `.db3` files and
+/// MCAP files, each read by what it is ([`LogKind`]), each one session: a file by its stem, a
+/// folder by its name (a rosbag2 folder's split files continue one another).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LogSpec {
+    /// The logs; each is one session (unless `session` is set).
+    pub paths: Vec<PathBuf>,
+    /// The point-cloud topic; default: the log's only one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub topic: Option<String>,
+    /// Session name for all logs (default: a file's stem, a folder's name).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub session: Option<String>,
+    /// Poses in NCLT's ground-truth CSV layout, joined by nearest utime.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poses: Option<PathBuf>,
+    /// Largest time gap for a pose join, milliseconds.
+    #[serde(default = "default_tolerance_ms")]
+    pub tolerance_ms: f64,
+    /// The name the entry was given (`rosbag`, or `mcap` with `files`): it is written back so.
+    #[serde(skip)]
+    pub named: LogName,
+}
+
+/// The `kind` a message-log entry is written as.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LogName {
+    /// `kind = "rosbag"`, `paths`.
+    #[default]
+    Rosbag,
+    /// `kind = "mcap"`, `files` (each file read whole by one shard of a sharded run).
+    Mcap,
+}
+
+fn default_tolerance_ms() -> f64 {
+    100.0
+}
+
+impl LogSpec {
+    /// A spec for one log with defaults.
+    pub fn path(path: &Path) -> Self {
+        LogSpec {
+            paths: vec![path.to_owned()],
+            topic: None,
+            session: None,
+            poses: None,
+            tolerance_ms: default_tolerance_ms(),
+            named: LogName::Rosbag,
+        }
+    }
+
+    /// The session of `path`: the spec's `session`, else the file's stem or the folder's name.
+    pub fn session_of(&self, path: &Path) -> String {
+        self.session.clone().unwrap_or_else(|| default_session(path))
+    }
+}
+
+impl super::Kind for LogSpec {
+    const NAME: &'static str = "rosbag";
+    const READS: &'static str = "MCAP file, ROS 1 bag, rosbag2 folder or .db3 file";
+
+    fn detect(path: &Path) -> Option<super::Detected> {
+        let kind = LogKind::detect(path)?;
+        Some(super::Detected { what: kind.name(), source: super::SourceSpec::new(LogSpec::path(path)) })
+    }
+}
+
+/// `kind = "mcap"`: the message-log source under its older name, `files` for `paths`.
+pub(super) const MCAP_ALIAS: super::SourceKind =
+    super::SourceKind { name: "mcap", reads: "", parse: parse_mcap, detect: |_| None };
+
+fn parse_mcap(keys: &toml::Table) -> Result<Box<dyn super::Source>, super::KeyError> {
+    let mut keys = keys.clone();
+    if let Some(files) = keys.remove("files") {
+        keys.insert("paths".into(), files);
+    } else if let Some(paths) = keys.remove("paths") {
+        // `paths` is not a key of `kind = "mcap"`: named as the reader would.
+        keys.insert("mcap_paths".into(), paths);
+    }
+    let spec: LogSpec = super::parse_keys(&keys).map_err(|e| super::KeyError {
+        path: e.path.replace("paths", "files").replace("mcap_files", "paths"),
+        message: e.message.replace("`paths`", "`files`").replace("`mcap_files`", "`paths`"),
+    })?;
+    Ok(Box::new(LogSpec { named: LogName::Mcap, ..spec }))
+}
+
+impl super::Source for LogSpec {
+    fn kind(&self) -> &'static str {
+        match self.named {
+            LogName::Rosbag => "rosbag",
+            LogName::Mcap => "mcap",
+        }
+    }
+
+    fn keys(&self) -> toml::Table {
+        let mut t = toml::Table::try_from(self).expect("plain data");
+        if self.named == LogName::Mcap
+            && let Some(paths) = t.remove("paths")
+        {
+            t.insert("files".into(), paths);
+        }
+        t
+    }
+
+    fn problems(&self, inputs: bool) -> Vec<(&'static str, String)> {
+        let key = if self.named == LogName::Mcap { "files" } else { "paths" };
+        let mut out = super::required(key, &self.paths, inputs);
+        out.extend(super::missing("poses", self.poses.as_slice(), inputs));
+        out.extend(super::tolerance(self.tolerance_ms));
+        out
+    }
+
+    fn open(&self) -> Result<ScanStream, SourceError> {
+        self.settings().open(self.paths.clone())
+    }
+
+    fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError> {
+        Ok(self.paths.iter().map(|p| (self.session_of(p), p.clone())).collect())
+    }
+
+    fn narrowed(&self, places: Vec<PathBuf>) -> Option<Box<dyn super::Source>> {
+        Some(Box::new(LogSpec { paths: places, ..self.clone() }))
+    }
+
+    fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
+        self.paths.iter_mut().chain(self.poses.iter_mut()).collect()
+    }
+
+    fn shards_by_session(&self) -> bool {
+        self.named == LogName::Mcap
+    }
+
+    fn boxed(&self) -> Box<dyn super::Source> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+impl LogSpec {
+    /// The scans of `path` (one of the spec's logs, or any log read with its settings) whose
+    /// message index lies in `range`: what [`super::Source::open`] yields for them, ids, times
+    /// and poses included. Messages before the range are passed over undecoded; reading stops
+    /// at its end. A corrupt chunk is reported by the range it falls in.
+    pub fn open_range(&self, path: &Path, range: std::ops::Range<u64>) -> Result<ScanStream, SourceError> {
+        self.settings().open_range(path, range)
+    }
+
+    /// How the logs are read.
+    fn settings(&self) -> LogSettings {
+        LogSettings {
+            topic: self.topic.clone(),
+            session: self.session.clone(),
+            poses: self.poses.clone(),
+            tolerance_ms: self.tolerance_ms,
+        }
+    }
+}
+
+/// How a spec reads its logs.
 #[derive(Clone, Debug)]
-pub(crate) struct LogSettings {
-    pub(crate) topic: Option<String>,
-    pub(crate) session: Option<String>,
-    pub(crate) poses: Option<PathBuf>,
-    pub(crate) tolerance_ms: f64,
+struct LogSettings {
+    topic: Option<String>,
+    session: Option<String>,
+    poses: Option<PathBuf>,
+    tolerance_ms: f64,
 }
 
 impl LogSettings {
@@ -125,7 +288,7 @@ impl LogSettings {
     /// The stream over `paths`, in order. A log that cannot be opened (not a log, truncated
     /// before its first message, no point-cloud topic) is one failure naming it, and the other
     /// logs are read.
-    pub(crate) fn open(&self, paths: Vec<PathBuf>) -> Result<ScanStream, SourceError> {
+    fn open(&self, paths: Vec<PathBuf>) -> Result<ScanStream, SourceError> {
         let poses = self.ground_truth()?;
         let settings = self.clone();
         Ok(Box::new(paths.into_iter().flat_map(move |path| -> ScanStream {
@@ -142,11 +305,7 @@ impl LogSettings {
     /// The scans of `path` whose message index lies in `range`: what [`LogSettings::open`]
     /// yields for them, ids, times and poses included. Messages before the range are passed
     /// over undecoded; reading stops at its end.
-    pub(crate) fn open_range(
-        &self,
-        path: &Path,
-        range: std::ops::Range<u64>,
-    ) -> Result<ScanStream, SourceError> {
+    fn open_range(&self, path: &Path, range: std::ops::Range<u64>) -> Result<ScanStream, SourceError> {
         Ok(Box::new(self.scans_of(path, self.ground_truth()?, range)?))
     }
 

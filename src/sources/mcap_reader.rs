@@ -311,3 +311,26 @@ pub fn summary_channels(path: &Path) -> Option<Vec<ChannelInfo>> {
     channels.sort_by_key(|c| c.id);
     Some(channels)
 }
+
+/// Whether the file starts with the MCAP magic.
+pub(crate) fn is_mcap(path: &Path) -> bool {
+    let mut magic = [0u8; 8];
+    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut magic)).is_ok() && magic == ::mcap::MAGIC
+}
+
+/// All channels of an MCAP file: from its summary, else by a full pass.
+pub fn channels(path: &Path) -> Result<Vec<ChannelInfo>, super::SourceError> {
+    if let Some(c) = summary_channels(path) {
+        return Ok(c);
+    }
+    let mut messages = McapMessages::open(path)
+        .map_err(|source| super::SourceError::Io { path: path.to_owned(), source })?;
+    for m in messages.by_ref() {
+        if let Err(fault) = m {
+            tracing::warn!("{}: {}: {}", path.display(), fault.location, fault.message);
+        }
+    }
+    let mut c: Vec<ChannelInfo> = messages.channels().map(|c| (**c).clone()).collect();
+    c.sort_by_key(|c| c.id);
+    Ok(c)
+}

@@ -10,11 +10,9 @@
 
 pub mod clouds;
 pub mod csv;
-pub mod detect;
 pub mod groundtruth;
 pub mod kitti;
 pub mod logs;
-pub mod mcap;
 pub mod mcap_reader;
 pub mod nclt;
 pub mod pcd;
@@ -22,11 +20,9 @@ pub mod ply;
 pub mod pointcloud2;
 pub mod pointnetvlad;
 pub mod ros1bag;
-pub mod rosbag;
 pub mod rosbag2;
 
 pub use crate::error::SourceError;
-pub use detect::{CloudFormat, InputKind};
 
 use crate::types::Point;
 use std::path::{Path, PathBuf};
@@ -184,78 +180,161 @@ impl std::fmt::Display for ScanFailure {
 /// A stream of scans; failures are items too, so one bad scan never stops a run.
 pub type ScanStream = Box<dyn Iterator<Item = Result<Scan, ScanFailure>> + Send>;
 
-/// Where scans come from (a `[[sources]]` table of a pipeline file).
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(tag = "kind", rename_all = "lowercase")]
-pub enum SourceSpec {
-    /// NCLT sessions.
-    Nclt(nclt::NcltSpec),
-    /// MCAP files with PointCloud2 messages.
-    Mcap(mcap::McapSpec),
-    /// KITTI odometry sequences.
-    Kitti(kitti::KittiSpec),
-    /// The PointNetVLAD benchmark's test submaps (`benchmark_datasets/`).
-    PointNetVlad(pointnetvlad::PointNetVladSpec),
-    /// ROS 1 bags, rosbag2 folders (sqlite3 or MCAP storage), `.db3` and MCAP files.
-    Rosbag(rosbag::RosbagSpec),
-    /// Folders of PCD / PLY files, each a session.
-    Clouds(clouds::CloudsSpec),
-}
+/// A source: one `[[sources]]` entry of a pipeline file, read as its kind reads it. Each kind
+/// is its module and one line of [`SOURCES`].
+pub trait Source: std::fmt::Debug + Send + Sync + 'static {
+    /// The `kind` it is written back as (its [`SOURCES`] entry's name).
+    fn kind(&self) -> &'static str;
 
-impl SourceSpec {
+    /// Its keys as its `[[sources]]` table (without `kind`): what the effective pipeline of an
+    /// index records.
+    fn keys(&self) -> toml::Table;
+
+    /// What parsing does not catch: empty lists, numbers out of range and, with `inputs`, paths
+    /// that do not exist; each with its key.
+    fn problems(&self, inputs: bool) -> Vec<(&'static str, String)>;
+
     /// Opens the stream. Fails only when the source as a whole is unusable (a missing folder,
-    /// an MCAP without point clouds); per-scan problems are stream items.
-    pub fn open(&self) -> Result<ScanStream, SourceError> {
-        match self {
-            SourceSpec::Nclt(s) => s.open(),
-            SourceSpec::Mcap(s) => s.open(),
-            SourceSpec::Kitti(s) => s.open(),
-            SourceSpec::PointNetVlad(s) => s.open(),
-            SourceSpec::Rosbag(s) => s.open(),
-            SourceSpec::Clouds(s) => s.open(),
-        }
-    }
+    /// a log without point clouds); per-scan problems are stream items.
+    fn open(&self) -> Result<ScanStream, SourceError>;
+
+    /// The sessions it yields, with the folder or file each comes from.
+    fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError>;
+
+    /// The same source reading only the sessions that come from `places` (some of
+    /// [`Source::sessions`]'); `None` when it cannot be narrowed (its stream is filtered then).
+    fn narrowed(&self, places: Vec<PathBuf>) -> Option<Box<dyn Source>>;
 
     /// The number of scans, when a directory listing tells (NCLT `velodyne_sync`, KITTI);
-    /// None when only reading would (MCAP, `velodyne_hits`).
-    pub fn count_hint(&self) -> Option<u64> {
-        let count = |dir: &Path| list_files(dir, "bin").ok().map(|f| f.len() as u64);
-        match self {
-            SourceSpec::Nclt(s) if s.reader == nclt::NcltReader::Sync => {
-                s.session_dirs().ok()?.iter().map(|d| count(&d.join("velodyne_sync"))).sum()
-            }
-            SourceSpec::Kitti(s) => s.sequences.iter().map(|d| count(&d.join("velodyne"))).sum(),
-            _ => None,
+    /// `None` when only reading would (logs, `velodyne_hits`).
+    fn count_hint(&self) -> Option<u64> {
+        None
+    }
+
+    /// Every path among its keys (relative ones are made relative to the pipeline file).
+    fn paths_mut(&mut self) -> Vec<&mut PathBuf>;
+
+    /// Whether a sharded run hands out its sessions whole (each read by one shard) rather than
+    /// its scans by id.
+    fn shards_by_session(&self) -> bool {
+        false
+    }
+
+    /// Lines `inspect` prints about it before its scans (sessions, topics).
+    fn overview(&self) -> Result<Vec<String>, SourceError> {
+        Ok(Vec::new())
+    }
+
+    /// A boxed copy.
+    fn boxed(&self) -> Box<dyn Source>;
+
+    /// Itself, for the readers that need one kind's own settings (a batch's message ranges,
+    /// the PointNetVLAD protocol's sets).
+    fn as_any(&self) -> &dyn std::any::Any;
+}
+
+/// A kind of source the registry knows: its pipeline-file `kind`, how its keys are read, and
+/// how a path on the command line is recognised as one.
+pub struct SourceKind {
+    /// The `kind` of a `[[sources]]` entry.
+    pub name: &'static str,
+    /// What it reads, in a few words (for messages and docs).
+    pub reads: &'static str,
+    parse: fn(&toml::Table) -> Result<Box<dyn Source>, KeyError>,
+    detect: fn(&Path) -> Option<Detected>,
+}
+
+/// A key of a `[[sources]]` entry that does not parse: its path (`sessions`, `tolerance_ms`,
+/// or empty for the entry as a whole) and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeyError {
+    /// The key's path inside the entry.
+    pub path: String,
+    /// The deserializer's message.
+    pub message: String,
+}
+
+/// Reads an entry's keys (without `kind`) as `T`, keeping the path of the key at fault.
+pub(crate) fn parse_keys<T: serde::de::DeserializeOwned>(keys: &toml::Table) -> Result<T, KeyError> {
+    serde_path_to_error::deserialize(toml::Value::Table(keys.clone())).map_err(|e| {
+        let path = e.path().to_string();
+        KeyError {
+            path: if path == "." { String::new() } else { path },
+            message: e.into_inner().message().trim().to_string(),
+        }
+    })
+}
+
+/// The registry entry of a source whose keys are of type `S`.
+const fn kind<S: Source + Kind + serde::de::DeserializeOwned>() -> SourceKind {
+    fn parse<S: Source + serde::de::DeserializeOwned>(
+        keys: &toml::Table,
+    ) -> Result<Box<dyn Source>, KeyError> {
+        parse_keys::<S>(keys).map(|s| Box::new(s) as Box<dyn Source>)
+    }
+    SourceKind { name: S::NAME, reads: S::READS, parse: parse::<S>, detect: S::detect }
+}
+
+/// What a source kind's keys type names itself, and how it recognises a path.
+pub trait Kind {
+    /// The `kind`.
+    const NAME: &'static str;
+    /// What it reads, in a few words.
+    const READS: &'static str;
+    /// The source reading `path` when it is one of this kind's (a session folder, a log file).
+    fn detect(path: &Path) -> Option<Detected>;
+}
+
+/// Every kind of source, in the order a path is recognised: logs (by their content) first,
+/// then layouts of folders (NCLT, KITTI), then folders of cloud files. Adding a kind is its
+/// module and one line here; pipeline files, `inspect`, `query`, `loops` and `repair` find it.
+pub const SOURCES: &[SourceKind] = &[
+    kind::<logs::LogSpec>(),
+    logs::MCAP_ALIAS,
+    kind::<nclt::NcltSpec>(),
+    kind::<kitti::KittiSpec>(),
+    kind::<clouds::CloudsSpec>(),
+    kind::<pointnetvlad::PointNetVladSpec>(),
+];
+
+impl SourceKind {
+    /// The entry of `kind`.
+    pub fn of(kind: &str) -> Option<&'static SourceKind> {
+        SOURCES.iter().find(|k| k.name == kind)
+    }
+
+    /// The kinds' names, for messages: `rosbag, mcap, nclt, kitti, clouds or pointnetvlad`.
+    pub fn names() -> String {
+        let names: Vec<&str> = SOURCES.iter().map(|k| k.name).collect();
+        match names.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => names.join(""),
         }
     }
 
-    /// The sessions this source yields, with the folder or file each comes from.
-    pub fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError> {
-        let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        Ok(match self {
-            SourceSpec::Nclt(s) => s.session_dirs()?.into_iter().map(|d| (name(&d), d)).collect(),
-            SourceSpec::Kitti(s) => s.sequences.iter().map(|d| (name(d), d.clone())).collect(),
-            SourceSpec::PointNetVlad(s) => s.runs()?.into_iter().map(|r| (r.name, r.dir)).collect(),
-            SourceSpec::Mcap(s) => s
-                .files
-                .iter()
-                .map(|f| {
-                    let stem = f.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-                    (s.session.clone().unwrap_or(stem), f.clone())
-                })
-                .collect(),
-            SourceSpec::Clouds(s) => s.folders.iter().map(|d| (name(d), d.clone())).collect(),
-            SourceSpec::Rosbag(s) => s
-                .paths
-                .iter()
-                .map(|p| (s.session.clone().unwrap_or_else(|| logs::default_session(p)), p.clone()))
-                .collect(),
-        })
+    /// A source of this kind from an entry's keys (without `kind`).
+    pub fn parse(&self, keys: &toml::Table) -> Result<SourceSpec, KeyError> {
+        (self.parse)(keys).map(SourceSpec)
+    }
+}
+
+/// A source as a pipeline holds it: any kind of [`SOURCES`].
+pub struct SourceSpec(Box<dyn Source>);
+
+impl SourceSpec {
+    /// Wraps a source.
+    pub fn new(source: impl Source) -> Self {
+        SourceSpec(Box::new(source))
+    }
+
+    /// The source's own type, when it is `S`.
+    pub fn get<S: Source>(&self) -> Option<&S> {
+        self.0.as_any().downcast_ref::<S>()
     }
 
     /// This source restricted to the sessions in `wanted` (the same scans of those sessions,
     /// under the same ids); `None` when it yields none of them. A source whose sessions cannot
-    /// be listed is kept whole (its stream is filtered by the caller).
+    /// be listed or narrowed is kept whole (its stream is filtered by the caller).
     pub fn only_sessions(&self, wanted: &std::collections::HashSet<String>) -> Option<SourceSpec> {
         let Ok(listed) = self.sessions() else { return Some(self.clone()) };
         let keep: Vec<PathBuf> =
@@ -263,17 +342,7 @@ impl SourceSpec {
         if keep.is_empty() {
             return None;
         }
-        let mut out = self.clone();
-        match &mut out {
-            SourceSpec::Nclt(s) => s.sessions = keep,
-            SourceSpec::Kitti(s) => s.sequences = keep,
-            SourceSpec::Mcap(s) => s.files = keep,
-            SourceSpec::Rosbag(s) => s.paths = keep,
-            SourceSpec::Clouds(s) => s.folders = keep,
-            // Runs are named by their set and folder: the stream is filtered instead.
-            SourceSpec::PointNetVlad(_) => {}
-        }
-        Some(out)
+        Some(self.narrowed(keep).map(SourceSpec).unwrap_or_else(|| self.clone()))
     }
 
     /// Makes relative paths relative to `base` (the pipeline file's folder).
@@ -283,27 +352,176 @@ impl SourceSpec {
 
     /// Rewrites every path of the spec with `f`.
     pub fn clean_paths(&mut self, f: impl Fn(&Path) -> PathBuf) {
-        let fix = |p: &mut PathBuf| *p = f(p);
-        match self {
-            SourceSpec::Nclt(s) => {
-                s.sessions.iter_mut().for_each(fix);
-                s.groundtruth.iter_mut().for_each(fix);
-            }
-            SourceSpec::Mcap(s) => {
-                s.files.iter_mut().for_each(fix);
-                s.poses.iter_mut().for_each(fix);
-            }
-            SourceSpec::Kitti(s) => s.sequences.iter_mut().for_each(fix),
-            SourceSpec::PointNetVlad(s) => fix(&mut s.root),
-            SourceSpec::Rosbag(s) => {
-                s.paths.iter_mut().for_each(fix);
-                s.poses.iter_mut().for_each(fix);
-            }
-            SourceSpec::Clouds(s) => {
-                s.folders.iter_mut().for_each(fix);
-                s.poses.iter_mut().for_each(fix);
-            }
+        for p in self.0.paths_mut() {
+            *p = f(p);
         }
+    }
+
+    /// The entry as its `[[sources]]` table, `kind` included.
+    pub fn table(&self) -> toml::Table {
+        let mut t = self.0.keys();
+        t.insert("kind".into(), toml::Value::String(self.0.kind().into()));
+        t
+    }
+}
+
+impl std::ops::Deref for SourceSpec {
+    type Target = dyn Source;
+
+    fn deref(&self) -> &dyn Source {
+        &*self.0
+    }
+}
+
+impl Clone for SourceSpec {
+    fn clone(&self) -> Self {
+        SourceSpec(self.0.boxed())
+    }
+}
+
+impl std::fmt::Debug for SourceSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+impl PartialEq for SourceSpec {
+    fn eq(&self, other: &Self) -> bool {
+        self.table() == other.table()
+    }
+}
+
+impl serde::Serialize for SourceSpec {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        self.table().serialize(serializer)
+    }
+}
+
+/// The paths of `key` that do not exist (with `inputs`), as [`Source::problems`] lists them.
+pub(crate) fn missing(key: &'static str, paths: &[PathBuf], inputs: bool) -> Vec<(&'static str, String)> {
+    let gone = paths.iter().filter(|p| inputs && !p.exists());
+    gone.map(|p| (key, format!("{} does not exist", p.display()))).collect()
+}
+
+/// As [`missing`], for a key that must name at least one path.
+pub(crate) fn required(key: &'static str, paths: &[PathBuf], inputs: bool) -> Vec<(&'static str, String)> {
+    let mut out = missing(key, paths, inputs);
+    if paths.is_empty() {
+        out.push((key, "empty".into()));
+    }
+    out
+}
+
+/// A pose-join tolerance out of its range, as [`Source::problems`] lists it.
+pub(crate) fn tolerance(ms: f64) -> Option<(&'static str, String)> {
+    (!(ms.is_finite() && ms >= 0.0)).then(|| ("tolerance_ms", format!("must be in [0, inf) ms; found {ms}")))
+}
+
+/// What a path given on the command line is: a source (its sessions, as it reads them), or
+/// one cloud file.
+#[derive(Clone, Debug)]
+pub enum Input {
+    /// A source, recognised by a kind of [`SOURCES`].
+    Source(Detected),
+    /// One cloud file.
+    Cloud(CloudFormat),
+}
+
+/// A path recognised as a source.
+#[derive(Clone, Debug)]
+pub struct Detected {
+    /// What the path is, in reports (`nclt session`, `ros1 bag`, `folder of clouds`).
+    pub what: &'static str,
+    /// The source reading it, at its kind's defaults.
+    pub source: SourceSpec,
+}
+
+impl Input {
+    /// Decides what `path` is: each kind of [`SOURCES`] in order, then a cloud file by its
+    /// extension.
+    pub fn detect(path: &Path) -> Result<Self, SourceError> {
+        if !path.exists() {
+            let source = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or folder");
+            return Err(SourceError::Io { path: path.to_owned(), source });
+        }
+        if let Some(d) = SOURCES.iter().find_map(|k| (k.detect)(path)) {
+            return Ok(Input::Source(d));
+        }
+        if path.is_dir() {
+            let kinds: Vec<&str> = SOURCES.iter().map(|k| k.reads).filter(|r| !r.is_empty()).collect();
+            let (last, rest) = kinds.split_last().expect("kinds");
+            return Err(SourceError::invalid(path, format!("no {} or {last} here", rest.join(", "))));
+        }
+        CloudFormat::of_path(path)
+            .map(Input::Cloud)
+            .ok_or_else(|| SourceError::UnknownFormat { path: path.to_owned() })
+    }
+
+    /// Its name in reports.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Input::Source(d) => d.what,
+            Input::Cloud(f) => f.name(),
+        }
+    }
+
+    /// The source that reads it, with `topic` for a message log; `None` for a cloud file.
+    pub fn source(&self, topic: Option<&str>) -> Option<SourceSpec> {
+        let Input::Source(d) = self else { return None };
+        match (d.source.get::<logs::LogSpec>(), topic) {
+            (Some(log), Some(t)) => {
+                Some(SourceSpec::new(logs::LogSpec { topic: Some(t.into()), ..log.clone() }))
+            }
+            _ => Some(d.source.clone()),
+        }
+    }
+}
+
+/// A single-cloud file format (`diagram --format`, a batch's `format`, detection by path).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum CloudFormat {
+    /// CSV with a header naming columns `x`, `y`, `z`.
+    Csv,
+    /// KITTI `.bin`: float32 x, y, z, reflectance.
+    Kitti,
+    /// NCLT `velodyne_sync` `.bin`: 8-byte records.
+    Nclt,
+    /// PCD (PCL): ascii, binary or binary_compressed.
+    Pcd,
+    /// PLY: ascii or binary, the vertices' x, y, z.
+    Ply,
+}
+
+impl CloudFormat {
+    /// The format a file name implies: `.csv`, `.pcd`, `.ply`; `.bin` under a `velodyne_sync`
+    /// folder is NCLT, any other `.bin` KITTI.
+    pub fn of_path(path: &Path) -> Option<Self> {
+        match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
+            "csv" => Some(CloudFormat::Csv),
+            "pcd" => Some(CloudFormat::Pcd),
+            "ply" => Some(CloudFormat::Ply),
+            "bin" => {
+                let parent = path.parent().and_then(|p| p.file_name()).and_then(|n| n.to_str());
+                Some(if parent == Some("velodyne_sync") { CloudFormat::Nclt } else { CloudFormat::Kitti })
+            }
+            _ => None,
+        }
+    }
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            CloudFormat::Csv => "csv cloud",
+            CloudFormat::Kitti => "kitti scan",
+            CloudFormat::Nclt => "nclt velodyne_sync scan",
+            CloudFormat::Pcd => "pcd cloud",
+            CloudFormat::Ply => "ply cloud",
+        }
+    }
+
+    /// Parses a format's name (`csv`, `kitti`, `nclt`, `pcd`, `ply`).
+    pub fn parse(name: &str) -> Option<Self> {
+        <Self as clap::ValueEnum>::from_str(name, true).ok()
     }
 }
 
@@ -359,8 +577,8 @@ pub(crate) fn read_cloud_file(
 ) -> Result<(Vec<Point>, u64), SourceError> {
     let format = match format {
         Some(f) => f,
-        None => match InputKind::detect(path)? {
-            InputKind::Cloud(f) => f,
+        None => match Input::detect(path)? {
+            Input::Cloud(f) => f,
             kind => {
                 return Err(SourceError::invalid(
                     path,
@@ -382,4 +600,57 @@ pub(crate) fn read_cloud_file(
         return Err(SourceError::NonFinite { path: path.to_owned(), index });
     }
     Ok((points, fingerprint))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every registered kind: a unique name, and an entry that reads back from the table it
+    /// writes (what the effective pipeline of an index records).
+    #[test]
+    fn every_kind_round_trips_through_its_table() {
+        let mut names: Vec<&str> = SOURCES.iter().map(|k| k.name).collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), SOURCES.len(), "kind names are unique");
+        let minimal = |kind: &str| -> toml::Table {
+            let key = match kind {
+                "nclt" => "sessions",
+                "kitti" => "sequences",
+                "rosbag" => "paths",
+                "mcap" => "files",
+                "clouds" => "folders",
+                "pointnetvlad" => "root",
+                other => panic!("kind `{other}` has no minimal entry in this test: add one"),
+            };
+            let value = if key == "root" {
+                toml::Value::String("/data".into())
+            } else {
+                toml::Value::Array(vec![toml::Value::String("/data/x".into())])
+            };
+            toml::Table::from_iter([(key.to_string(), value)])
+        };
+        for k in SOURCES {
+            let spec = k.parse(&minimal(k.name)).unwrap_or_else(|e| panic!("{}: {e:?}", k.name));
+            assert_eq!(spec.kind(), k.name);
+            let mut table = spec.table();
+            assert_eq!(table.remove("kind"), Some(toml::Value::String(k.name.into())));
+            let again = k.parse(&table).unwrap_or_else(|e| panic!("{}: {e:?}", k.name));
+            assert_eq!(again, spec, "{}", k.name);
+            let unknown = toml::Table::from_iter([("no_such_key".to_string(), toml::Value::Integer(1))]);
+            let mut bad = minimal(k.name);
+            bad.extend(unknown);
+            assert!(k.parse(&bad).unwrap_err().message.contains("no_such_key"), "{}", k.name);
+        }
+    }
+
+    #[test]
+    fn cloud_formats_parse_by_name() {
+        for f in [CloudFormat::Csv, CloudFormat::Kitti, CloudFormat::Nclt, CloudFormat::Pcd, CloudFormat::Ply]
+        {
+            let name = clap::ValueEnum::to_possible_value(&f).unwrap().get_name().to_string();
+            assert_eq!(CloudFormat::parse(&name), Some(f));
+        }
+    }
 }

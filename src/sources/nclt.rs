@@ -94,6 +94,89 @@ pub(crate) fn is_session(dir: &Path) -> bool {
     dir.join("velodyne_sync").is_dir() || dir.join("velodyne_hits.bin").is_file()
 }
 
+impl super::Kind for NcltSpec {
+    const NAME: &'static str = "nclt";
+    const READS: &'static str = "NCLT session";
+
+    fn detect(path: &Path) -> Option<super::Detected> {
+        let (what, spec) = if path.is_dir() && is_session(path) {
+            ("nclt session", NcltSpec::sessions(vec![path.to_owned()]))
+        } else if path.is_dir()
+            && std::fs::read_dir(path).is_ok_and(|e| e.flatten().any(|c| is_session(&c.path())))
+        {
+            ("nclt sessions", NcltSpec::sessions(vec![path.to_owned()]))
+        } else if path.is_file() && path.file_name().is_some_and(|n| n == "velodyne_hits.bin") {
+            let dir = path.parent().unwrap_or(Path::new(".")).to_owned();
+            ("nclt velodyne_hits", NcltSpec { reader: NcltReader::Hits, ..NcltSpec::sessions(vec![dir]) })
+        } else {
+            return None;
+        };
+        Some(super::Detected { what, source: super::SourceSpec::new(spec) })
+    }
+}
+
+impl super::Source for NcltSpec {
+    fn kind(&self) -> &'static str {
+        <Self as super::Kind>::NAME
+    }
+
+    fn keys(&self) -> toml::Table {
+        toml::Table::try_from(self).expect("plain data")
+    }
+
+    fn problems(&self, inputs: bool) -> Vec<(&'static str, String)> {
+        let mut out = super::required("sessions", &self.sessions, inputs);
+        out.extend(super::missing("groundtruth", self.groundtruth.as_slice(), inputs));
+        if let Some(p) = self.hits_period_ms.filter(|p| !(p.is_finite() && *p > 0.0)) {
+            out.push(("hits_period_ms", format!("must be in (0, inf) ms; found {p}")));
+        }
+        out.extend(super::tolerance(self.tolerance_ms));
+        out
+    }
+
+    fn open(&self) -> Result<ScanStream, SourceError> {
+        NcltSpec::open(self)
+    }
+
+    fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError> {
+        let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        Ok(self.session_dirs()?.into_iter().map(|d| (name(&d), d)).collect())
+    }
+
+    fn narrowed(&self, places: Vec<PathBuf>) -> Option<Box<dyn super::Source>> {
+        Some(Box::new(NcltSpec { sessions: places, ..self.clone() }))
+    }
+
+    fn count_hint(&self) -> Option<u64> {
+        if self.reader != NcltReader::Sync {
+            return None;
+        }
+        let dirs = self.session_dirs().ok()?;
+        dirs.iter()
+            .map(|d| super::list_files(&d.join("velodyne_sync"), "bin").ok().map(|f| f.len() as u64))
+            .sum()
+    }
+
+    fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
+        self.sessions.iter_mut().chain(self.groundtruth.iter_mut()).collect()
+    }
+
+    fn overview(&self) -> Result<Vec<String>, SourceError> {
+        Ok(match self.reader {
+            NcltReader::Sync => vec![format!("sessions: {}", self.session_dirs()?.len())],
+            NcltReader::Hits => Vec::new(),
+        })
+    }
+
+    fn boxed(&self) -> Box<dyn super::Source> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 impl NcltSpec {
     /// A spec for given session folders with defaults.
     pub fn sessions(sessions: Vec<PathBuf>) -> Self {

@@ -69,6 +69,55 @@ pub struct Run {
     pub csv: PathBuf,
 }
 
+impl super::Kind for PointNetVladSpec {
+    const NAME: &'static str = "pointnetvlad";
+    const READS: &'static str = "";
+
+    /// Only by a pipeline file: the benchmark's folder is not recognised on the command line.
+    fn detect(_: &Path) -> Option<super::Detected> {
+        None
+    }
+}
+
+impl super::Source for PointNetVladSpec {
+    fn kind(&self) -> &'static str {
+        <Self as super::Kind>::NAME
+    }
+
+    fn keys(&self) -> toml::Table {
+        toml::Table::try_from(self).expect("plain data")
+    }
+
+    fn problems(&self, inputs: bool) -> Vec<(&'static str, String)> {
+        super::missing("root", std::slice::from_ref(&self.root), inputs)
+    }
+
+    fn open(&self) -> Result<ScanStream, SourceError> {
+        PointNetVladSpec::open(self)
+    }
+
+    fn sessions(&self) -> Result<Vec<(String, PathBuf)>, SourceError> {
+        Ok(self.runs()?.into_iter().map(|r| (r.name, r.dir)).collect())
+    }
+
+    /// Runs are named by their set and folder: the stream is filtered instead.
+    fn narrowed(&self, _: Vec<PathBuf>) -> Option<Box<dyn super::Source>> {
+        None
+    }
+
+    fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
+        vec![&mut self.root]
+    }
+
+    fn boxed(&self) -> Box<dyn super::Source> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 impl PointNetVladSpec {
     /// The sets asked for, checked.
     fn layouts(&self) -> Result<Vec<(&'static str, &'static Layout)>, SourceError> {

@@ -185,7 +185,7 @@ pub fn folder_channels(dir: &Path) -> Result<Vec<ChannelInfo>, String> {
                 }
                 seen
             }
-            ("mcap", _) => super::mcap::channels(file).map_err(|e| e.to_string())?,
+            ("mcap", _) => super::mcap_reader::channels(file).map_err(|e| e.to_string())?,
             _ => sqlite3_channels(&open_sqlite(file)?)?,
         };
         for c in channels {

@@ -1,7 +1,7 @@
 //! Committed parts checked before use.
 //!
 //! The manifest records every committed part's size and xxh3-64. A reader takes a part's bytes
-//! whole ([`checked_bytes`]), compares them with that record, and decodes only those bytes,
+//! whole (`checked_bytes`), compares them with that record, and decodes only those bytes,
 //! never the file a second time: what it answers from is exactly what was committed. (The
 //! Parquet files carry no page checksums of their own, so this is the only guard.)
 //!

@@ -66,7 +66,7 @@ impl Holdings {
     }
 }
 
-/// `parts` with the scans each held filled in (see [`Holdings::held`]), read from the intact
+/// `parts` with the scans each held filled in (see `Holdings::held`), read from the intact
 /// parts of their indexes.
 pub fn held_scans(parts: Vec<DamagedPart>) -> Result<Vec<DamagedPart>> {
     let mut holdings: HashMap<PathBuf, Holdings> = HashMap::new();
