@@ -20,15 +20,18 @@ use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `toporec import`.
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct ImportArgs {
     /// The index.
+    #[arg(long)]
     pub index: PathBuf,
     /// The method's name (letters, digits, `_`, `-`; not one of toporec's own methods).
+    #[arg(long)]
     pub method: String,
     /// The vectors: `.parquet`, `.npy` (with `--ids`) or `.csv`.
     pub file: PathBuf,
     /// For `.npy`: the scan ids, one per line, in row order.
+    #[arg(long)]
     pub ids: Option<PathBuf>,
 }
 

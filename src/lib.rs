@@ -70,6 +70,7 @@ pub mod pipeline;
 pub mod plot;
 pub mod preprocess;
 pub mod query;
+pub mod ranges;
 pub mod repair;
 pub mod rng;
 pub mod search;

@@ -8,6 +8,7 @@ use crate::methods::TOPOREC;
 use crate::offline::CodebookArgs;
 use crate::pipeline::config::{Pipeline, dims_needed};
 use crate::pipeline::{RunOptions, fit_on_stored, stored_descriptors};
+use crate::ranges;
 use crate::sinks::index::IndexWriter;
 use crate::sinks::index::manifest::{Manifest, file_checksum};
 use crate::sinks::index::reader::{read_scans, scan_ids};
@@ -19,15 +20,19 @@ use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 /// Arguments of `toporec revectorize`.
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct RevectorizeArgs {
     /// The index.
+    #[arg(long)]
     pub index: PathBuf,
     /// Use this saved codebook (else fit one on the stored diagrams with the settings below).
+    #[arg(long, conflicts_with_all = ["b", "dims", "contrast", "weighting", "kmeans", "sample_size", "seed"])]
     pub codebook: Option<PathBuf>,
     /// The settings of the codebook to fit.
+    #[command(flatten)]
     pub fit: CodebookArgs,
     /// Worker threads, [1, ∞) (default: all cores).
+    #[arg(long, short, value_parser = ranges::count)]
     pub threads: Option<usize>,
 }
 

@@ -7,6 +7,7 @@ use crate::diagram_csv;
 use crate::error::{Error, Result, ResultExt};
 use crate::fsutil::AtomicFile;
 use crate::homology::Diagram;
+use crate::ranges;
 use crate::sinks::csv::field as csv_field;
 use crate::sinks::index::IndexReader;
 use crate::sinks::parquet::{DescriptorRow, DescriptorsFile};
@@ -17,42 +18,56 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `toporec fit`.
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct FitArgs {
     /// Diagram CSV files (dim,birth,death) as `toporec diagram` writes them, or index folders
     /// (their diagrams tables).
+    #[arg(required_unless_present = "pipeline", conflicts_with = "pipeline")]
     pub diagrams: Vec<PathBuf>,
     /// Where to write the codebook (JSON).
+    #[arg(long, short, required_unless_present = "pipeline")]
     pub out: Option<PathBuf>,
     /// Instead of diagram files: fit the pipeline's codebook (its `[vectorize]` settings) on a
     /// sample of its scans and freeze it in its index, before a sharded run.
+    #[arg(long, requires = "sample")]
     pub pipeline: Option<PathBuf>,
     /// With --pipeline: the fraction of scans, (0, 1], chosen by a hash of the scan id.
+    #[arg(long, requires = "pipeline")]
     pub sample: Option<f64>,
     /// With --pipeline: the index to freeze the codebook in (default: the file's).
+    #[arg(long, requires = "pipeline")]
     pub index: Option<PathBuf>,
     /// The codebook's settings.
+    #[command(flatten)]
     pub codebook: CodebookArgs,
     /// Record that the diagrams are in radii, not squared radii.
+    #[arg(long)]
     pub radius: bool,
 }
 
 /// How to fit a codebook (`toporec fit`, `toporec revectorize`).
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct CodebookArgs {
     /// Centres per codebook (the descriptor length per part): [1, 100000].
+    #[arg(long, short, default_value_t = 50, value_parser = ranges::centres)]
     pub b: usize,
     /// `paper` (H2, else H1, else H0) or a list like `0,1,2` (one codebook per dimension).
+    #[arg(long, default_value = "paper", value_parser = DimSelection::parse)]
     pub dims: DimSelection,
     /// ATOL contrast: gaussian, laplacian or indicator.
+    #[arg(long, value_enum, default_value = "laplacian")]
     pub contrast: Contrast,
     /// ATOL weighting: cloud (sum) or iidproba (mean).
+    #[arg(long, value_enum, default_value = "cloud")]
     pub weighting: Weighting,
     /// The quantiser.
+    #[arg(long, value_enum, default_value = "minibatch")]
     pub kmeans: Algorithm,
     /// Points kept (uniform sample) per codebook for fitting: [1, ∞).
+    #[arg(long, default_value_t = 100_000, value_parser = ranges::count)]
     pub sample_size: usize,
     /// Seed of sampling and k-means.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
 
@@ -73,14 +88,17 @@ impl CodebookArgs {
 }
 
 /// Arguments of `toporec vectorize`.
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct VectorizeArgs {
     /// Diagram CSV files or index folders.
+    #[arg(required = true)]
     pub diagrams: Vec<PathBuf>,
     /// The codebook (JSON from `toporec fit`).
+    #[arg(long, short)]
     pub codebook: PathBuf,
     /// Output: `*.parquet` for a descriptors table (the index's schema), else CSV
     /// `diagram,dim_used,v1..vb` (default stdout).
+    #[arg(long, short)]
     pub out: Option<PathBuf>,
 }
 

@@ -7,6 +7,7 @@
 use crate::describe::DescribeError;
 use crate::error::{Error, Result, ResultExt};
 use crate::methods::{Hit, Method};
+use crate::ranges;
 use crate::search::{Engine, StepTimes, step_summary};
 use crate::sinks::csv;
 use crate::sinks::index::IndexedScan;
@@ -18,23 +19,33 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Arguments of `toporec query`.
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct QueryArgs {
     /// The index to search.
+    #[arg(long)]
     pub index: PathBuf,
-    /// Query inputs: cloud files, MCAPs, NCLT sessions, KITTI sequences.
+    /// Query inputs: cloud files (csv, bin, pcd, ply), MCAPs, ROS 1 bags, rosbag2 folders, NCLT
+    /// sessions, KITTI sequences.
+    #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// Neighbours per query: [1, ∞), clamped to the database size.
+    #[arg(short, default_value_t = 25, value_parser = ranges::count)]
     pub k: usize,
     /// The descriptor method to search with (one the index holds; `toporec info` lists them).
+    #[arg(long, default_value = crate::methods::TOPOREC)]
     pub method: String,
     /// Database sessions (default: all).
+    #[arg(long = "session")]
     pub sessions: Vec<String>,
-    /// MCAP topic.
+    /// The point-cloud topic of an MCAP or bag (default: its only one).
+    #[arg(long)]
     pub topic: Option<String>,
-    /// Answer from the intact parts when some part fails its checksum (the command names them).
+    /// Answer from the intact parts when some part of the index fails its checksum: every
+    /// damaged part and the scans it held are named, and the command exits 1.
+    #[arg(long)]
     pub skip_damaged: bool,
     /// Output CSV (default stdout).
+    #[arg(long, short)]
     pub out: Option<PathBuf>,
 }
 

@@ -10,24 +10,31 @@
 //! time). Nothing is written over: an output session folder that exists is an error.
 
 use crate::error::{Error, Result, ResultExt};
+use crate::ranges;
 use std::path::{Path, PathBuf};
 
 /// What `toporec split` is asked.
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct SplitArgs {
-    /// The NCLT session folder (holding `velodyne_sync/`).
+    /// The NCLT session folder (holding velodyne_sync/).
     pub session: PathBuf,
-    /// Every this-many-th scan goes to the map (at least 2).
+    /// Every this-many-th scan goes to the map session, the others to the query session: [2, 10⁶].
+    #[arg(long, default_value_t = 3, value_parser = |s: &str| ranges::count_within(s, 2, 1_000_000))]
     pub every: usize,
-    /// The position of the first map scan, in `0..every`.
+    /// The position of the first map scan, in [0, every).
+    #[arg(long, default_value_t = 0)]
     pub first: usize,
-    /// The names of the map and query sessions.
-    pub names: (String, String),
-    /// The drive's ground truth (default: found beside the session as the NCLT source finds it).
+    /// The names of the map and the query sessions.
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values = ["map", "query"])]
+    pub names: Vec<String>,
+    /// The drive's ground truth (default: `groundtruth_<session>.csv` found beside the session).
+    #[arg(long)]
     pub groundtruth: Option<PathBuf>,
-    /// Copy the scan files instead of linking them.
+    /// Copy the scan files (default: absolute symbolic links to them).
+    #[arg(long)]
     pub copy: bool,
     /// The folder the two sessions are written into.
+    #[arg(long, short)]
     pub out: PathBuf,
 }
 
@@ -58,12 +65,16 @@ pub fn split(a: &SplitArgs) -> Result<SplitReport> {
             a.every, a.first
         )));
     }
-    if a.names.0 == a.names.1
-        || [&a.names.0, &a.names.1].iter().any(|n| n.is_empty() || n.contains(['/', '\\']))
-    {
+    let [map, query] = a.names.as_slice() else {
+        return Err(Error::invalid(format!(
+            "--names: two names (the map's, the query's), found {:?}",
+            a.names
+        )));
+    };
+    if map == query || [map, query].iter().any(|n| n.is_empty() || n.contains(['/', '\\'])) {
         return Err(Error::invalid(format!(
             "session names {:?} and {:?}: two different names, no slashes",
-            a.names.0, a.names.1
+            map, query
         )));
     }
     let scans_dir = a.session.join("velodyne_sync");
@@ -95,7 +106,7 @@ pub fn split(a: &SplitArgs) -> Result<SplitReport> {
     };
     let truth = std::fs::read(&groundtruth).at(&groundtruth)?;
     let mut counts = [0usize; 2];
-    let outs = [&a.names.0, &a.names.1].map(|name| a.out.join(name));
+    let outs = [map, query].map(|name| a.out.join(name));
     for dir in &outs {
         if dir.exists() {
             return Err(Error::invalid(format!("{}: exists; split into a new folder", dir.display())));
@@ -109,7 +120,7 @@ pub fn split(a: &SplitArgs) -> Result<SplitReport> {
         let to = outs[which].join("velodyne_sync").join(path.file_name().expect("a file"));
         place(path, &to, a.copy)?;
     }
-    for name in [&a.names.0, &a.names.1] {
+    for name in [map, query] {
         let to = a.out.join(format!("groundtruth_{name}.csv"));
         crate::fsutil::write_atomic(&to, &truth)?;
     }

@@ -4,7 +4,8 @@
 //! output pipe ends a command quietly.
 
 mod args;
-mod ranges;
+
+use args::*;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
@@ -42,10 +43,10 @@ enum Command {
     /// Run a pipeline file: sources → preprocess → persistence → vectorize → Parquet index.
     Run(RunArgs),
     /// Find the k nearest indexed scans of new scans (files, MCAPs, sessions, sequences).
-    Query(args::QueryArgs),
+    Query(QueryArgs),
     /// Loop closures of an index: each scan's best match among the earlier scans (its own
     /// session's recent ones left out), accepted below a threshold; Parquet or CSV.
-    Loops(args::LoopsArgs),
+    Loops(toporec::loops::LoopsArgs),
     /// Evaluate place recognition on indexes (Recall@N, Recall@1%), with a JSON report and plots.
     #[command(subcommand)]
     Eval(EvalCommand),
@@ -55,10 +56,10 @@ enum Command {
     /// Check a pipeline file (every error at once, with key paths) without reading data.
     Validate(ValidateArgs),
     /// Generate multi-session LiDAR drives through a procedural town (NCLT, MCAP, KITTI files).
-    Simulate(args::SimulateArgs),
+    Simulate(SimulateArgs),
     /// Split one NCLT session into a map session (every Nth scan) and a query session (the
     /// others), to measure fine localization along one drive.
-    Split(args::SplitArgs),
+    Split(toporec::split::SplitArgs),
     /// Write the Parquet table schemas and the report's JSON Schema (what `schemas/` holds).
     #[command(hide = true)]
     Schemas(SchemasArgs),
@@ -67,12 +68,12 @@ enum Command {
     /// Describe what a file or folder holds (format, scans, topics, points, time span, poses).
     Inspect(InspectArgs),
     /// Fit an ATOL codebook on diagram CSV files or index folders and save it as JSON.
-    Fit(args::FitArgs),
+    Fit(FitArgs),
     /// Turn diagram CSV files or index folders into descriptors with a saved codebook.
-    Vectorize(args::VectorizeArgs),
+    Vectorize(VectorizeArgs),
     /// Rebuild an index's descriptors from its stored diagrams with a new codebook (no source
     /// is read, no persistence computed), switching to it atomically.
-    Revectorize(args::RevectorizeArgs),
+    Revectorize(RevectorizeArgs),
     /// Merge an index's small part files (left by chunked commits) into one per partition.
     Compact(IndexArgs),
     /// What an index holds: sessions with scans per status, descriptor methods, generation,
@@ -83,108 +84,19 @@ enum Command {
     Verify(VerifyArgs),
     /// Store descriptors made elsewhere (Parquet, .npy with scan ids, CSV) as one more method
     /// of an index, matched to its scans by id.
-    Import(args::ImportArgs),
+    Import(toporec::import::ImportArgs),
     /// Rebuild the parts of an index that fail their checksums, from its stored diagrams and
     /// its pipeline's sources, in one commit; scans whose source is gone or changed are named.
     Repair(RepairArgs),
-}
-
-/// Arguments of `toporec repair`.
-#[derive(clap::Args, Debug)]
-struct RepairArgs {
-    /// The index.
-    #[arg(long)]
-    index: PathBuf,
-    /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = ranges::count)]
-    threads: Option<usize>,
-}
-
-/// An index folder.
-#[derive(clap::Args, Debug)]
-struct IndexArgs {
-    /// The index.
-    #[arg(long)]
-    index: PathBuf,
-}
-
-/// Arguments of `toporec info`.
-#[derive(clap::Args, Debug)]
-struct InfoArgs {
-    /// The index.
-    #[arg(long)]
-    index: PathBuf,
-    /// Print as JSON.
-    #[arg(long, conflicts_with = "files")]
-    json: bool,
-    /// Print the committed files (absolute paths, one per line) instead: all of them, or
-    /// those of one table (`scans`, `diagrams`, `descriptors`).
-    #[arg(long, value_name = "TABLE", num_args = 0..=1, default_missing_value = "")]
-    files: Option<String>,
-    /// With `--files descriptors`: only this method's files.
-    #[arg(long, requires = "files")]
-    method: Option<String>,
-    /// Count the scans of the intact parts when some part fails its checksum (each damaged
-    /// part named; exit 1).
-    #[arg(long)]
-    skip_damaged: bool,
-}
-
-/// Arguments of `toporec verify`.
-#[derive(clap::Args, Debug)]
-struct VerifyArgs {
-    /// The index.
-    #[arg(long)]
-    index: PathBuf,
-    /// Report part files no commit names (a writer at work, or killed) as notes, not problems.
-    #[arg(long)]
-    allow_orphans: bool,
-}
-
-/// Arguments of `toporec run`.
-#[derive(clap::Args, Debug)]
-struct RunArgs {
-    /// The pipeline file (TOML).
-    #[arg(default_value = "pipelines/sample.toml")]
-    pipeline: PathBuf,
-    /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = ranges::count)]
-    threads: Option<usize>,
-    /// Write the index here instead of the file's `output.index`.
-    #[arg(long)]
-    index: Option<PathBuf>,
-    /// No progress bar or progress lines.
-    #[arg(long)]
-    no_progress: bool,
-    /// Also write the run's summary as JSON (counts, wall and CPU seconds per stage) here.
-    #[arg(long)]
-    summary_json: Option<PathBuf>,
-    /// Rebuild the index from scratch (needed when preprocess or persistence settings change).
-    #[arg(long)]
-    full: bool,
-    /// Remove indexed scans this run's sources no longer yield (without it they are kept and
-    /// reported).
-    #[arg(long)]
-    prune: bool,
-    /// Commit after this many scans: [1, ∞).
-    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(1..))]
-    commit_every: u64,
-    /// Commit after this many seconds: (0, ∞).
-    #[arg(long, default_value_t = 60.0, value_parser = ranges::positive)]
-    commit_seconds: f64,
-    /// Index only shard I of N (I from 0: `0/4` .. `3/4`), then merge it into the index; the
-    /// shards of one job may run at once. Needs the index's codebook (`toporec fit --pipeline`).
-    #[arg(long, value_parser = toporec::pipeline::Shard::parse)]
-    shard: Option<toporec::pipeline::Shard>,
 }
 
 /// `toporec eval` protocols.
 #[derive(Subcommand, Debug)]
 enum EvalCommand {
     /// Database scans vs query scans, true matches within R metres, under conditions.
-    Places(Box<args::PlacesArgs>),
+    Places(Box<PlacesArgs>),
     /// The paper's object protocol: perturbed index scans must find themselves.
-    Perturbation(args::PerturbationArgs),
+    Perturbation(PerturbationArgs),
 }
 
 /// `toporec plot` kinds.
@@ -192,64 +104,6 @@ enum EvalCommand {
 enum PlotCommand {
     /// The persistence diagram of one indexed scan (PNG + SVG).
     Diagram(PlotDiagramArgs),
-}
-
-/// Arguments of `toporec plot diagram`.
-#[derive(clap::Args, Debug)]
-struct PlotDiagramArgs {
-    /// The index.
-    #[arg(long)]
-    index: PathBuf,
-    /// The scan id.
-    #[arg(long)]
-    scan: String,
-    /// Output file stem (default: `diagram_<scan id>` in the current folder).
-    #[arg(long, short)]
-    out: Option<PathBuf>,
-}
-
-/// Arguments of `toporec validate`.
-#[derive(clap::Args, Debug)]
-struct ValidateArgs {
-    /// The pipeline file (TOML).
-    pipeline: PathBuf,
-}
-
-/// Arguments of `toporec schemas`.
-#[derive(clap::Args, Debug)]
-struct SchemasArgs {
-    /// Folder to write `<table>.json` into.
-    dir: PathBuf,
-}
-
-/// Arguments of `toporec inspect`.
-#[derive(clap::Args, Debug)]
-struct InspectArgs {
-    /// A cloud file, an MCAP, an NCLT session (or folder of sessions), a KITTI sequence.
-    path: PathBuf,
-}
-
-/// Arguments of `toporec diagram`.
-#[derive(clap::Args, Debug)]
-struct DiagramArgs {
-    /// The cloud: .csv (header x,y,z), KITTI .bin, NCLT velodyne_sync .bin, .pcd, .ply; or a
-    /// message log (MCAP, ROS 1 bag, rosbag2 folder or .db3) with --index.
-    cloud: PathBuf,
-    /// Dimensions to print, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
-    dims: Vec<u8>,
-    /// Print radii instead of squared radii (GUDHI's output_squared_values=False).
-    #[arg(long)]
-    radius: bool,
-    /// The file format; detected from the path when omitted (MCAP by its magic).
-    #[arg(long, value_enum)]
-    format: Option<toporec::sources::CloudFormat>,
-    /// MCAP or bag: the Nth point-cloud message (0-based) of the topic.
-    #[arg(long, default_value_t = 0)]
-    index: u64,
-    /// MCAP or bag: the topic (default: its only point-cloud topic).
-    #[arg(long)]
-    topic: Option<String>,
 }
 
 /// How a command ended, when it did not fail.
@@ -279,12 +133,12 @@ pub fn main() -> ExitCode {
         Command::Run(args) => run(args),
         Command::Validate(args) => validate(args).map(|()| Done::All),
         Command::Schemas(args) => schemas(args).map(|()| Done::All),
-        Command::Query(args) => query(args.into()),
-        Command::Eval(EvalCommand::Places(a)) => places((*a).into()),
-        Command::Eval(EvalCommand::Perturbation(a)) => perturbation(a.into()),
+        Command::Query(args) => query(args),
+        Command::Eval(EvalCommand::Places(a)) => places(*a),
+        Command::Eval(EvalCommand::Perturbation(a)) => perturbation(a),
         Command::Plot(PlotCommand::Diagram(a)) => plot_diagram(a).map(|()| Done::All),
-        Command::Simulate(args) => simulate(args.into()).map(|()| Done::All),
-        Command::Split(args) => toporec::split::split(&args.into())
+        Command::Simulate(args) => simulate(args).map(|()| Done::All),
+        Command::Split(args) => toporec::split::split(&args)
             .map_err(Into::into)
             .and_then(|r| print(&format!("{r}\n")))
             .map(|()| Done::All),
@@ -293,14 +147,14 @@ pub fn main() -> ExitCode {
             .map_err(Into::into)
             .and_then(|r| print(&r))
             .map(|()| Done::All),
-        Command::Fit(args) => fit(args.into()).map(|()| Done::All),
-        Command::Vectorize(args) => vectorize(args.into()).map(|()| Done::All),
-        Command::Revectorize(args) => revectorize(args.into()).map(|()| Done::All),
+        Command::Fit(args) => fit(args).map(|()| Done::All),
+        Command::Vectorize(args) => vectorize(args).map(|()| Done::All),
+        Command::Revectorize(args) => revectorize(args).map(|()| Done::All),
         Command::Compact(args) => compact(args).map(|()| Done::All),
         Command::Verify(args) => verify(args),
         Command::Info(args) => info(args),
-        Command::Import(args) => import(args.into()).map(|()| Done::All),
-        Command::Loops(args) => loops(args.into()),
+        Command::Import(args) => import(args).map(|()| Done::All),
+        Command::Loops(args) => loops(args),
         Command::Repair(args) => repair(args),
     };
     match result {

@@ -31,6 +31,7 @@ macro_rules! line {
 
 use crate::error::{Error, Result, ResultExt};
 use crate::methods::{Method, MethodKind, TOPOREC};
+use crate::ranges;
 use crate::rng::SplitMix64;
 use crate::search::{Engine, StepTimes, index_methods, step_stats, step_summary};
 use metrics::{Denominator, first_hit, one_percent_k, recall};
@@ -183,23 +184,30 @@ impl Perturbation {
 }
 
 /// Settings of `eval perturbation` (its command-line arguments).
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct PerturbationArgs {
     /// The index.
+    #[arg(long)]
     pub index: PathBuf,
     /// Share of the scans used as queries: (0, 1].
+    #[arg(long, default_value_t = 0.2, value_parser = ranges::fraction)]
     pub fraction: f64,
     /// Seed of the choice and of the jitter.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Largest N of Recall@N: [1, ∞), clamped to the database size.
+    #[arg(long, default_value_t = 25, value_parser = ranges::count)]
     pub max_n: usize,
     /// Descriptor methods to compare (repeatable; default: every method the index holds that
     /// can describe a scan, i.e. not imported ones).
+    #[arg(long = "method")]
     pub methods: Vec<String>,
     /// The search budget of every method: `default`, `exhaustive` or `matched:N` (see
     /// `eval places --help`).
+    #[arg(long, default_value = "default")]
     pub search: crate::methods::SearchBudget,
     /// Output folder.
+    #[arg(long, short)]
     pub out: PathBuf,
 }
 

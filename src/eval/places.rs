@@ -30,6 +30,7 @@ use super::{Curve, chosen_methods, clamp_max_n, file_names, names, timing_of};
 use crate::error::{Error, Result, ResultExt};
 use crate::methods::Hit;
 use crate::methods::TOPOREC;
+use crate::ranges;
 use crate::search::{Engine, Loaded, StepTimes, load_method, step_summary};
 use crate::sinks::index::IndexedScan;
 use crate::sinks::index::damage::{Damage, DamagedPart};
@@ -48,65 +49,85 @@ macro_rules! line {
 }
 
 /// Settings of `eval places` (its command-line arguments).
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct PlacesArgs {
     /// The database index.
+    #[arg(long)]
     pub db: PathBuf,
     /// Database sessions (repeatable; default all).
+    #[arg(long = "db-session")]
     pub db_sessions: Vec<String>,
     /// The query index (default: the database index; must share its codebook).
+    #[arg(long)]
     pub queries: Option<PathBuf>,
     /// Query sessions (repeatable; default all).
+    #[arg(long = "query-session")]
     pub query_sessions: Vec<String>,
     /// Database scans: only those whose id matches one of these patterns (`*` any run of
     /// characters, `?` one, `[…]` one of; repeatable; default all).
+    #[arg(long = "db-scan")]
     pub db_scans: Vec<String>,
     /// Query scans likewise.
+    #[arg(long = "query-scan")]
     pub query_scans: Vec<String>,
     /// Poses of different sessions are in different frames (KITTI's sequences): a query's
     /// true matches, and its nearest database scan, are in its own session only.
+    #[arg(long)]
     pub within_session: bool,
     /// Revisit thresholds R (m), each in (0, ∞).
+    #[arg(long, value_delimiter = ',', default_value = "5,10,20,50", value_parser = ranges::positive)]
     pub thresholds: Vec<f64>,
     /// Largest N of Recall@N: [1, ∞), clamped to the database size.
+    #[arg(long, default_value_t = 25, value_parser = ranges::count)]
     pub max_n: usize,
     /// Keep a map scan only if farther than this (m, in (0, ∞)) from the last kept (RING).
+    #[arg(long, value_parser = ranges::positive)]
     pub map_every: Option<f64>,
     /// Same for query scans.
+    #[arg(long, value_parser = ranges::positive)]
     pub query_every: Option<f64>,
     /// Ignore database scans of the query's session closer in time than this (s, [0, ∞)); a
     /// query never retrieves itself.
+    #[arg(long, default_value_t = 0.0, value_parser = ranges::non_negative)]
     pub min_time_gap: f64,
     /// Conditions applied to each raw query scan before each method describes it
     /// (repeatable): as-recorded, yaw[=DEG], occlusion[=DEG], drop[=F], beams[=N],
     /// offset[=M], max-range[=M], paper. Default: as-recorded (the stored descriptors).
+    #[arg(long = "condition")]
     pub conditions: Vec<String>,
     /// Seed of the conditions' random choices (with each scan's id).
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Loop closure: an accepted top-1 within this many metres is a true positive, (0, ∞).
+    #[arg(long, default_value_t = 5.0, value_parser = ranges::positive)]
     pub revisit_radius: f64,
     /// Descriptor methods to compare (repeatable; default: every method both indexes hold).
+    #[arg(long = "method")]
     pub methods: Vec<String>,
     /// The search budget of every method: `default` (each method's own settings),
     /// `exhaustive` (every database entry re-ranked at every shift), or `matched:N` (N
     /// re-ranked candidates and shifts within ±3 sectors, for every method that has them).
+    #[arg(long, default_value = "default")]
     pub search: crate::methods::SearchBudget,
     /// The protocol: `places` (thresholds over poses, above), or `pointnetvlad` (the
     /// PointNetVLAD benchmark's test sets and metric, on an index of its submaps).
+    #[arg(long, value_enum, default_value = "places")]
     pub protocol: Protocol,
-    /// Leave out damaged parts of the indexes (named, with their scans, in the report), instead
-    /// of failing.
+    /// Answer from the intact parts when some part of the index fails its checksum: every
+    /// damaged part and the scans it held are named, and the command exits 1.
+    #[arg(long)]
     pub skip_damaged: bool,
     /// Output folder for report.json, report.txt and the plots.
+    #[arg(long, short)]
     pub out: PathBuf,
 }
 
 /// The protocols of `eval places`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Protocol {
     /// Database and query sessions, true matches within each threshold.
     Places,
-    /// The PointNetVLAD benchmark ([`super::pointnetvlad`]).
+    /// The PointNetVLAD benchmark (its own sets).
     Pointnetvlad,
 }
 

@@ -20,6 +20,7 @@ pub mod verify;
 pub use detector::{Detector, Match};
 
 use crate::error::{Error, Result, ResultExt};
+use crate::ranges;
 use crate::search::Engine;
 use crate::sinks::index::damage::Damage;
 use crate::sinks::index::reader::IndexedScan;
@@ -29,42 +30,63 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// What `toporec loops` is asked.
-#[derive(Clone, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct LoopsArgs {
     /// The index.
+    #[arg(long)]
     pub index: PathBuf,
-    /// The methods (default: every method of the index).
+    /// The descriptor methods (repeatable; default: every method of the index).
+    #[arg(long = "method")]
     pub methods: Vec<String>,
-    /// Same-session scans closer in time than this are not loops (seconds).
+    /// Same-session scans closer in time than this are not loops (seconds, ≥ 0).
+    #[arg(long, default_value_t = 30.0, value_parser = ranges::non_negative)]
     pub exclude_seconds: f64,
-    /// Same-session scans this many positions apart or fewer are not loops (instead of seconds).
+    /// Same-session scans this many positions apart or fewer are not loops (instead of
+    /// --exclude-seconds).
+    #[arg(long, conflicts_with = "exclude_seconds")]
     pub exclude_scans: Option<usize>,
-    /// The distance below which a match is a loop.
+    /// Matches with a descriptor distance below this are loops.
+    #[arg(long, value_parser = ranges::finite)]
     pub threshold: Option<f64>,
-    /// A calibration file (written by `--calibrate`) giving the threshold.
+    /// The thresholds of a calibration file (`--calibrate` writes it).
+    #[arg(long, conflicts_with = "threshold")]
     pub threshold_from: Option<PathBuf>,
-    /// Calibrate the threshold on the index's poses and write it.
+    /// Pick each method's threshold on the index's poses: the largest reaching
+    /// --target-precision; written to `<output stem>.calibration.json`.
+    #[arg(long, conflicts_with_all = ["threshold", "threshold_from"])]
     pub calibrate: bool,
-    /// The precision the calibrated threshold reaches.
+    /// The precision a calibrated threshold reaches, (0, 1].
+    #[arg(long, default_value_t = 0.99, value_parser = ranges::fraction)]
     pub target_precision: f64,
-    /// A match is true when its scans' poses are this close (m).
+    /// A match is true when its scans' poses are this close (m, > 0).
+    #[arg(long, default_value_t = 5.0, value_parser = ranges::positive)]
     pub revisit_radius: f64,
-    /// A match between the revisit radius and this distance (m) is neither true nor false (left
-    /// out of the scores); `None`: false beyond the radius.
+    /// A match farther than the revisit radius but within this (m) is neither true nor false:
+    /// left out of the scores (LoGG3D-Net's 3 m / 20 m band). Default: false beyond the radius.
+    #[arg(long, value_parser = ranges::positive)]
     pub false_beyond: Option<f64>,
-    /// Check each match below the threshold by aligning the two raw scans (ICP), keeping those
-    /// that pass these limits.
-    pub verify: Option<verify::Limits>,
-    /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines here.
+    /// Check each match below the threshold by aligning the two raw scans (point-to-plane ICP,
+    /// read again from the index's source files); keep those that pass the limits.
+    #[arg(long)]
+    pub verify: bool,
+    /// What a kept alignment must reach.
+    #[command(flatten)]
+    pub limits: verify::Limits,
+    /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines (with `--verify` and one --method).
+    #[arg(long)]
     pub g2o: Option<PathBuf>,
-    /// Write every scan's best match, accepted or not (default: the loops only).
+    /// No progress bar.
+    #[arg(long)]
+    pub no_progress: bool,
+    /// Write every scan's best match, accepted or not (an `accepted` column says which).
+    #[arg(long)]
     pub all: bool,
-    /// Progress bars on a terminal (searching, and aligning with `verify`).
-    pub progress: bool,
-    /// Leave out damaged parts of the index (named, with their scans, in the summary) instead
-    /// of failing.
+    /// Answer from the intact parts when some part of the index fails its checksum: every
+    /// damaged part and the scans it held are named, and the command exits 1.
+    #[arg(long)]
     pub skip_damaged: bool,
-    /// Output: `.parquet` or `.csv`.
+    /// Output: `.parquet` (zstd) or `.csv`.
+    #[arg(long, short, default_value = "loops.parquet")]
     pub out: PathBuf,
 }
 
@@ -487,7 +509,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
     } else {
         a.methods.clone()
     };
-    if a.g2o.is_some() && (a.verify.is_none() || methods.len() != 1) {
+    if a.g2o.is_some() && (!a.verify || methods.len() != 1) {
         return Err(Error::invalid(
             "--g2o: needs --verify (the relative pose comes from the alignment) and one --method".to_string(),
         ));
@@ -504,7 +526,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
         let engine = Engine::open_with(&a.index, &[], method, &damage)?;
         let queries = query_descriptors(&a.index, &engine, &damage)?;
         let rule = Allowed::new(&engine.scans, exclusion);
-        let bar = progress_bar(a.progress, engine.scans.len(), &format!("scans searched ({method})"));
+        let bar = progress_bar(!a.no_progress, engine.scans.len(), &format!("scans searched ({method})"));
         let matches = best_matches_counted(&engine, &queries, &rule, bar.as_ref());
         if let Some(b) = bar {
             b.finish_and_clear();
@@ -548,8 +570,8 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             r.accepted = r.distance < threshold;
         }
         let below_threshold = rows.iter().filter(|r| r.accepted).count();
-        if let Some(limits) = a.verify {
-            let checks = verify::check(&a.index, &rows, limits, a.progress, &damage)?;
+        if a.verify {
+            let checks = verify::check(&a.index, &rows, a.limits, !a.no_progress, &damage)?;
             for (r, c) in rows.iter_mut().zip(checks) {
                 r.check = c;
                 r.accepted &= c.is_some_and(|c| c.passed);
@@ -576,7 +598,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             revisits_found: rows.iter().filter(|r| r.accepted && is_true(r) && has_revisit(r)).count(),
             curve,
             auc,
-            verified: a.verify.map(|_| below_threshold),
+            verified: a.verify.then_some(below_threshold),
         });
         all_rows.extend(rows.into_iter().filter(|r| a.all || r.accepted));
     }

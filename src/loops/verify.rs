@@ -13,11 +13,13 @@ use std::io::Write;
 use std::path::Path;
 
 /// What a kept alignment must reach.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(clap::Args, Clone, Copy, Debug, PartialEq)]
 pub struct Limits {
-    /// The least share of the query's voxels paired with the match's.
+    /// `--verify`: the least share of the query's voxels the alignment pairs, [0, 1].
+    #[arg(long, default_value_t = 0.5, value_parser = crate::ranges::fraction, requires = "verify")]
     pub min_fitness: f64,
-    /// The largest point-to-plane RMSE (m).
+    /// `--verify`: the largest point-to-plane RMSE of the alignment (m, > 0).
+    #[arg(long, default_value_t = 0.15, value_parser = crate::ranges::positive, requires = "verify")]
     pub max_rmse: f64,
 }
 

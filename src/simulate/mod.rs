@@ -10,6 +10,7 @@
 pub mod scene;
 
 use crate::error::{Error, Result, ResultExt};
+use crate::ranges;
 use crate::rng::SplitMix64;
 use crate::sources::pointcloud2::{self, Encoding, PointCloud2, PointField, datatype};
 use rayon::prelude::*;
@@ -34,7 +35,7 @@ pub struct Sensor {
 }
 
 /// Sensor models.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum SensorModel {
     /// 32 beams, −30.67° to +10.67° (Velodyne HDL-32E, NCLT's sensor).
     Hdl32,
@@ -94,7 +95,7 @@ pub struct SimScan {
 }
 
 /// Output formats.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
     /// NCLT layout.
     Nclt,
@@ -155,47 +156,68 @@ impl Default for SimParams {
 }
 
 /// Arguments of `toporec simulate`.
-#[derive(Debug)]
+#[derive(clap::Args, Debug)]
 pub struct SimulateArgs {
     /// Output folder.
+    #[arg(long, short)]
     pub out: PathBuf,
     /// Formats to write.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "nclt")]
     pub format: Vec<Format>,
     /// Sessions (days) driving the same loop: [1, 1000].
+    #[arg(long, default_value_t = 2, value_parser = |s: &str| ranges::count_within(s, 1, 1000))]
     pub sessions: usize,
     /// Seed of the town, routes and noise.
+    #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Scans per session, [1, ∞) (default: one loop).
+    #[arg(long, value_parser = ranges::count)]
     pub scans: Option<usize>,
     /// Sensor model.
+    #[arg(long, value_enum, default_value = "hdl32")]
     pub sensor: SensorModel,
     /// Azimuth resolution (degrees): [0.01, 10].
+    #[arg(long, default_value_t = 0.2, value_parser = ranges::azimuth_resolution)]
     pub azimuth_res: f64,
     /// Driving speed (m/s): (0, ∞).
+    #[arg(long, default_value_t = 10.0, value_parser = ranges::positive)]
     pub speed: f64,
     /// Scan rate (Hz): (0, ∞).
+    #[arg(long, default_value_t = 10.0, value_parser = ranges::positive)]
     pub rate: f64,
     /// Blocks per side of the town: [1, 50].
+    #[arg(long, default_value_t = 3, value_parser = ranges::blocks)]
     pub blocks: usize,
     /// Street spacing (m): (20, 10000].
+    #[arg(long, default_value_t = 60.0, value_parser = ranges::block_size)]
     pub block_size: f64,
     /// Ground slope along x and y (dz/dx,dz/dy), each in [-1, 1].
+    #[arg(long, value_delimiter = ',', default_value = "0,0", value_parser = |s: &str| ranges::within(s, -1.0, 1.0))]
     pub slope: Vec<f64>,
     /// Odd sessions drive the loop in the opposite direction.
+    #[arg(long)]
     pub reverse: bool,
-    /// Laps per session, [1, 1000] (see [`SimParams::laps`]).
+    /// Laps of the loop per session, [1, 1000]: even laps (2nd, 4th…) the other way, each lap
+    /// `--lap-offset` metres further right, the parked cars moved between laps.
+    #[arg(long, default_value_t = 1, value_parser = |s: &str| ranges::count_within(s, 1, 1000))]
     pub laps: usize,
     /// Lateral offset of each lap from the one before (m), [-20, 20].
+    #[arg(long, default_value_t = 0.0, value_parser = |s: &str| ranges::within(s, -20.0, 20.0))]
     pub lap_offset: f64,
     /// Probability that a return is lost: [0, 1).
+    #[arg(long, default_value_t = 0.08, value_parser = ranges::probability)]
     pub dropout: f64,
     /// Maximum range (m): (0, 10000].
+    #[arg(long, default_value_t = 100.0, value_parser = |s: &str| ranges::within(s, f64::MIN_POSITIVE, 10_000.0))]
     pub max_range: f64,
     /// Range noise σ (m): [0, ∞).
+    #[arg(long, default_value_t = 0.02, value_parser = ranges::non_negative)]
     pub range_noise: f64,
     /// Sensor height above the ground (m): [-100, 100].
+    #[arg(long, default_value_t = 1.9, value_parser = |s: &str| ranges::within(s, -100.0, 100.0))]
     pub height: f64,
     /// Worker threads, [1, ∞) (default: all cores).
+    #[arg(long, short, value_parser = ranges::count)]
     pub threads: Option<usize>,
 }
 

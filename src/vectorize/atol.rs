@@ -11,7 +11,7 @@ use super::reservoir::Reservoir;
 pub use crate::types::Point2;
 
 /// The contrast function.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Contrast {
     /// `exp(−d² / σ²)`.
@@ -23,7 +23,7 @@ pub enum Contrast {
 }
 
 /// Per-point weights of a measure.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Weighting {
     /// Every point weighs 1 (a sum).

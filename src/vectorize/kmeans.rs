@@ -18,10 +18,11 @@ use crate::types::Point2;
 use rayon::prelude::*;
 
 /// Which k-means to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Algorithm {
     /// scikit-learn's `MiniBatchKMeans` (the paper's quantiser).
+    #[value(name = "minibatch")]
     MiniBatch,
     /// Full-batch Lloyd iterations.
     Lloyd,
