@@ -17,9 +17,7 @@ use crate::error::{Error, Result, ResultExt};
 use crate::pipeline::config::Pipeline;
 use crate::sinks::index::partition_dir;
 use crate::sinks::index::reader::IndexReader;
-use crate::sinks::parquet::{
-    DescriptorsFile, DiagramColumns, DiagramsFile, descriptor_columns, scan_columns,
-};
+use crate::sinks::parquet::{DescriptorsFile, DiagramRows, DiagramsFile, descriptor_batch, scan_batch};
 use crate::sinks::schema::{self, columns as C};
 use crate::sources::groundtruth::GroundTruth;
 use crate::sources::kitti::Sequence;
@@ -395,29 +393,30 @@ impl BatchDescriber {
     fn output(&self, results: &[ScanResult]) -> Result<BatchOutput> {
         let here = Path::new("describe_batch");
         let sessions = |ids: Vec<&str>| -> ArrayRef { Arc::new(StringArray::from(ids)) };
-        let with_session = |table: schema::Table, mut columns: Vec<ArrayRef>, session: ArrayRef| {
-            let mut fields: Vec<Field> =
-                table.columns.iter().map(|c| Field::new(c.name, c.data_type.clone(), c.nullable)).collect();
+        // A table's batch with the Hive partition column `session` appended.
+        let with_session = |batch: std::result::Result<RecordBatch, arrow::error::ArrowError>,
+                            session: ArrayRef| {
+            let batch = batch.at(here)?;
+            let mut fields: Vec<Field> = batch.schema().fields().iter().map(|f| (**f).clone()).collect();
             fields.push(Field::new(C::SESSION, DataType::Utf8, false));
+            let mut columns = batch.columns().to_vec();
             columns.push(session);
             RecordBatch::try_new(Arc::new(Schema::new(fields)), columns).at(here)
         };
         let rows: Vec<_> = results.iter().map(|r| r.row.clone()).collect();
         let scans = with_session(
-            schema::scans(),
-            scan_columns(&rows),
+            scan_batch(&rows, schema::scans().plain_schema()),
             sessions(rows.iter().map(|r| r.session.as_str()).collect()),
         )?;
-        let mut diagram_columns = DiagramColumns::default();
+        let mut diagram_rows = DiagramRows::new(schema::diagrams().plain_schema());
         let mut diagram_sessions = Vec::new();
         for r in results {
             if let Some(d) = &r.diagram {
-                let n = diagram_columns.push(&r.row.scan_id, d, &self.dims);
+                let n = diagram_rows.push(&r.row.scan_id, d, &self.dims);
                 diagram_sessions.extend(std::iter::repeat_n(r.row.session.as_str(), n));
             }
         }
-        let diagrams =
-            with_session(schema::diagrams(), diagram_columns.finish(), sessions(diagram_sessions))?;
+        let diagrams = with_session(diagram_rows.finish(), sessions(diagram_sessions))?;
         let mut per_method: Vec<(String, usize, String, Vec<_>, Vec<&str>)> = Vec::new();
         if let Some(cb) = &self.describer.codebook {
             let id = self.codebook_id.clone().unwrap_or_default();
@@ -436,10 +435,9 @@ impl BatchDescriber {
         }
         let mut descriptors = Vec::new();
         for (name, length, id, rows, row_sessions) in per_method {
-            let bytes = crate::methods::stores_bytes(&name);
-            let columns = descriptor_columns(&rows, length, &id, bytes);
-            let table = schema::descriptors_for(&name, length);
-            descriptors.push((name, with_session(table, columns, sessions(row_sessions))?));
+            let table = schema::descriptors_for(&name, length).plain_schema();
+            let batch = descriptor_batch(&rows, &name, length, &id, table);
+            descriptors.push((name, with_session(batch, sessions(row_sessions))?));
         }
         Ok(BatchOutput { scans, diagrams, descriptors })
     }

@@ -41,8 +41,7 @@ pub struct IndexInfo {
 /// One descriptor method of an index.
 #[derive(Clone, Debug, Serialize)]
 pub struct MethodInfo {
-    /// `toporec`, `scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`,
-    /// `lidar-iris`, `ring`, `toporec-plus` or `imported`.
+    /// `toporec`, a computed method's name ([`crate::methods::REGISTRY`]), or `imported`.
     pub kind: String,
     /// Descriptor length.
     pub length: usize,

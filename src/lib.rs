@@ -10,7 +10,7 @@
 //!  sources ──► preprocess ──► homology ──► vectorize ──┐
 //!  NCLT, MCAP,  crop, ground,  alpha        ATOL with a  ├─► describe ──► sinks ──► search ──► query, eval,
 //!  KITTI, CSV   voxel, sample  persistence  codebook     │   one scan's   Parquet   Engine      loops, batch
-//!       └──── raw scan ──► methods: toporec-plus, ScanContext(++), M2DP, SOLiD, LiDAR-Iris ┘
+//!       └──── raw scan ──► methods: toporec-plus and the baselines (methods::REGISTRY) ┘
 //! ```
 //!
 //! * [`sources`] decode scans from the files users have (a bad scan is a stream item, not an

@@ -10,13 +10,12 @@ use crate::methods::{Hit, Method};
 use crate::ranges;
 use crate::search::{Engine, StepTimes, step_summary};
 use crate::sinks::csv;
-use crate::sinks::index::IndexedScan;
+use crate::sinks::rows::RowBuilder;
 use crate::sources::{Input, Scan, ScanFailure, ScanStream, read_cloud_file};
-use arrow::array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt32Array};
+use arrow::array::RecordBatch;
 use rayon::prelude::*;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 /// Arguments of `toporec query`.
 #[derive(clap::Args, Clone, Debug)]
@@ -108,29 +107,30 @@ impl std::fmt::Display for QueryReport {
 /// of the `query` table ([`crate::sinks::schema::query_hits`]): `query`'s CSV and the Python
 /// package's Arrow table.
 pub fn hits_batch(engine: &Engine, answers: &[(&str, &[Hit])]) -> RecordBatch {
-    let rows: Vec<(&str, u32, &Hit)> = answers
-        .iter()
-        .flat_map(|(id, hits)| hits.iter().zip(1..).map(move |(h, rank)| (*id, rank, h)))
-        .collect();
-    let scans: Vec<&IndexedScan> = rows.iter().map(|r| &engine.scans[r.2.row]).collect();
-    let pose = |i: usize| -> ArrayRef {
-        Arc::new(Float64Array::from(scans.iter().map(|s| s.pose.map(|p| p[i])).collect::<Vec<_>>()))
-    };
-    let columns: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from(rows.iter().map(|r| r.0).collect::<Vec<_>>())),
-        Arc::new(UInt32Array::from(rows.iter().map(|r| r.1).collect::<Vec<_>>())),
-        Arc::new(StringArray::from(scans.iter().map(|s| s.scan_id.as_str()).collect::<Vec<_>>())),
-        Arc::new(StringArray::from(scans.iter().map(|s| s.session.as_str()).collect::<Vec<_>>())),
-        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.distance).collect::<Vec<_>>())),
-        pose(0),
-        pose(1),
-        pose(2),
-        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.yaw_degrees).collect::<Vec<_>>())),
-        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.offset.map(|o| o[0])).collect::<Vec<_>>())),
-        Arc::new(Float64Array::from(rows.iter().map(|r| r.2.offset.map(|o| o[1])).collect::<Vec<_>>())),
-    ];
-    RecordBatch::try_new(crate::sinks::schema::query_hits().plain_schema(), columns)
-        .expect("the columns of the query table")
+    use crate::sinks::schema::columns as C;
+    let mut b = RowBuilder::plain(&crate::sinks::schema::query_hits());
+    let [query, rank, scan, session, distance] =
+        ["query_id", "rank", C::SCAN_ID, C::SESSION, "distance"].map(|n| b.col(n));
+    let [x, y, z, yaw, x_m, y_m] =
+        [C::POSE_X, C::POSE_Y, C::POSE_Z, "yaw_deg", "x_m", "y_m"].map(|n| b.col(n));
+    for (id, hits) in answers {
+        for (h, r) in hits.iter().zip(1u64..) {
+            let s = &engine.scans[h.row];
+            b.text(query, Some(id))
+                .uint(rank, Some(r))
+                .text(scan, Some(&s.scan_id))
+                .text(session, Some(&s.session))
+                .float(distance, Some(h.distance))
+                .float(x, s.pose.map(|p| p[0]))
+                .float(y, s.pose.map(|p| p[1]))
+                .float(z, s.pose.map(|p| p[2]))
+                .float(yaw, h.yaw_degrees)
+                .float(x_m, h.offset.map(|o| o[0]))
+                .float(y_m, h.offset.map(|o| o[1]))
+                .end_row();
+        }
+    }
+    b.finish().expect("the columns of the query table")
 }
 
 /// A described query: its id, descriptor and step times.

@@ -151,3 +151,38 @@ fn blocks_are_read_as_a_shell_reads_them() {
     assert!(!runnable(&["pip install ./python".into()]));
     assert!(!runnable(&["toporec import --index out/x --method m vectors.parquet".into()]));
 }
+
+/// The lists of methods and sources the registries know, where the docs and the manifest's
+/// schema spell them out: every computed method in the pipeline-file reference (its
+/// `descriptors.methods`) and the baselines' page, every source kind in the pipeline-file reference, and the manifest schema's
+/// method kinds equal to the registry.
+#[test]
+fn the_docs_list_every_registered_method_and_source() {
+    let read = |p: &str| std::fs::read_to_string(root().join(p)).unwrap();
+    let (pipeline_files, baselines) = (read("docs/pipeline-files.md"), read("docs/baselines.md"));
+    let names = |text: &str, name: &str| {
+        [format!("`{name}`"), format!("\"{name}\""), format!("[{name}]")]
+            .iter()
+            .any(|n| text.contains(n.as_str()))
+    };
+    for name in toporec::methods::computed_names() {
+        assert!(names(&pipeline_files, name), "docs/pipeline-files.md does not name `{name}`");
+        assert!(names(&baselines, name), "docs/baselines.md does not name `{name}`");
+    }
+    for kind in toporec::sources::SOURCES {
+        assert!(
+            pipeline_files.contains(&format!("kind = \"{}\"", kind.name)),
+            "docs/pipeline-files.md: no `kind = \"{}\"`",
+            kind.name
+        );
+    }
+    let schema = read_json(&root().join("schemas/manifest.json"));
+    let kinds = &schema["properties"]["methods"]["additionalProperties"]["properties"]["kind"]["enum"];
+    let mut listed: Vec<&str> =
+        kinds.as_array().expect("the kinds' enum").iter().map(|k| k.as_str().unwrap()).collect();
+    let mut known = toporec::methods::computed_names();
+    known.push("imported");
+    listed.sort();
+    known.sort();
+    assert_eq!(listed, known, "schemas/manifest.json: the method kinds");
+}

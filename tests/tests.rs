@@ -14,6 +14,7 @@ mod homology;
 mod incremental;
 mod index;
 mod integrity;
+mod layout;
 mod loops;
 mod pipeline;
 mod pointnetvlad;

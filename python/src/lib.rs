@@ -801,6 +801,23 @@ fn batch_input_schema() -> ArrowStream {
     ArrowStream::new(toporec::sinks::schema::batch_inputs().plain_schema(), Vec::new())
 }
 
+/// The names of the methods computed from raw scans, in the registry's order.
+#[pyfunction]
+fn computed_methods() -> Vec<&'static str> {
+    toporec::methods::computed_names()
+}
+
+/// The declared schema of a table toporec writes (`scans`, `diagrams`, `descriptors`, `query`,
+/// `loops`): the one declaration the Spark job builds its rows from.
+#[pyfunction]
+fn table_schema(name: &str) -> PyResult<ArrowStream> {
+    let table = toporec::sinks::schema::all()
+        .into_iter()
+        .find(|t| t.name == name)
+        .ok_or_else(|| value_error(format!("no table `{name}`")))?;
+    Ok(ArrowStream::new(table.plain_schema(), Vec::new()))
+}
+
 #[pymodule]
 fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     keep_freed_memory_warm();
@@ -829,5 +846,7 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_points, m)?)?;
     m.add_class::<BatchDescriber>()?;
     m.add_function(wrap_pyfunction!(batch_input_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(table_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(computed_methods, m)?)?;
     Ok(())
 }

@@ -39,7 +39,10 @@ def test_spark_index_equals_toporec_run(spark, tmp_path, binary, read):
     `binaryFile` rows (other file systems)."""
     from toporec.spark import index_files
 
-    pipeline = REPO / "pipelines" / "sample.toml"
+    # The sample with toporec-plus and ScanContext beside TopoRec: every table the job writes.
+    text = (REPO / "pipelines" / "sample.toml").read_text().replace('"../samples', f'"{REPO}/samples')
+    pipeline = tmp_path / "three.toml"
+    pipeline.write_text(text + '\n[descriptors]\nmethods = ["toporec", "toporec-plus", "scancontext"]\n')
     by_run, by_spark = tmp_path / "run", tmp_path / "spark"
     toporec.fit(pipeline, sample=0.5, index=by_run)
     toporec.run(pipeline, index=by_run)
@@ -52,11 +55,14 @@ def test_spark_index_equals_toporec_run(spark, tmp_path, binary, read):
     assert a.scans().sort_by(key).equals(b.scans().sort_by(key))
     pairs = key + [("dim", "ascending"), ("birth", "ascending"), ("death", "ascending")]
     assert a.diagrams().sort_by(pairs).equals(b.diagrams().sort_by(pairs))
-    da, db = a.descriptors().sort_by(key), b.descriptors().sort_by(key)
-    assert da.drop(["descriptor"]).equals(db.drop(["descriptor"]))
-    va = np.stack(da["descriptor"].to_numpy(zero_copy_only=False))
-    vb = np.stack(db["descriptor"].to_numpy(zero_copy_only=False))
-    np.testing.assert_allclose(vb, va, rtol=0, atol=1e-6)
+    assert a.methods() == b.methods() == ["scancontext", "toporec", "toporec-plus"]
+    for method in a.methods():
+        da, db = a.descriptors(method).sort_by(key), b.descriptors(method).sort_by(key)
+        assert da.schema == db.schema, method
+        assert da.drop(["descriptor"]).equals(db.drop(["descriptor"])), method
+        va = np.stack(da["descriptor"].to_numpy(zero_copy_only=False))
+        vb = np.stack(db["descriptor"].to_numpy(zero_copy_only=False))
+        np.testing.assert_allclose(vb, va, rtol=0, atol=1e-6, err_msg=method)
 
     day2 = REPO / "samples" / "town" / "velodyne_data" / "2026-01-02"
     assert a.query(day2, k=5).equals(b.query(day2, k=5))

@@ -57,6 +57,7 @@ __all__ = [
     "alpha_persistence",
     "alpha_persistence_batch",
     "alpha_persistence_located",
+    "computed_methods",
     "describe_batch",
     "fit",
     "paper_diagram",
@@ -457,6 +458,12 @@ def describe_batch(
     }
 
 
+def computed_methods() -> List[str]:
+    """The names of the descriptor methods computed from raw scans (toporec-plus and the
+    baselines), as pipeline files, ``toporec query --method`` and :class:`LoopDetector` take them."""
+    return list(_toporec.computed_methods())
+
+
 def read_points(path: PathLike) -> np.ndarray:
     """The points of one scan file (KITTI ``.bin``, NCLT ``velodyne_sync`` ``.bin``, ``.csv``)
     as an ``(n, 3)`` float64 array, in the sensor frame as toporec's sources read them.
@@ -493,8 +500,8 @@ class LoopDetector:
     finds what ``toporec loops`` finds (docs/loops.md).
 
     Args:
-        method: ``"toporec-plus"`` (default), ``"scancontext"``, ``"scancontext-pp"``,
-            ``"scancontext-pp-cart"``, ``"solid"``, ``"lidar-iris"``, ``"ring"``, ``"ring-plus"`` or ``"m2dp"``.
+        method: ``"toporec-plus"`` (default) or another method computed from raw scans
+            (:func:`computed_methods` lists them).
         exclude_seconds: earlier scans of the same session closer in time are left out.
         threshold: a match below this descriptor distance is a loop; default the method's
             documented one at the default settings (toporec-plus 0.3619, ScanContext 0.5335, RING 0.4544,

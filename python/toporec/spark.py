@@ -54,22 +54,23 @@ import toporec
 
 PathLike = Union[str, "os.PathLike[str]"]
 
+def _spark_column(field: pa.Field) -> tuple:
+    """A column of toporec's ``scans`` table as Spark holds it: its name, the Arrow type of the
+    rows handed to Spark, and its Spark SQL type (Spark has no unsigned integers: they travel as
+    int64, and toporec's readers cast them back)."""
+    t = field.type
+    if pa.types.is_string(t):
+        return field.name, pa.string(), "string"
+    if pa.types.is_integer(t):
+        return field.name, pa.int64(), "bigint"
+    if pa.types.is_floating(t):
+        return field.name, pa.float64(), "double"
+    raise TypeError(f"scans.{field.name}: no Spark column for {t}")
+
+
+# The `scans` table as toporec declares it (`schemas/scans.json`), column by column.
 _SCAN_COLUMNS = [
-    ("scan_id", pa.string(), "string"),
-    ("fingerprint", pa.string(), "string"),
-    ("settings_hash", pa.string(), "string"),
-    ("seq", pa.int64(), "bigint"),
-    ("source_path", pa.string(), "string"),
-    ("message_index", pa.int64(), "bigint"),
-    ("utime", pa.int64(), "bigint"),
-    ("pose_x", pa.float64(), "double"),
-    ("pose_y", pa.float64(), "double"),
-    ("pose_z", pa.float64(), "double"),
-    ("pose_yaw", pa.float64(), "double"),
-    ("raw_points", pa.int64(), "bigint"),
-    ("kept_points", pa.int64(), "bigint"),
-    ("status", pa.string(), "string"),
-    ("error", pa.string(), "string"),
+    _spark_column(f) for f in pa.RecordBatchReader.from_stream(toporec._toporec.table_schema("scans")).schema
 ]
 
 

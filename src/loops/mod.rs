@@ -27,7 +27,6 @@ use crate::sinks::index::reader::IndexedScan;
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 /// What `toporec loops` is asked.
 #[derive(clap::Args, Clone, Debug)]
@@ -674,40 +673,41 @@ pub(crate) fn calibration_path(out: &Path) -> PathBuf {
 
 /// The rows as a record batch of the `loops` table ([`crate::sinks::schema::loops`]).
 pub(crate) fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
-    use arrow::array::{ArrayRef, BooleanArray, Float64Array, StringArray, UInt64Array};
-    let strings = |f: &dyn Fn(&LoopRow) -> &str| -> ArrayRef {
-        Arc::new(StringArray::from(rows.iter().map(f).collect::<Vec<_>>()))
-    };
-    let floats = |f: &dyn Fn(&LoopRow) -> Option<f64>| -> ArrayRef {
-        Arc::new(Float64Array::from(rows.iter().map(f).collect::<Vec<_>>()))
-    };
-    let vertices = |f: &dyn Fn(&LoopRow) -> usize| -> ArrayRef {
-        Arc::new(UInt64Array::from(rows.iter().map(|r| f(r) as u64).collect::<Vec<_>>()))
-    };
-    let mut columns: Vec<ArrayRef> = vec![
-        strings(&|r| &r.method),
-        strings(&|r| &r.query_scan),
-        strings(&|r| &r.query_session),
-        strings(&|r| &r.matched_scan),
-        strings(&|r| &r.matched_session),
-        floats(&|r| Some(r.distance)),
-        floats(&|r| r.yaw_degrees),
-        floats(&|r| r.offset.map(|o| o[0])),
-        floats(&|r| r.offset.map(|o| o[1])),
-        floats(&|r| r.rank2_distance),
-        floats(&|r| r.true_distance_m),
-        Arc::new(BooleanArray::from(rows.iter().map(|r| r.accepted).collect::<Vec<_>>())),
-        vertices(&|r| r.query_vertex),
-        vertices(&|r| r.matched_vertex),
-        Arc::new(BooleanArray::from(rows.iter().map(|r| r.check.map(|c| c.passed)).collect::<Vec<_>>())),
-        floats(&|r| r.check.map(|c| c.fitness)),
-        floats(&|r| r.check.map(|c| c.rmse).filter(|v| v.is_finite())),
-    ];
-    for i in 0..6 {
-        columns.push(floats(&|r| r.check.map(|c| c.relative[i]).filter(|v| v.is_finite())));
+    let mut b = crate::sinks::rows::RowBuilder::plain(&crate::sinks::schema::loops());
+    let [method, query, query_session, matched, matched_session] =
+        ["method", "query_scan", "query_session", "matched_scan", "matched_session"].map(|n| b.col(n));
+    let [distance, yaw, x_m, y_m, rank2, truth, accepted] =
+        ["distance", "yaw_degrees", "x_m", "y_m", "rank2_distance", "true_distance_m", "accepted"]
+            .map(|n| b.col(n));
+    let [query_vertex, matched_vertex, verified, fitness, rmse] =
+        ["query_vertex", "matched_vertex", "verified", "icp_fitness", "icp_rmse"].map(|n| b.col(n));
+    let relative =
+        ["rel_x", "rel_y", "rel_z", "rel_roll_deg", "rel_pitch_deg", "rel_yaw_deg"].map(|n| b.col(n));
+    let finite = |v: f64| v.is_finite().then_some(v);
+    for r in rows {
+        b.text(method, Some(&r.method))
+            .text(query, Some(&r.query_scan))
+            .text(query_session, Some(&r.query_session))
+            .text(matched, Some(&r.matched_scan))
+            .text(matched_session, Some(&r.matched_session))
+            .float(distance, Some(r.distance))
+            .float(yaw, r.yaw_degrees)
+            .float(x_m, r.offset.map(|o| o[0]))
+            .float(y_m, r.offset.map(|o| o[1]))
+            .float(rank2, r.rank2_distance)
+            .float(truth, r.true_distance_m)
+            .boolean(accepted, Some(r.accepted))
+            .uint(query_vertex, Some(r.query_vertex as u64))
+            .uint(matched_vertex, Some(r.matched_vertex as u64))
+            .boolean(verified, r.check.map(|c| c.passed))
+            .float(fitness, r.check.map(|c| c.fitness))
+            .float(rmse, r.check.and_then(|c| finite(c.rmse)));
+        for (k, col) in relative.into_iter().enumerate() {
+            b.float(col, r.check.and_then(|c| finite(c.relative[k])));
+        }
+        b.end_row();
     }
-    arrow::record_batch::RecordBatch::try_new(crate::sinks::schema::loops().plain_schema(), columns)
-        .expect("the columns of the loops table")
+    b.finish().expect("the columns of the loops table")
 }
 
 /// Writes the rows to `path`: CSV when it ends in `.csv`, else Parquet (zstd), atomically.

@@ -2,16 +2,14 @@
 //! bounded), and the rows they take. Rows are buffered a few thousand at a time and written
 //! as Arrow record batches.
 
+use super::rows::{Col, RowBuilder};
 use super::schema::{self, Table};
 use crate::error::{Error, Result, ResultExt};
 use crate::fsutil::{AtomicFile, StagedFile};
 use crate::homology::Diagram;
 use crate::types::Pose;
 use crate::vectorize::codebook::Descriptor;
-use arrow::array::{
-    ArrayRef, FixedSizeListArray, Float32Array, Float64Builder, Int64Builder, RecordBatch, StringBuilder,
-    UInt8Array, UInt8Builder, UInt64Builder,
-};
+use arrow::array::RecordBatch;
 use arrow::datatypes::Schema;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
@@ -154,12 +152,6 @@ impl TableFile {
         Ok(TableFile { path: path.to_owned(), writer, schema, rows: 0 })
     }
 
-    fn write(&mut self, columns: Vec<ArrayRef>) -> Result<()> {
-        let batch = RecordBatch::try_new(self.schema.clone(), columns).at(&self.path)?;
-        self.rows += batch.num_rows() as u64;
-        self.writer.write(&batch).at(&self.path)
-    }
-
     /// Creates `path` with a given schema (a table being rewritten).
     pub(crate) fn with_schema(path: &Path, schema: Arc<Schema>) -> Result<Self> {
         let file = AtomicFile::create(path)?;
@@ -212,8 +204,8 @@ impl ScansFile {
             return Ok(());
         }
         let rows = std::mem::take(&mut self.rows);
-        let columns = scan_columns(&rows);
-        self.file.write(columns)
+        let batch = scan_batch(&rows, self.file.schema.clone()).at(&self.file.path)?;
+        self.file.write_batch(&batch)
     }
 
     /// Flushes and closes (see [`TableFile::finish`]).
@@ -226,23 +218,20 @@ impl ScansFile {
 /// Writer of one `diagrams` file.
 pub(crate) struct DiagramsFile {
     file: TableFile,
-    columns: DiagramColumns,
+    rows: DiagramRows,
     pending: usize,
 }
 
 impl DiagramsFile {
     /// Creates the file.
     pub(crate) fn create(path: &Path) -> Result<Self> {
-        Ok(DiagramsFile {
-            file: TableFile::create(path, &schema::diagrams(), &[])?,
-            columns: DiagramColumns::default(),
-            pending: 0,
-        })
+        let file = TableFile::create(path, &schema::diagrams(), &[])?;
+        Ok(DiagramsFile { rows: DiagramRows::new(file.schema.clone()), file, pending: 0 })
     }
 
     /// Adds one scan's pairs in dimensions `dims`.
     pub(crate) fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> Result<()> {
-        self.pending += self.columns.push(scan_id, diagram, dims);
+        self.pending += self.rows.push(scan_id, diagram, dims);
         if self.pending >= 8 * BATCH_ROWS { self.flush() } else { Ok(()) }
     }
 
@@ -251,8 +240,8 @@ impl DiagramsFile {
             return Ok(());
         }
         self.pending = 0;
-        let columns = self.columns.finish();
-        self.file.write(columns)
+        let batch = self.rows.finish().at(&self.file.path)?;
+        self.file.write_batch(&batch)
     }
 
     /// Flushes and closes (see [`TableFile::finish`]).
@@ -265,6 +254,7 @@ impl DiagramsFile {
 /// Writer of one `descriptors` file.
 pub(crate) struct DescriptorsFile {
     file: TableFile,
+    method: String,
     b: usize,
     codebook_id: String,
     /// Whether the values are bytes (stored as uint8).
@@ -282,6 +272,7 @@ impl DescriptorsFile {
         ];
         Ok(DescriptorsFile {
             file: TableFile::create(path, &schema::descriptors_for(method, b), &meta)?,
+            method: method.to_string(),
             b,
             codebook_id: codebook_id.to_string(),
             bytes: crate::methods::stores_bytes(method),
@@ -318,8 +309,10 @@ impl DescriptorsFile {
             return Ok(());
         }
         let rows = std::mem::take(&mut self.rows);
-        let columns = descriptor_columns(&rows, self.b, &self.codebook_id, self.bytes);
-        self.file.write(columns)
+        let schema = self.file.schema.clone();
+        let batch =
+            descriptor_batch(&rows, &self.method, self.b, &self.codebook_id, schema).at(&self.file.path)?;
+        self.file.write_batch(&batch)
     }
 
     /// Flushes and closes (see [`TableFile::finish`]).
@@ -329,76 +322,74 @@ impl DescriptorsFile {
     }
 }
 
-/// The `scans` columns of `rows`, in the schema's order ([`schema::scans`]).
-pub(crate) fn scan_columns(rows: &[ScanRow]) -> Vec<ArrayRef> {
-    let s = |f: &dyn Fn(&ScanRow) -> Option<String>| {
-        let mut b = StringBuilder::new();
-        rows.iter().for_each(|r| b.append_option(f(r)));
-        Arc::new(b.finish()) as ArrayRef
-    };
-    let u = |f: &dyn Fn(&ScanRow) -> Option<u64>| {
-        let mut b = UInt64Builder::new();
-        rows.iter().for_each(|r| b.append_option(f(r)));
-        Arc::new(b.finish()) as ArrayRef
-    };
-    let p = |f: &dyn Fn(&Pose) -> f64| {
-        let mut b = Float64Builder::new();
-        rows.iter().for_each(|r| b.append_option(r.pose.as_ref().map(f)));
-        Arc::new(b.finish()) as ArrayRef
-    };
-    let mut utime = Int64Builder::new();
-    rows.iter().for_each(|r| utime.append_option(r.utime));
-    let columns = vec![
-        s(&|r| Some(r.scan_id.clone())),
-        s(&|r| r.fingerprint.clone()),
-        s(&|r| Some(r.settings_hash.clone())),
-        u(&|r| Some(r.seq)),
-        s(&|r| Some(r.source_path.clone())),
-        u(&|r| r.message_index),
-        Arc::new(utime.finish()) as ArrayRef,
-        p(&|q| q.x),
-        p(&|q| q.y),
-        p(&|q| q.z),
-        p(&|q| q.yaw),
-        u(&|r| Some(r.raw_points)),
-        u(&|r| Some(r.kept_points)),
-        s(&|r| Some(r.status.as_str().to_string())),
-        s(&|r| r.error.clone()),
-    ];
-    columns
+/// The `scans` rows as a batch of [`schema::scans`], of `schema` (the table's, with its metadata).
+pub(crate) fn scan_batch(
+    rows: &[ScanRow],
+    schema: Arc<Schema>,
+) -> Result<RecordBatch, arrow::error::ArrowError> {
+    use schema::columns as C;
+    let table = schema::scans();
+    let mut b = RowBuilder::new(&table, schema);
+    let [id, fp, settings, seq, source, message, utime] =
+        [C::SCAN_ID, C::FINGERPRINT, C::SETTINGS_HASH, C::SEQ, C::SOURCE_PATH, C::MESSAGE_INDEX, C::UTIME]
+            .map(|n| b.col(n));
+    let [x, y, z, yaw] = [C::POSE_X, C::POSE_Y, C::POSE_Z, C::POSE_YAW].map(|n| b.col(n));
+    let [raw, kept, status, error] = [C::RAW_POINTS, C::KEPT_POINTS, C::STATUS, C::ERROR].map(|n| b.col(n));
+    for r in rows {
+        b.text(id, Some(&r.scan_id))
+            .text(fp, r.fingerprint.as_deref())
+            .text(settings, Some(&r.settings_hash))
+            .uint(seq, Some(r.seq))
+            .text(source, Some(&r.source_path))
+            .uint(message, r.message_index)
+            .int(utime, r.utime)
+            .float(x, r.pose.map(|p| p.x))
+            .float(y, r.pose.map(|p| p.y))
+            .float(z, r.pose.map(|p| p.z))
+            .float(yaw, r.pose.map(|p| p.yaw))
+            .uint(raw, Some(r.raw_points))
+            .uint(kept, Some(r.kept_points))
+            .text(status, Some(r.status.as_str()))
+            .text(error, r.error.as_deref())
+            .end_row();
+    }
+    b.finish()
 }
 
-/// The `diagrams` columns, built a scan at a time ([`schema::diagrams`]).
-#[derive(Default)]
-pub(crate) struct DiagramColumns {
-    ids: StringBuilder,
-    dims: UInt8Builder,
-    births: Float64Builder,
-    deaths: Float64Builder,
+/// The `diagrams` rows, built a scan at a time ([`schema::diagrams`]).
+pub(crate) struct DiagramRows {
+    builder: RowBuilder,
+    cols: [Col; 4],
 }
 
-impl DiagramColumns {
+impl DiagramRows {
+    /// Rows of batches of `schema` (the table's, with its metadata).
+    pub(crate) fn new(schema: Arc<Schema>) -> Self {
+        use schema::columns as C;
+        let builder = RowBuilder::new(&schema::diagrams(), schema);
+        let cols = [C::SCAN_ID, C::DIM, C::BIRTH, C::DEATH].map(|n| builder.col(n));
+        DiagramRows { builder, cols }
+    }
+
     /// Adds one scan's pairs in dimensions `dims`; returns how many.
     pub(crate) fn push(&mut self, scan_id: &str, diagram: &Diagram, dims: &[u8]) -> usize {
+        let [id, dim, birth, death] = self.cols;
         let mut added = 0;
         for p in diagram.pairs().iter().filter(|p| dims.contains(&p.dim)) {
-            self.ids.append_value(scan_id);
-            self.dims.append_value(p.dim);
-            self.births.append_value(p.birth);
-            self.deaths.append_value(p.death);
+            self.builder
+                .text(id, Some(scan_id))
+                .uint(dim, Some(p.dim as u64))
+                .float(birth, Some(p.birth))
+                .float(death, Some(p.death))
+                .end_row();
             added += 1;
         }
         added
     }
 
-    /// The columns of every pair added since the last call.
-    pub(crate) fn finish(&mut self) -> Vec<ArrayRef> {
-        vec![
-            Arc::new(self.ids.finish()),
-            Arc::new(self.dims.finish()),
-            Arc::new(self.births.finish()),
-            Arc::new(self.deaths.finish()),
-        ]
+    /// Every pair added since the last call, as a batch.
+    pub(crate) fn finish(&mut self) -> Result<RecordBatch, arrow::error::ArrowError> {
+        self.builder.finish()
     }
 }
 
@@ -407,47 +398,34 @@ pub(crate) fn is_byte(v: f32) -> bool {
     (0.0..=255.0).contains(&v) && v.fract() == 0.0
 }
 
-/// The `descriptors` columns of `rows` (length `b`, made by `codebook_id`), in the schema's
-/// order ([`schema::descriptors_for`]): the values as uint8 when `bytes` (each a byte, as
-/// [`is_byte`] checks), else float32.
-pub(crate) fn descriptor_columns(
+/// The `descriptors` rows (length `b`, made by `codebook_id`) as a batch of
+/// [`schema::descriptors_for`] `method`, of `schema` (the table's, with its metadata): the values
+/// as uint8 for a method whose descriptors are bytes (each a byte, as [`is_byte`] checks), else
+/// float32.
+pub(crate) fn descriptor_batch(
     rows: &[DescriptorRow],
+    method: &str,
     b: usize,
     codebook_id: &str,
-    bytes: bool,
-) -> Vec<ArrayRef> {
-    let mut ids = StringBuilder::new();
-    let mut utime = Int64Builder::new();
-    let mut pose = [Float64Builder::new(), Float64Builder::new(), Float64Builder::new()];
-    let mut dim = UInt8Builder::new();
-    let mut codebook = StringBuilder::new();
+    schema: Arc<Schema>,
+) -> Result<RecordBatch, arrow::error::ArrowError> {
+    use schema::columns as C;
+    let table = schema::descriptors_for(method, b);
+    let mut builder = RowBuilder::new(&table, schema);
+    let [id, utime, x, y, z, dim, vector, codebook] =
+        [C::SCAN_ID, C::UTIME, C::POSE_X, C::POSE_Y, C::POSE_Z, C::DIM_USED, C::DESCRIPTOR, C::CODEBOOK_ID]
+            .map(|n| builder.col(n));
     for r in rows {
-        ids.append_value(&r.scan_id);
-        utime.append_option(r.utime);
-        pose[0].append_option(r.pose.map(|p| p.x));
-        pose[1].append_option(r.pose.map(|p| p.y));
-        pose[2].append_option(r.pose.map(|p| p.z));
-        dim.append_option(r.dim_used);
-        codebook.append_value(codebook_id);
+        builder
+            .text(id, Some(&r.scan_id))
+            .int(utime, r.utime)
+            .float(x, r.pose.map(|p| p.x))
+            .float(y, r.pose.map(|p| p.y))
+            .float(z, r.pose.map(|p| p.z))
+            .uint(dim, r.dim_used.map(u64::from))
+            .list(vector, &r.values)
+            .text(codebook, Some(codebook_id))
+            .end_row();
     }
-    let values = rows.iter().flat_map(|r| r.values.iter().copied());
-    let values: ArrayRef = if bytes {
-        Arc::new(UInt8Array::from_iter_values(values.map(|v| v as u8)))
-    } else {
-        Arc::new(Float32Array::from_iter_values(values))
-    };
-    let item = Arc::new(arrow::datatypes::Field::new("item", values.data_type().clone(), false));
-    let vectors = Arc::new(FixedSizeListArray::new(item, b as i32, values, None));
-    let [px, py, pz] = pose.map(|mut b| Arc::new(b.finish()) as ArrayRef);
-    let columns: Vec<ArrayRef> = vec![
-        Arc::new(ids.finish()),
-        Arc::new(utime.finish()),
-        px,
-        py,
-        pz,
-        Arc::new(dim.finish()),
-        vectors,
-        Arc::new(codebook.finish()),
-    ];
-    columns
+    builder.finish()
 }

@@ -210,7 +210,7 @@ fn descriptors_of(b: usize, values: DataType) -> Table {
     Table {
         name: tables::DESCRIPTORS,
         layout: Layout::Index,
-        doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, ScanContext, Scan Context++, M2DP, SOLiD, LiDAR-Iris, RING, toporec-plus or an imported one.",
+        doc: "One descriptor per ok scan, per method (descriptors/method=<m>/session=<s>/): the TopoRec ATOL vector, a method computed from the raw scan (toporec-plus and the baselines; the manifest's `methods` names them), or an imported one.",
         columns: vec![
             col(C::SCAN_ID, Utf8, false, "the scan"),
             col(C::UTIME, Int64, true, "timestamp (µs)"),

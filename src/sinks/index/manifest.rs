@@ -110,8 +110,8 @@ pub struct Manifest {
     /// The codebook itself (its `codebook.json` form), once there is one.
     pub codebook: Option<serde_json::Value>,
     /// The descriptor methods besides the TopoRec one: name → what made the descriptors
-    /// (parameters, length). Computed ones (ScanContext, Scan Context++, M2DP, SOLiD, LiDAR-Iris,
-    /// toporec-plus) and imported ones.
+    /// (parameters, length). Methods computed from raw scans ([`crate::methods::REGISTRY`]) and
+    /// imported ones.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub methods: BTreeMap<String, MethodEntry>,
     /// The effective pipeline the index was made with (TOML: absolute paths, every default
@@ -125,8 +125,7 @@ pub struct Manifest {
 /// A descriptor method of an index, besides the TopoRec one.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MethodEntry {
-    /// `scancontext`, `scancontext-pp`, `scancontext-pp-cart`, `m2dp`, `solid`, `lidar-iris`, `ring`,
-    /// `toporec-plus` or `imported`.
+    /// A computed method's name ([`crate::methods::REGISTRY`]), or `imported`.
     pub kind: String,
     /// Its parameters (computed methods) or where the vectors came from (imported ones).
     pub params: serde_json::Value,

@@ -19,11 +19,12 @@ use super::{CODEBOOK_FILE, MANIFEST_FILE, resolve, table_files};
 use crate::error::{Error, FileError, Result, ResultExt};
 use crate::homology::{Diagram, Pair};
 use crate::sinks::parquet::{ScanRow, Status};
+use crate::sinks::rows::Columns;
 use crate::sinks::schema::{self, SCHEMA_VERSION, columns as C, meta, tables};
 use crate::types::Pose;
 use crate::vectorize::codebook::Codebook;
 use arrow::array::{Array, ArrayRef, AsArray, RecordBatch};
-use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, Int64Type, UInt8Type, UInt64Type};
+use arrow::datatypes::{DataType, Field, Float32Type, UInt8Type};
 use bytes::Bytes;
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{ParquetRecordBatchReader, ParquetRecordBatchReaderBuilder};
@@ -254,7 +255,7 @@ impl IndexReader {
             let (session, path) = (part.session, part.path);
             let mut checked = CheckedTable::open(&path, bytes, &definition, &names, length)?;
             while let Some(columns) = checked.next_batch() {
-                let mut columns = columns?;
+                let mut columns = columns?.into_arrays();
                 for (column, def) in columns.iter_mut().zip(&definition.columns) {
                     *column = as_declared(column.clone(), &def.data_type);
                 }
@@ -375,11 +376,14 @@ fn family(t: &DataType) -> Family {
     }
 }
 
-/// A column wanted from a table: its name, toporec's type, whether nulls are allowed.
+/// A column wanted from a table: its name, toporec's type, whether nulls are allowed, and
+/// whether the file has it (a nullable column added to the table after the file was written
+/// reads as nulls).
 struct Wanted {
     name: &'static str,
     data_type: DataType,
     nullable: bool,
+    present: bool,
 }
 
 /// A table file opened with its needed columns checked; yields batches whose columns are in
@@ -419,10 +423,16 @@ impl CheckedTable {
         let kv = builder.metadata().file_metadata().key_value_metadata();
         let get =
             |key: &str| kv.and_then(|kv| kv.iter().find(|e| e.key == key)).and_then(|e| e.value.clone());
-        if let Some(v) = get(meta::SCHEMA_VERSION).filter(|v| v != SCHEMA_VERSION) {
+        // A newer layout may have changed what older readers rely on; an older one is read by
+        // column name (a nullable column it lacks reads as nulls).
+        let newer = |v: &String| {
+            let number = |v: &str| v.trim().parse::<u64>().ok();
+            number(v).is_none_or(|n| number(SCHEMA_VERSION).is_some_and(|ours| n > ours))
+        };
+        if let Some(v) = get(meta::SCHEMA_VERSION).filter(newer) {
             return Err(Error::table(
                 path,
-                format!("table layout version {v}; this toporec reads version {SCHEMA_VERSION}"),
+                format!("table layout version {v}; this toporec reads versions up to {SCHEMA_VERSION}"),
             ));
         }
         if let (Some(t), Some(want)) = (get(meta::TABLE), table_name)
@@ -435,7 +445,17 @@ impl CheckedTable {
         let mut roots = Vec::new();
         for &name in names {
             let column = table.columns.iter().find(|c| c.name == name).expect("a column of the table");
-            let Some((i, field)) = arrow_schema.column_with_name(name) else {
+            let found = arrow_schema.column_with_name(name);
+            if found.is_none() && column.nullable {
+                wanted.push(Wanted {
+                    name,
+                    data_type: column.data_type.clone(),
+                    nullable: true,
+                    present: false,
+                });
+                continue;
+            }
+            let Some((i, field)) = found else {
                 let have: Vec<&str> = arrow_schema.fields().iter().map(|f| f.name().as_str()).collect();
                 // The table this file stands for: the one asked for, else the one its metadata
                 // or its folder names.
@@ -461,7 +481,7 @@ impl CheckedTable {
                     format!("column `{name}` is {}, expected {data_type}", field.data_type()),
                 ));
             }
-            wanted.push(Wanted { name, data_type, nullable: column.nullable });
+            wanted.push(Wanted { name, data_type, nullable: column.nullable, present: true });
             roots.push(i);
         }
         // Scan ids as a dictionary: decoded once per batch, not once per row (a diagrams file
@@ -511,19 +531,23 @@ impl CheckedTable {
         Ok(CheckedTable { path: path.to_owned(), wanted, batches })
     }
 
-    /// The next batch's columns, in the wanted order, cast to toporec's types.
-    fn next_batch(&mut self) -> Option<Result<Vec<ArrayRef>>> {
+    /// The next batch's columns, by name, cast to toporec's types.
+    fn next_batch(&mut self) -> Option<Result<Columns>> {
         let batch = match self.batches.next()? {
             Ok(b) => b,
             Err(e) => return Some(Err(e.at(&self.path))),
         };
-        Some(self.columns(&batch))
+        Some(self.columns(&batch).map(|c| Columns::new(self.wanted.iter().map(|w| w.name).collect(), c)))
     }
 
     fn columns(&self, batch: &RecordBatch) -> Result<Vec<ArrayRef>> {
         let options = arrow::compute::CastOptions { safe: false, ..Default::default() };
         let mut out = Vec::with_capacity(self.wanted.len());
         for w in &self.wanted {
+            if !w.present {
+                out.push(arrow::array::new_null_array(&w.data_type, batch.num_rows()));
+                continue;
+            }
             let column = batch.column_by_name(w.name).expect("projected");
             let column = if column.data_type() == &w.data_type {
                 column.clone()
@@ -596,16 +620,16 @@ pub(crate) fn read_descriptors(
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
         let c = columns?;
-        let ids = c[0].as_string::<i32>();
-        let utime = c[1].as_primitive::<Int64Type>();
-        let [x, y, z] = [2, 3, 4].map(|i| c[i].as_primitive::<Float64Type>());
-        let vectors = c[5].as_fixed_size_list();
+        let ids = c.text(C::SCAN_ID);
+        let utime = c.int64(C::UTIME);
+        let [x, y, z] = [C::POSE_X, C::POSE_Y, C::POSE_Z].map(|n| c.float64(n));
+        let vectors = c.get(C::DESCRIPTOR).as_fixed_size_list();
         let b = vectors.value_length() as usize;
         let values = vectors.values().as_primitive::<Float32Type>();
         if vectors.null_count() > 0 || values.null_count() > 0 {
             return Err(Error::table(path, "column `descriptor` has null values"));
         }
-        let codebook = c[6].as_string::<i32>();
+        let codebook = c.text(C::CODEBOOK_ID);
         for i in 0..ids.len() {
             let start = i * b;
             out.push(IndexedScan {
@@ -653,6 +677,42 @@ fn as_declared(column: ArrayRef, declared: &DataType) -> ArrayRef {
     .map_or(column, |a| Arc::new(a) as ArrayRef)
 }
 
+/// The declaration of an index table (`descriptors` of `method`, of `length`).
+pub(crate) fn declared(table: &str, method: Option<&str>, length: Option<usize>) -> Option<schema::Table> {
+    match table {
+        tables::SCANS => Some(schema::scans()),
+        tables::DIAGRAMS => Some(schema::diagrams()),
+        tables::DESCRIPTORS => {
+            Some(schema::descriptors_for(method.unwrap_or(crate::methods::TOPOREC), length.unwrap_or(1)))
+        }
+        _ => None,
+    }
+}
+
+/// The rows of the bytes of `path` as batches of `table`'s declared columns (its plain schema):
+/// every column checked and cast as every reader does, a nullable column the file lacks (an
+/// older layout's) as nulls. What compaction writes, whatever layout its inputs have.
+pub(crate) fn declared_batches(path: &Path, bytes: Bytes, table: &schema::Table) -> Result<Vec<RecordBatch>> {
+    let names: Vec<&'static str> = table.columns.iter().map(|c| c.name).collect();
+    let length = table.column(C::DESCRIPTOR).and_then(|c| match &c.data_type {
+        DataType::FixedSizeList(_, n) => Some(*n as usize),
+        _ => None,
+    });
+    let schema = table.plain_schema();
+    let mut checked = CheckedTable::open(path, bytes, table, &names, length)?;
+    let mut out = Vec::new();
+    while let Some(columns) = checked.next_batch() {
+        let columns: Vec<ArrayRef> = columns?
+            .into_arrays()
+            .into_iter()
+            .zip(&table.columns)
+            .map(|(column, c)| as_declared(column, &c.data_type))
+            .collect();
+        out.push(RecordBatch::try_new(schema.clone(), columns).at(path)?);
+    }
+    Ok(out)
+}
+
 /// Reads a whole table file, checking every column of `table`'s schema (types, nulls).
 pub(crate) fn check_file(path: &Path, table: &str, descriptor_length: Option<usize>) -> Result<FileInfo> {
     check_bytes(path, load(path)?, table, descriptor_length)
@@ -674,12 +734,12 @@ pub(crate) fn check_bytes(
     let names: Vec<&'static str> = schema.columns.iter().map(|c| c.name).collect();
     let mut checked = CheckedTable::open(path, bytes, &schema, &names, descriptor_length)?;
     let mut info = FileInfo { rows: 0, codebook_id: None };
-    let codebook_column = names.iter().position(|n| *n == C::CODEBOOK_ID);
+    let has_codebook = names.contains(&C::CODEBOOK_ID);
     while let Some(columns) = checked.next_batch() {
         let columns = columns?;
-        info.rows += columns[0].len() as u64;
-        if let Some(i) = codebook_column {
-            for id in columns[i].as_string::<i32>().iter().flatten() {
+        info.rows += columns.len() as u64;
+        if has_codebook {
+            for id in columns.text(C::CODEBOOK_ID).iter().flatten() {
                 match &info.codebook_id {
                     None => info.codebook_id = Some(id.to_string()),
                     Some(c) if c != id => {
@@ -705,7 +765,7 @@ pub(crate) fn scan_ids_in(path: &Path, bytes: Bytes) -> Result<Vec<String>> {
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
         let columns = columns?;
-        let ids = ScanIds::of(&columns[0]);
+        let ids = ScanIds::of(columns.get(C::SCAN_ID));
         let mut last_key = -1;
         for i in 0..ids.len() {
             let (key, id) = ids.get(i);
@@ -746,14 +806,15 @@ pub(crate) fn read_scans_in(path: &Path, bytes: Bytes, session: &str) -> Result<
     let mut out = Vec::new();
     while let Some(columns) = table.next_batch() {
         let c = columns?;
-        let text = |i: usize| c[i].as_string::<i32>();
-        let uint = |i: usize| c[i].as_primitive::<UInt64Type>();
-        let float = |i: usize| c[i].as_primitive::<Float64Type>();
-        let (ids, fingerprint, settings) = (text(0), text(1), text(2));
-        let (seq, source, message) = (uint(3), text(4), uint(5));
-        let utime = c[6].as_primitive::<Int64Type>();
-        let [x, y, z, yaw] = [7, 8, 9, 10].map(float);
-        let (raw, kept, status, error) = (uint(11), uint(12), text(13), text(14));
+        let text = |name: &str| c.text(name);
+        let uint = |name: &str| c.uint64(name);
+        let float = |name: &str| c.float64(name);
+        let (ids, fingerprint, settings) = (text(C::SCAN_ID), text(C::FINGERPRINT), text(C::SETTINGS_HASH));
+        let (seq, source, message) = (uint(C::SEQ), text(C::SOURCE_PATH), uint(C::MESSAGE_INDEX));
+        let utime = c.int64(C::UTIME);
+        let [x, y, z, yaw] = [C::POSE_X, C::POSE_Y, C::POSE_Z, C::POSE_YAW].map(float);
+        let (raw, kept) = (uint(C::RAW_POINTS), uint(C::KEPT_POINTS));
+        let (status, error) = (text(C::STATUS), text(C::ERROR));
         for i in 0..ids.len() {
             let status = Status::parse(status.value(i)).ok_or_else(|| {
                 Error::table(
@@ -856,11 +917,11 @@ impl<'a> ScanIds<'a> {
 }
 
 impl DiagramStream {
-    fn add(&mut self, c: &[ArrayRef]) -> Result<()> {
-        let ids = ScanIds::of(&c[0]);
-        let dims = c[1].as_primitive::<UInt8Type>();
-        let births = c[2].as_primitive::<Float64Type>();
-        let deaths = c[3].as_primitive::<Float64Type>();
+    fn add(&mut self, c: &Columns) -> Result<()> {
+        let ids = ScanIds::of(c.get(C::SCAN_ID));
+        let dims = c.uint8(C::DIM);
+        let births = c.float64(C::BIRTH);
+        let deaths = c.float64(C::DEATH);
         // With dictionary ids, the id is compared only where the key changes.
         let mut last_key = -1;
         for i in 0..ids.len() {

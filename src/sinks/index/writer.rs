@@ -658,35 +658,30 @@ impl IndexWriter {
                 _ => self.manifest.descriptor_length,
             };
             let (rel, target) = self.next_part(table, method.as_deref(), &session);
-            let mut out: Option<TableFile> = None;
+            // Written in the table's declared layout, whatever layout each input has (a part an
+            // older toporec wrote may lack a nullable column added since: nulls).
+            let declared = super::reader::declared(table, method.as_deref(), length).expect("a table name");
+            let mut extra = Vec::new();
+            if let Some(m) = &method {
+                let id = match self.manifest.methods.get(m) {
+                    Some(e) => Some(e.id.clone()),
+                    None => self.manifest.codebook_id.clone(),
+                };
+                extra.push((crate::sinks::schema::meta::CODEBOOK_ID, id.unwrap_or_default()));
+                extra.push((crate::sinks::schema::meta::METHOD, m.clone()));
+            }
+            let mut out = TableFile::create(&target, &declared, &extra)?;
             for f in &files {
                 let bytes = self.verified_bytes(f)?;
                 let path = self.path_of(f);
-                // Each input is checked as its table first: an error names the input.
-                super::reader::check_bytes(&path, bytes.clone(), table, length)?;
-                let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(bytes)
-                    .at(&path)?;
-                let schema = reader.schema().clone();
-                let out = match &mut out {
-                    Some(o) => o,
-                    None => out.insert(TableFile::with_schema(&target, schema.clone())?),
-                };
-                if out.schema().fields() != schema.fields() {
-                    return Err(Error::table(
-                        &path,
-                        format!(
-                            "its columns differ from those of the other part files of {}; \
-                             nothing was compacted",
-                            Path::new(&f.path).parent().unwrap_or(Path::new("")).display()
-                        ),
-                    ));
-                }
-                for batch in reader.build().at(&path)? {
-                    out.write_batch(&batch.at(&path)?)?;
+                // Each input is read as its table: an error names the input.
+                for batch in super::reader::declared_batches(&path, bytes, &declared)? {
+                    let batch = batch.with_schema(out.schema().clone()).at(&path)?;
+                    out.write_batch(&batch)?;
                 }
                 self.dropped.insert(f.path.clone());
             }
-            let (file, rows) = out.expect("two files or more").finish()?;
+            let (file, rows) = out.finish()?;
             self.compacted.push(Staged::of(table, method, &session, rel, file, rows)?);
             merged += files.len();
             into += 1;
