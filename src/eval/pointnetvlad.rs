@@ -15,11 +15,15 @@
 //! * a dataset's figure is the plain mean over its run pairs.
 
 use super::metrics::{Denominator, first_hit, one_percent_k, recall};
+use super::places::PlacesArgs;
 use super::report::DatasetRecall;
-use crate::error::{Error, Result};
+use super::report::{self as report, Report};
+use super::{chosen_methods, file_names, names};
+use crate::error::{Error, Result, ResultExt};
 use crate::search::{Engine, Loaded, load_method};
 use crate::sinks::index::IndexedScan;
-use crate::sinks::index::damage::Damage;
+use crate::sinks::index::damage::{Damage, DamagedPart};
+use crate::sinks::index::holdings::held_scans;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -265,4 +269,24 @@ pub fn evaluate(
         damaged: Vec::new(),
     };
     Ok((table, report, curves))
+}
+
+/// `eval places --protocol pointnetvlad`: the benchmark's own database and query sets.
+pub(crate) fn places(a: &PlacesArgs, damage: &Damage) -> Result<(String, Vec<DamagedPart>)> {
+    if a.queries.is_some() || !a.db_sessions.is_empty() || !a.query_sessions.is_empty() {
+        return Err(Error::invalid(
+            "--protocol pointnetvlad pairs the benchmark's own runs: --queries, --db-session and --query-session do not apply",
+        ));
+    }
+    let methods = names(&chosen_methods(&[&a.db], &a.methods)?);
+    let (table, report, curves) = evaluate(&a.db, &methods, a.search, damage)?;
+    std::fs::create_dir_all(&a.out).at(&a.out)?;
+    let plots =
+        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
+    let mut report = report;
+    report.plots = file_names(&plots);
+    report.damaged = held_scans(damage.found())?;
+    let damaged = report.damaged.clone();
+    report::write(&a.out, &Report::PointNetVlad(report), &table)?;
+    Ok((table, damaged))
 }

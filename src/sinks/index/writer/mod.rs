@@ -19,16 +19,21 @@
 //! completes it. A plain glob of the tables sees committed files only, and a mix of two
 //! generations only for the milliseconds of steps 2 and 3 (no data is written then).
 //!
-//! Over 800 lines: the commit protocol (chunks, replacement, pruning, compaction, `--full`
-//! rebuilds) is one state machine over one manifest, kept in one file to be read as one.
+//! The commit protocol (chunks, replacement, pruning, `--full` rebuilds) is one state machine
+//! over one manifest, kept in this file to be read as one; taking in other writers' files
+//! (`merge`), compaction (`compact`) and repair's rows (`repair`) are its submodules.
 //!
 //! A rebuild (`run --full`) writes the new generation beside the old one: its chunks stay in
 //! `.staging/` and the on-disk manifest keeps naming the old files until
 //! [`IndexWriter::finish`] switches to the new ones in one commit.
 
+mod compact;
+mod merge;
+mod repair;
+
 use super::damage::{Checked, DamagedPart, checked_bytes};
 use super::manifest::{Counts, FileEntry, MANIFEST_VERSION, Manifest, MethodEntry, file_checksum};
-use super::reader::{read_scans, read_scans_in, scan_ids, scan_ids_in};
+use super::reader::{read_scans_in, scan_ids_in};
 use super::recovery::{self, take_lock};
 use super::{CODEBOOK_FILE, MANIFEST_FILE, PIPELINE_FILE, STAGING_DIR, partition_dir, resolve, staged_path};
 use crate::error::{Error, Result, ResultExt};
@@ -317,155 +322,6 @@ impl IndexWriter {
         self.chunk.get_mut(session).expect("inserted")
     }
 
-    /// Takes in the committed content of another index with the same settings and codebook
-    /// (a shard of a sharded run): its files are linked in under this index's part numbers
-    /// and its scans replace any this index holds, at the next [`IndexWriter::commit`]. The
-    /// other index is left as it is. Returns the number of scans taken in.
-    pub fn absorb(&mut self, other: &Path) -> Result<u64> {
-        let (files, scans) = match Manifest::load(&other.join(MANIFEST_FILE))? {
-            Some(theirs) => {
-                if theirs.settings_hash != self.manifest.settings_hash {
-                    return Err(Error::index(
-                        other,
-                        format!(
-                            "made with settings {}, the index {} with {}",
-                            theirs.settings_hash,
-                            self.root.display(),
-                            self.manifest.settings_hash
-                        ),
-                    ));
-                }
-                if theirs.codebook_id.is_some() && theirs.codebook_id != self.manifest.codebook_id {
-                    return Err(Error::index(
-                        other,
-                        "made with another codebook than the index it merges into",
-                    ));
-                }
-                let scans = committed_scans(other, &theirs, &HashSet::new())?;
-                (theirs.files, scans)
-            }
-            None => self.written_elsewhere(other)?,
-        };
-        for f in &files {
-            let table = tables::ALL
-                .into_iter()
-                .find(|t| *t == f.table)
-                .ok_or_else(|| Error::index(other, format!("unknown table `{}` in its manifest", f.table)))?;
-            let method = (table == tables::DESCRIPTORS).then(|| f.method_name().to_string());
-            let source = resolve(other, &f.path);
-            if !f.xxh3.is_empty() {
-                verified(other, f, 0)?;
-            }
-            let (rel, staged) = self.next_part(table, method.as_deref(), &f.session);
-            let file = StagedFile::link(&source, &staged)?;
-            self.compacted.push(Staged::of(table, method, &f.session, rel, file, f.rows)?);
-        }
-        let taken = scans.len() as u64;
-        for (id, scan) in scans {
-            if self.committed.contains_key(&id) {
-                self.removals.insert(id.clone());
-            }
-            self.chunk_scans.push((id, scan));
-        }
-        Ok(taken)
-    }
-
-    /// The table files another tool wrote in this index's layout (a folder with `scans/`,
-    /// `diagrams/`, `descriptors/method=<m>/`, each partitioned by `session=<s>/`, and no
-    /// manifest: a Spark job's output), every one checked against toporec's schema (types by
-    /// family), its scans made with this index's settings and its TopoRec descriptors with
-    /// its codebook.
-    fn written_elsewhere(&self, other: &Path) -> Result<(Vec<FileEntry>, HashMap<String, CommittedScan>)> {
-        let mut files = Vec::new();
-        let mut scans = HashMap::new();
-        let entry = |table: &str, method: Option<&str>, session: String, path: &Path, rows: u64| FileEntry {
-            table: table.to_string(),
-            method: method.map(str::to_string),
-            session,
-            path: path.strip_prefix(other).unwrap_or(path).to_string_lossy().replace('\\', "/"),
-            rows,
-            bytes: 0,
-            xxh3: String::new(),
-        };
-        let mut methods: Vec<String> = Vec::new();
-        if let Ok(entries) = std::fs::read_dir(other.join(tables::DESCRIPTORS)) {
-            for e in entries.flatten() {
-                if let Some(m) = e.file_name().to_string_lossy().strip_prefix("method=") {
-                    methods.push(m.to_string());
-                }
-            }
-        }
-        methods.sort();
-        for table in [tables::SCANS, tables::DIAGRAMS] {
-            let listed =
-                if other.join(table).is_dir() { super::table_files(other, table, None)? } else { Vec::new() };
-            for (session, path) in listed {
-                let info = super::reader::check_file(&path, table, None)?;
-                if table == tables::SCANS {
-                    for r in read_scans(&path, &session)? {
-                        if r.settings_hash != self.manifest.settings_hash {
-                            return Err(Error::table(
-                                &path,
-                                format!(
-                                    "scan {} was made with settings {}, the index {} has {}",
-                                    r.scan_id,
-                                    r.settings_hash,
-                                    self.root.display(),
-                                    self.manifest.settings_hash
-                                ),
-                            ));
-                        }
-                        let (id, record) = CommittedScan::of_row(r);
-                        scans.insert(id, record);
-                    }
-                }
-                files.push(entry(table, None, session, &path, info.rows));
-            }
-        }
-        for method in &methods {
-            let length = match self.manifest.methods.get(method) {
-                Some(m) => Some(m.length),
-                None if method == TOPOREC => self.manifest.descriptor_length,
-                None => None,
-            };
-            let expected = match self.manifest.methods.get(method) {
-                Some(m) => Some(m.id.clone()),
-                None if method == TOPOREC => self.manifest.codebook_id.clone(),
-                None => None,
-            };
-            let Some(expected) = expected else {
-                return Err(Error::index(
-                    other,
-                    format!(
-                        "descriptors of `{method}`, a method the index {} does not have",
-                        self.root.display()
-                    ),
-                ));
-            };
-            for (session, path) in super::table_files(other, tables::DESCRIPTORS, Some(method))? {
-                let info = super::reader::check_file(&path, tables::DESCRIPTORS, length)?;
-                if info.codebook_id.as_ref().is_some_and(|id| *id != expected) {
-                    return Err(Error::table(
-                        &path,
-                        format!(
-                            "made by {}, the index's `{method}` by {expected}",
-                            info.codebook_id.unwrap_or_default()
-                        ),
-                    ));
-                }
-                if method == TOPOREC {
-                    for id in scan_ids(&path)? {
-                        if let Some(c) = scans.get_mut(&id) {
-                            c.has_descriptor = true;
-                        }
-                    }
-                }
-                files.push(entry(tables::DESCRIPTORS, Some(method), session, &path, info.rows));
-            }
-        }
-        Ok((files, scans))
-    }
-
     /// Adds one scan to the open chunk: its row, its pairs in `dims` (ok scans), its
     /// descriptors (one per method it has). A committed scan of the same id is replaced at the
     /// commit.
@@ -580,55 +436,6 @@ impl IndexWriter {
         }
     }
 
-    /// Marks the rows of scan `scan_id` of `session` for removal at the next commit, whether or
-    /// not it has a committed `scans` row (a repair: that row may have been in a damaged part).
-    pub(crate) fn remove_in(&mut self, scan_id: &str, session: &str) {
-        self.removals.insert(scan_id.to_string());
-        self.removal_sessions.insert(session.to_string());
-    }
-
-    /// Drops the committed part `path` at the next commit (a repair: a damaged part, its rows
-    /// rebuilt in the same commit), and counts the scans anew then.
-    pub(crate) fn drop_damaged(&mut self, path: &str) {
-        self.dropped.insert(path.to_string());
-        self.recount = true;
-    }
-
-    /// Whether the committed part `path` is dropped at the next commit.
-    pub(crate) fn dropping(&self, path: &str) -> bool {
-        self.dropped.contains(path)
-    }
-
-    /// Adds rows of a committed scan to the open chunk, without replacing it (a repair): its
-    /// `scans` row when given (`has_descriptor`: whether the index holds its TopoRec
-    /// descriptor), its pairs in `dims`, its descriptors.
-    pub(crate) fn add_rows(
-        &mut self,
-        session: &str,
-        scan_id: &str,
-        scan_row: Option<(ScanRow, bool)>,
-        diagram: Option<&Diagram>,
-        dims: &[u8],
-        descriptors: Vec<MethodDescriptor>,
-    ) -> Result<()> {
-        if let Some(d) = diagram {
-            self.push_diagram(session, scan_id, d, dims)?;
-        }
-        for d in descriptors {
-            self.chunk_rows += 1;
-            if d.method == TOPOREC
-                && let Some(c) = self.committed.get_mut(scan_id)
-            {
-                c.has_descriptor = true;
-            }
-            self.push_descriptor(session, &d.method, d.row, || d.id.clone())?;
-        }
-        if let Some((row, has_descriptor)) = scan_row {
-            self.push_scan(row, has_descriptor)?;
-        }
-        Ok(())
-    }
-
     /// Commits `codebook` (and the effective pipeline `pipeline_toml`) with the next commit.
     pub fn set_codebook(&mut self, codebook: Codebook, pipeline_toml: Option<String>) {
         self.pending_codebook = Some((codebook, pipeline_toml));
@@ -640,55 +447,6 @@ impl IndexWriter {
         let files: Vec<String> = self.manifest.descriptor_files_of(TOPOREC).map(|f| f.path.clone()).collect();
         self.dropped.extend(files);
         self.committed.values_mut().for_each(|c| c.has_descriptor = false);
-    }
-
-    /// Merges each partition's part files of each table into one file, in one commit.
-    /// Returns how many files were merged into how many.
-    pub fn compact(&mut self) -> Result<(usize, usize)> {
-        let mut groups: BTreeMap<(String, Option<String>, String), Vec<FileEntry>> = BTreeMap::new();
-        for f in &self.manifest.files {
-            let method = (f.table == tables::DESCRIPTORS).then(|| f.method_name().to_string());
-            groups.entry((f.table.clone(), method, f.session.clone())).or_default().push(f.clone());
-        }
-        let (mut merged, mut into) = (0, 0);
-        for ((table, method, session), files) in groups.into_iter().filter(|(_, files)| files.len() > 1) {
-            let table = tables::ALL.into_iter().find(|t| *t == table).expect("a table name");
-            let length = match &method {
-                Some(m) if m != TOPOREC => self.manifest.methods.get(m).map(|e| e.length),
-                _ => self.manifest.descriptor_length,
-            };
-            let (rel, target) = self.next_part(table, method.as_deref(), &session);
-            // Written in the table's declared layout, whatever layout each input has (a part an
-            // older toporec wrote may lack a nullable column added since: nulls).
-            let declared = super::reader::declared(table, method.as_deref(), length).expect("a table name");
-            let mut extra = Vec::new();
-            if let Some(m) = &method {
-                let id = match self.manifest.methods.get(m) {
-                    Some(e) => Some(e.id.clone()),
-                    None => self.manifest.codebook_id.clone(),
-                };
-                extra.push((crate::sinks::schema::meta::CODEBOOK_ID, id.unwrap_or_default()));
-                extra.push((crate::sinks::schema::meta::METHOD, m.clone()));
-            }
-            let mut out = TableFile::create(&target, &declared, &extra)?;
-            for f in &files {
-                let bytes = self.verified_bytes(f)?;
-                let path = self.path_of(f);
-                // Each input is read as its table: an error names the input.
-                for batch in super::reader::declared_batches(&path, bytes, &declared)? {
-                    let batch = batch.with_schema(out.schema().clone()).at(&path)?;
-                    out.write_batch(&batch)?;
-                }
-                self.dropped.insert(f.path.clone());
-            }
-            let (file, rows) = out.finish()?;
-            self.compacted.push(Staged::of(table, method, &session, rel, file, rows)?);
-            merged += files.len();
-            into += 1;
-        }
-        crate::fault::point("compact-mid");
-        self.commit()?;
-        Ok((merged, into))
     }
 
     /// Records the effective pipeline with the next commit (in the manifest, and its copy

@@ -17,10 +17,13 @@
 //! `--query-scan` choose scans by id; `--within-session` compares poses only inside a session
 //! (KITTI's sequences each have their own frame).
 //!
-//! Over 800 lines: choosing the scans, describing the queries under each condition and scoring
-//! them share one set of per-method state, which this file keeps together.
+//! Choosing the scans is `choose`; describing the queries again under each condition,
+//! `redescribe`.
 
-use super::conditions::{Condition, NotApplicable};
+mod choose;
+mod redescribe;
+
+use super::conditions::Condition;
 use super::metrics::{Denominator, LoopClosure, Recall, first_hit, loop_closure, one_percent_k, recall};
 use super::report::{
     self, ConditionResult, DatabaseSide, EvaluatedCondition, LoopClosureResult, Nearest, PlacesMethod,
@@ -35,7 +38,10 @@ use crate::search::{Engine, Loaded, StepTimes, load_method, step_summary};
 use crate::sinks::index::IndexedScan;
 use crate::sinks::index::damage::{Damage, DamagedPart};
 use crate::sinks::index::holdings::held_scans;
+pub(crate) use choose::Chooser;
+use choose::{subsample, xy};
 use rayon::prelude::*;
+use redescribe::redescribe;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -131,52 +137,6 @@ pub enum Protocol {
     Pointnetvlad,
 }
 
-/// The scans `--db-scan` or `--query-scan` choose: those whose id matches one of the globs
-/// (`*`: any run of characters, `/` included; `?`: one; `[…]`: one of), every scan when none
-/// is given.
-pub(crate) struct Chooser(Option<globset::GlobSet>);
-
-impl Chooser {
-    /// The chooser of `patterns`, given with `flag`; an error names a pattern that is no glob.
-    pub(crate) fn new(flag: &str, patterns: &[String]) -> Result<Self> {
-        if patterns.is_empty() {
-            return Ok(Chooser(None));
-        }
-        let mut set = globset::GlobSetBuilder::new();
-        for p in patterns {
-            let glob = globset::Glob::new(p).map_err(|e| Error::invalid(format!("{flag} `{p}`: {e}")))?;
-            set.add(glob);
-        }
-        set.build().map(|s| Chooser(Some(s))).map_err(|e| Error::invalid(format!("{flag}: {e}")))
-    }
-
-    /// Whether the scan `id` is chosen.
-    pub(crate) fn chosen(&self, id: &str) -> bool {
-        self.0.as_ref().is_none_or(|s| s.is_match(id))
-    }
-}
-
-fn xy(s: &IndexedScan) -> [f64; 2] {
-    let p = s.pose.expect("filtered to posed scans");
-    [p[0], p[1]]
-}
-
-fn subsample(scans: Vec<IndexedScan>, every: Option<f64>) -> Vec<IndexedScan> {
-    let Some(every) = every else { return scans };
-    let mut last: Option<[f64; 2]> = None;
-    scans
-        .into_iter()
-        .filter(|s| {
-            let p = xy(s);
-            let keep = last.is_none_or(|l| (p[0] - l[0]).hypot(p[1] - l[1]) > every);
-            if keep {
-                last = Some(p);
-            }
-            keep
-        })
-        .collect()
-}
-
 /// The conditions asked for (as-recorded when none), each once, in order.
 fn parse_conditions(asked: &[String]) -> Result<Vec<Condition>> {
     let mut out: Vec<Condition> = Vec::new();
@@ -197,7 +157,7 @@ fn parse_conditions(asked: &[String]) -> Result<Vec<Condition>> {
 pub fn places(a: &PlacesArgs) -> Result<(String, Vec<DamagedPart>)> {
     let damage = Damage::skipping(a.skip_damaged);
     if a.protocol == Protocol::Pointnetvlad {
-        return pointnetvlad_places(a, &damage);
+        return super::pointnetvlad::places(a, &damage);
     }
     let conditions = parse_conditions(&a.conditions)?;
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());
@@ -799,129 +759,6 @@ impl Prepared {
         }));
         Evaluated { result, curves, plots, summary, loop_closure: Some(lc) }
     }
-}
-
-/// `(condition, method) → scan id → descriptor`.
-type Redescriptions = HashMap<(usize, usize), HashMap<String, Redescribed>>;
-
-/// Re-reads every query scan through the query index's sources and describes it, under each
-/// condition other than as-recorded, with each method: `(condition, method) → scan id →
-/// descriptor`. Each raw scan is read once and dropped once described.
-fn redescribe(
-    a: &PlacesArgs,
-    queries_index: &Path,
-    prepared: &[Prepared],
-    conditions: &[Condition],
-) -> Result<(Redescriptions, Option<f64>)> {
-    let wanted: HashSet<&str> =
-        prepared.iter().flat_map(|p| p.queries.iter().map(|q| q.scan_id.as_str())).collect();
-    let pipeline = crate::pipeline::config::Pipeline::of_index(queries_index)?;
-    let needs_unit = conditions.iter().any(|c| matches!(c, Condition::Paper(_)));
-    let mut metric = pipeline.preprocess.clone();
-    metric.normalize = false;
-    let mut found = 0usize;
-    let mut per_scan: Vec<(String, Vec<Vec<Redescribed>>)> = Vec::new();
-    let mut units: Vec<f64> = Vec::new();
-    for spec in &pipeline.sources {
-        let scans = spec.open()?.filter_map(|item| item.ok()).filter(|s| wanted.contains(s.id.as_str()));
-        let described: Vec<(String, Vec<Vec<Redescribed>>, f64)> = scans
-            .par_bridge()
-            .map(|scan| {
-                let unit = if needs_unit {
-                    crate::preprocess::preprocess(scan.points.clone(), scan.fingerprint, &metric)
-                        .map(|mut pts| crate::preprocess::normalize(&mut pts))
-                        .unwrap_or(1.0)
-                } else {
-                    1.0
-                };
-                let seed = a.seed ^ crate::preprocess::seed_of(&scan.id);
-                let per_condition = conditions
-                    .iter()
-                    .map(|c| {
-                        if *c == Condition::AsRecorded {
-                            return Vec::new();
-                        }
-                        let points = c.apply(&scan.points, scan.ring.as_deref(), seed, unit);
-                        prepared
-                            .iter()
-                            .map(|p| match &points {
-                                Err(NotApplicable(why)) => Err(format!("{}: {why}", scan.id)),
-                                Ok(points) => {
-                                    let conditioned = crate::sources::Scan {
-                                        points: points.clone(),
-                                        ring: None,
-                                        intensity: None,
-                                        ..scan_header(&scan)
-                                    };
-                                    p.engine.describe_scan(conditioned).map_err(|e| e.to_string())
-                                }
-                            })
-                            .collect()
-                    })
-                    .collect();
-                (scan.id.clone(), per_condition, unit)
-            })
-            .collect();
-        found += described.len();
-        for (id, per_condition, unit) in described {
-            per_scan.push((id, per_condition));
-            units.push(unit);
-        }
-    }
-    if found < wanted.len() {
-        return Err(Error::index(
-            queries_index,
-            format!("{found} of {} query scans could be re-read from the index's sources", wanted.len()),
-        ));
-    }
-    let mut out: Redescriptions = HashMap::new();
-    for (id, per_condition) in per_scan {
-        for (ci, per_method) in per_condition.into_iter().enumerate() {
-            for (mi, r) in per_method.into_iter().enumerate() {
-                out.entry((ci, mi)).or_default().insert(id.clone(), r);
-            }
-        }
-    }
-    let mean_unit = (needs_unit && !units.is_empty()).then(|| units.iter().sum::<f64>() / units.len() as f64);
-    Ok((out, mean_unit))
-}
-
-/// A scan's identity (id, fingerprint, session, path, time, pose) without its points.
-fn scan_header(scan: &crate::sources::Scan) -> crate::sources::Scan {
-    crate::sources::Scan {
-        id: scan.id.clone(),
-        fingerprint: scan.fingerprint,
-        session: scan.session.clone(),
-        path: scan.path.clone(),
-        message_index: scan.message_index,
-        utime: scan.utime,
-        points: Vec::new(),
-        intensity: None,
-        ring: None,
-        raw_points: scan.raw_points,
-        pose: scan.pose,
-        no_pose: scan.no_pose,
-    }
-}
-
-/// `eval places --protocol pointnetvlad`: the benchmark's own database and query sets.
-fn pointnetvlad_places(a: &PlacesArgs, damage: &Damage) -> Result<(String, Vec<DamagedPart>)> {
-    if a.queries.is_some() || !a.db_sessions.is_empty() || !a.query_sessions.is_empty() {
-        return Err(Error::invalid(
-            "--protocol pointnetvlad pairs the benchmark's own runs: --queries, --db-session and --query-session do not apply",
-        ));
-    }
-    let methods = names(&chosen_methods(&[&a.db], &a.methods)?);
-    let (table, report, curves) = super::pointnetvlad::evaluate(&a.db, &methods, a.search, damage)?;
-    std::fs::create_dir_all(&a.out).at(&a.out)?;
-    let plots =
-        crate::plot::recall_curves(&a.out.join("recall_at_n"), "Recall@N (PointNetVLAD protocol)", &curves)?;
-    let mut report = report;
-    report.plots = file_names(&plots);
-    report.damaged = held_scans(damage.found())?;
-    let damaged = report.damaged.clone();
-    report::write(&a.out, &Report::PointNetVlad(report), &table)?;
-    Ok((table, damaged))
 }
 
 #[cfg(test)]
