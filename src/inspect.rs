@@ -177,11 +177,56 @@ fn log_report(path: &Path, log: LogKind, out: &mut String) -> Result<()> {
             line!(out, "    time span (log time): {}", time_span(t.first, t.last));
         }
     }
-    line!(out, "poses joined: no (give `poses` in a pipeline file)");
+    log_poses(path, out);
     line!(out, "scan time: the header stamp, else the log time");
     line!(out, "corrupt records: {}", faults.len());
     for f in faults.iter().take(20) {
         line!(out, "error: {}: {f}", path.display());
     }
     Ok(())
+}
+
+/// Where a log's scans would take their poses: the candidates (the transform chain from the
+/// cloud's frame, the pose topics) and the one used without flags, or why none can be chosen.
+fn log_poses(path: &Path, out: &mut String) {
+    let kind = match crate::sources::logs::LogKind::detect(path) {
+        Some(k) => k,
+        None => return,
+    };
+    let gathered = (|| -> std::result::Result<_, crate::sources::SourceError> {
+        let channels = kind.channels(path)?;
+        let clouds: Vec<&str> =
+            channels.iter().filter(|c| is_point_cloud(c)).map(|c| c.topic.as_str()).collect();
+        let cloud = clouds.first().copied().unwrap_or_default().to_string();
+        crate::sources::poses::LogPoses::gather(path, &channels, kind.messages(path)?, &cloud)
+    })();
+    let gathered = match gathered {
+        Ok(g) => g,
+        Err(e) => {
+            line!(out, "poses: cannot be read: {e}");
+            return;
+        }
+    };
+    if let Some(frame) = &gathered.cloud_frame {
+        let chain = gathered.tf.chain(frame);
+        if chain.len() > 1 {
+            let mut down = chain.clone();
+            down.reverse();
+            line!(out, "pose candidate: /tf chain {}", down.join(" → "));
+        }
+    }
+    for t in gathered.topic_list() {
+        line!(out, "pose candidate: {t}");
+    }
+    match gathered.choose(path, &crate::sources::poses::PoseKeys::default()) {
+        Ok(Some(choice)) => line!(
+            out,
+            "poses joined: from {} (--poses-topic and --pose-frames choose otherwise)",
+            choice.describe()
+        ),
+        Ok(None) => {
+            line!(out, "poses joined: none in the log (give --poses FILE: TUM, KITTI or NCLT layout)")
+        }
+        Err(e) => line!(out, "poses joined: none chosen: {e}"),
+    }
 }

@@ -66,6 +66,7 @@ pub mod loops;
 pub mod maintenance;
 pub mod methods;
 pub mod offline;
+pub mod oneshot;
 pub mod pipeline;
 pub mod plot;
 pub mod preprocess;

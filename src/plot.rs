@@ -302,3 +302,101 @@ pub fn trajectory(
 ) -> Result<Vec<PathBuf>> {
     render(stem, (800, 800), &Trajectory { title, database, queries })
 }
+
+/// One loop edge of [`loops_map`]: the two scans' places and whether it was kept.
+#[derive(Clone, Copy, Debug)]
+pub struct LoopEdge {
+    /// The query scan's place (x, y; or its walking order, 0).
+    pub from: [f64; 2],
+    /// The matched scan's.
+    pub to: [f64; 2],
+    /// Kept (accepted, and verified when checked), or rejected by its check.
+    pub kept: bool,
+}
+
+struct LoopsMap<'a> {
+    title: &'a str,
+    tracks: &'a [(String, Vec<[f64; 2]>)],
+    edges: &'a [LoopEdge],
+    /// Positions are walking order, not poses: edges are drawn as arcs over the line.
+    ordered: bool,
+}
+
+impl Figure for LoopsMap<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        let finite = |p: &[f64; 2]| p.iter().all(|c| c.is_finite());
+        let points = self.tracks.iter().flat_map(|t| t.1.iter()).filter(|p| finite(p));
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for p in points {
+            for k in 0..2 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        if !lo[0].is_finite() {
+            (lo, hi) = ([0.0; 2], [1.0; 2]);
+        }
+        let span = ((hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) * 1.1).min(1e12);
+        let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+        let (x_desc, y_desc) = if self.ordered { ("scan (walking order)", "") } else { ("x (m)", "y (m)") };
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(c[0] - span / 2.0..c[0] + span / 2.0, c[1] - span / 2.0..c[1] + span / 2.0)
+            .map_err(e)?;
+        chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(e)?;
+        for (i, (session, track)) in self.tracks.iter().enumerate() {
+            let color = RGBColor(150, 150, 150).mix(if i == 0 { 1.0 } else { 0.6 });
+            let line: Vec<(f64, f64)> = track.iter().filter(|p| finite(p)).map(|p| (p[0], p[1])).collect();
+            chart
+                .draw_series(LineSeries::new(line, color.stroke_width(1)))
+                .map_err(e)?
+                .label(session.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(1)));
+        }
+        // An arc between two places on the walking-order line; a straight edge between poses.
+        let path = |edge: &LoopEdge| -> Vec<(f64, f64)> {
+            if !self.ordered {
+                return vec![(edge.from[0], edge.from[1]), (edge.to[0], edge.to[1])];
+            }
+            let (a, b) = (edge.from[0], edge.to[0]);
+            let (mid, r) = ((a + b) / 2.0, (b - a).abs() / 2.0);
+            (0..=24)
+                .map(|k| std::f64::consts::PI * k as f64 / 24.0)
+                .map(|t| (mid + r * t.cos(), r * t.sin()))
+                .collect()
+        };
+        for (kept, color, label) in
+            [(true, PALETTE[2], "loop, kept"), (false, PALETTE[3], "match rejected by its check")]
+        {
+            let edges: Vec<&LoopEdge> =
+                self.edges.iter().filter(|l| l.kept == kept && finite(&l.from) && finite(&l.to)).collect();
+            let n = edges.len();
+            chart
+                .draw_series(edges.into_iter().map(|l| PathElement::new(path(l), color.stroke_width(2))))
+                .map_err(e)?
+                .label(format!("{label} ({n})"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+        }
+        legend(&mut chart, SeriesLabelPosition::UpperRight)?;
+        Ok(())
+    }
+}
+
+/// The loops found over the drive: each session's trajectory (x, y from its poses; or, with
+/// `ordered`, its scans along a line in walking order), each loop an edge, kept ones green and
+/// those rejected by their check red (PNG and SVG).
+pub fn loops_map(
+    stem: &Path,
+    title: &str,
+    tracks: &[(String, Vec<[f64; 2]>)],
+    edges: &[LoopEdge],
+    ordered: bool,
+) -> Result<Vec<PathBuf>> {
+    render(stem, (900, 900), &LoopsMap { title, tracks, edges, ordered })
+}

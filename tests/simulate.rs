@@ -57,6 +57,19 @@ fn committed_sample_regenerates_identically() {
     }
 }
 
+#[test]
+fn committed_drive_bag_regenerates_identically() {
+    // The command in samples/README.md.
+    let dir = scratch_dir("simulate_drive_bag");
+    let args = "simulate --format bag --sessions 1 --laps 2 --blocks 3 --block-size 60 --sensor vlp16 --azimuth-res 3 --rate 2 --seed 4";
+    let mut args: Vec<&str> = args.split(' ').collect();
+    args.extend(["-o", dir.to_str().unwrap()]);
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_toporec")).args(&args).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let made = std::fs::read(dir.join("bag/2026-01-01.bag")).unwrap();
+    assert!(made == std::fs::read(root().join("samples/drive.bag")).unwrap(), "samples/drive.bag differs");
+}
+
 fn static_shapes(s: &Scene) -> Vec<String> {
     s.primitives
         .iter()

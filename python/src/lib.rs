@@ -106,6 +106,21 @@ fn mcap_scan_count(py: Python<'_>, path: PathBuf, topic: Option<String>) -> PyRe
         .map_err(|e| value_error(e.to_string()))
 }
 
+/// `toporec loops <source>…` with these command-line arguments (after `loops`); returns its
+/// summary, the written table's path left to the caller to read.
+#[pyfunction]
+fn loops(py: Python<'_>, args: Vec<String>, threads: usize) -> PyResult<String> {
+    #[derive(clap::Parser)]
+    struct Loops {
+        #[command(flatten)]
+        args: toporec::loops::LoopsArgs,
+    }
+    let parsed = <Loops as clap::Parser>::try_parse_from(std::iter::once("loops".to_string()).chain(args))
+        .map_err(|e| value_error(e.to_string().trim()))?;
+    py.detach(|| toporec::oneshot::loops(&parsed.args, threads.max(1)).map(|done| done.to_string()))
+        .map_err(toporec_error)
+}
+
 /// Merges table files written by another tool in the index's layout under `folder` (a Spark
 /// job's output) into `index`, in one commit under the index's lock; returns the scans taken in.
 #[pyfunction]
@@ -376,6 +391,7 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(fit_sample, m)?)?;
     m.add_function(wrap_pyfunction!(merge_written, m)?)?;
+    m.add_function(wrap_pyfunction!(loops, m)?)?;
     m.add_function(wrap_pyfunction!(mcap_scan_count, m)?)?;
     m.add_function(wrap_pyfunction!(index_table, m)?)?;
     m.add_function(wrap_pyfunction!(index_methods, m)?)?;

@@ -109,3 +109,32 @@ def test_ring_query_gives_the_scan_itself_with_its_pose(repo, loops_index, metho
     assert hits["yaw_deg"][0].as_py() == 0.0
     assert (hits["x_m"][0].as_py(), hits["y_m"][0].as_py()) == (0.0, 0.0)
     assert hits["distance"][0].as_py() <= hits["distance"][1].as_py()
+
+
+def test_loops_of_a_bag_equal_the_command(repo, binary, tmp_path):
+    """toporec.loops on the sample bag: the rows `toporec loops samples/drive.bag` writes, from
+    the same index, verified; the second call computes nothing new and answers the same."""
+    import pyarrow.parquet as pq
+
+    bag = repo / "samples" / "drive.bag"
+    index = tmp_path / "index"
+    table = toporec.loops(bag, index=index, threads=2)
+    out = tmp_path / "command.parquet"
+    subprocess.run(
+        [binary, "loops", bag, "--index", tmp_path / "command-index", "-o", out, "--no-progress", "-t", "2"],
+        check=True,
+        capture_output=True,
+    )
+    expected = pq.read_table(out)
+    assert table.schema.names == expected.schema.names
+    assert table.to_pylist() == expected.to_pylist()
+    accepted = [r for r in table.to_pylist() if r["accepted"]]
+    assert len(accepted) >= 10, len(accepted)
+    assert all(r["verified"] is not None for r in accepted)
+    assert toporec.loops(bag, index=index, threads=1).to_pylist() == table.to_pylist()
+
+
+def test_loops_of_a_missing_log_raise_naming_it(tmp_path):
+    missing = tmp_path / "nowhere.bag"
+    with pytest.raises(Exception, match="nowhere.bag"):
+        toporec.loops(missing, index=tmp_path / "index")

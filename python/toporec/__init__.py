@@ -60,6 +60,7 @@ __all__ = [
     "computed_methods",
     "describe_batch",
     "fit",
+    "loops",
     "paper_diagram",
     "read_points",
     "read_scans",
@@ -359,6 +360,57 @@ def run(
     threads = (os.cpu_count() or 1) if threads is None else int(threads)
     text = _toporec.run(os.fspath(pipeline), threads, None if index is None else os.fspath(index), bool(full))
     return json.loads(text)
+
+
+def loops(
+    path: Union[PathLike, Sequence[PathLike]],
+    method: Union[str, Sequence[str]] = "toporec-plus",
+    poses: Optional[PathLike] = None,
+    verify: bool = True,
+    index: Optional[PathLike] = None,
+    threads: Optional[int] = None,
+    **options: Any,
+) -> pa.Table:
+    """Loop closures of a log (or several sources), as ``toporec loops <source>…`` finds them:
+    the sources indexed (into ``index``, default ``out/<first source's name>``, brought up to
+    date on the next call), each scan's best earlier match below the method's threshold,
+    verified by ICP unless ``verify=False``.
+
+    Args:
+        path: a ROS 1 bag, a rosbag2 folder, an MCAP file, an NCLT session, a KITTI sequence, a
+            folder of PCD/PLY files, or a list of them.
+        method: the descriptor method(s) (:func:`computed_methods`).
+        poses: a pose file (TUM, KITTI or NCLT layout) instead of the log's own poses.
+        verify: check each match by aligning the two scans.
+        index: the index folder.
+        threads: worker threads (default: all cores).
+        options: other options of the command, by name (``topic="/points"``,
+            ``poses_topic="/odom"``, ``pose_frames="odom:velodyne"``, ``exclude_seconds=10``).
+
+    Returns:
+        The loops table (``schemas/loops.json``): the same columns and rows as the command.
+    """
+    import tempfile
+
+    import pyarrow.parquet as pq
+
+    paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
+    methods = [method] if isinstance(method, str) else list(method)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "loops.parquet")
+        args = [os.fspath(p) for p in paths] + ["-o", out, "--no-progress"]
+        for m in methods:
+            args += ["--method", m]
+        if poses is not None:
+            args += ["--poses", os.fspath(poses)]
+        if not verify:
+            args.append("--no-verify")
+        if index is not None:
+            args += ["--index", os.fspath(index)]
+        for name, value in options.items():
+            args += [f"--{name.replace('_', '-')}", os.fspath(value) if isinstance(value, os.PathLike) else str(value)]
+        _toporec.loops(args, (os.cpu_count() or 1) if threads is None else int(threads))
+        return pq.read_table(out)
 
 
 def fit(

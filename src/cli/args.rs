@@ -51,13 +51,22 @@ pub struct VerifyArgs {
 /// Arguments of `toporec run`.
 #[derive(clap::Args, Debug)]
 pub struct RunArgs {
-    /// The pipeline file (TOML).
-    #[arg(default_value = "pipelines/sample.toml")]
-    pub pipeline: PathBuf,
+    /// The pipeline file (TOML); or logs, sessions and folders to index with no pipeline file
+    /// (what `inspect` reads; the index goes to `out/<first source's name>` unless --index says
+    /// otherwise, and the pipeline made is printed and kept by the index).
+    #[arg(value_name = "PIPELINE.toml | SOURCE", default_value = "pipelines/sample.toml")]
+    pub inputs: Vec<PathBuf>,
+    /// With sources: the descriptor methods (repeatable; default: toporec-plus).
+    #[arg(long = "method")]
+    pub methods: Vec<String>,
+    /// With sources: where their scans take their poses and topic.
+    #[command(flatten)]
+    pub from: toporec::oneshot::SourceOptions,
     /// Worker threads, [1, ∞) (default: all cores).
     #[arg(long, short, value_parser = ranges::count)]
     pub threads: Option<usize>,
-    /// Write the index here instead of the file's `output.index`.
+    /// Write the index here instead of the file's `output.index` (with sources, instead of
+    /// `out/<first source's name>`).
     #[arg(long)]
     pub index: Option<PathBuf>,
     /// No progress bar or progress lines.

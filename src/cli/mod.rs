@@ -222,9 +222,24 @@ fn threads(requested: Option<usize>) -> usize {
 }
 
 fn run(args: RunArgs) -> Result<Done> {
-    let pipeline = Pipeline::load(&args.pipeline)?;
+    let is_pipeline = |p: &PathBuf| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    let (pipeline, index) = match args.inputs.as_slice() {
+        [one] if is_pipeline(one) => (Pipeline::load(one)?, args.index.clone()),
+        inputs => {
+            if let Some(p) = inputs.iter().find(|p| is_pipeline(p)) {
+                bail!("{}: a pipeline file is given alone (the others are sources)", p.display());
+            }
+            let index = args.index.clone().unwrap_or_else(|| toporec::oneshot::default_index(inputs));
+            let made = toporec::oneshot::pipeline(inputs, &args.from, &args.methods, &index)?;
+            for p in &made.poses {
+                eprintln!("{p}");
+            }
+            print(&made.text)?;
+            (made.pipeline, Some(index))
+        }
+    };
     let opts = RunOptions {
-        index: args.index,
+        index,
         progress: !args.no_progress,
         full: args.full,
         prune: args.prune,
@@ -264,7 +279,19 @@ fn validate(args: ValidateArgs) -> Result<()> {
 }
 
 fn loops(a: toporec::loops::LoopsArgs) -> Result<Done> {
-    let summary = toporec::loops::run(&a)?;
+    let threads = threads(a.threads);
+    if !a.sources.is_empty() {
+        let done = toporec::oneshot::loops(&a, threads)?;
+        eprintln!("{done}");
+        print(&format!("written: {}\n", a.out.display()))?;
+        return Ok(if done.run.partial() || report_damage(&done.loops.damaged) {
+            Done::Partial
+        } else {
+            Done::All
+        });
+    }
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let summary = pool.install(|| toporec::loops::run(&a))?;
     eprint!("{summary}");
     print(&format!("written: {}\n", a.out.display()))?;
     Ok(if report_damage(&summary.damaged) { Done::Partial } else { Done::All })

@@ -31,12 +31,25 @@ use std::path::{Path, PathBuf};
 /// What `toporec loops` is asked.
 #[derive(clap::Args, Clone, Debug)]
 pub struct LoopsArgs {
-    /// The index.
+    /// Logs, sessions or folders to index and search, with no pipeline file (what `inspect`
+    /// reads: ROS 1 bags, rosbag2 folders, MCAP files, NCLT sessions, KITTI sequences, folders of
+    /// PCD/PLY files); loops are sought among their sessions, verified unless --no-verify.
+    #[arg(value_name = "SOURCE", required_unless_present = "index")]
+    pub sources: Vec<PathBuf>,
+    /// The index (with sources: where they are indexed, default `out/<first source's name>`).
     #[arg(long)]
-    pub index: PathBuf,
-    /// The descriptor methods (repeatable; default: every method of the index).
+    pub index: Option<PathBuf>,
+    /// Where the sources' scans take their poses and topic.
+    #[command(flatten)]
+    pub from: crate::oneshot::SourceOptions,
+    /// The descriptor methods (repeatable; default: every method of the index; with sources,
+    /// toporec-plus).
     #[arg(long = "method")]
     pub methods: Vec<String>,
+    /// Only these sessions' scans, as queries and as matches (repeatable; default: all; with
+    /// sources, theirs).
+    #[arg(long = "session")]
+    pub sessions: Vec<String>,
     /// Same-session scans closer in time than this are not loops (seconds, ≥ 0).
     #[arg(long, default_value_t = 30.0, value_parser = ranges::non_negative)]
     pub exclude_seconds: f64,
@@ -66,17 +79,24 @@ pub struct LoopsArgs {
     pub false_beyond: Option<f64>,
     /// Check each match below the threshold by aligning the two raw scans (point-to-plane ICP,
     /// read again from the index's source files); keep those that pass the limits.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "no_verify")]
     pub verify: bool,
+    /// With sources: do not verify (they are verified by default).
+    #[arg(long)]
+    pub no_verify: bool,
     /// What a kept alignment must reach.
     #[command(flatten)]
     pub limits: verify::Limits,
-    /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines (with `--verify` and one --method).
+    /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines to this file (with verification;
+    /// with several methods, each to `<stem>.<method>.g2o` beside it).
     #[arg(long)]
     pub g2o: Option<PathBuf>,
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
+    /// Worker threads, [1, ∞) (default: all cores).
+    #[arg(long, short, value_parser = ranges::count)]
+    pub threads: Option<usize>,
     /// Write every scan's best match, accepted or not (an `accepted` column says which).
     #[arg(long)]
     pub all: bool,
@@ -380,8 +400,10 @@ pub struct Summary {
     pub methods: Vec<MethodSummary>,
     /// The calibration files written.
     pub calibrations: Vec<PathBuf>,
-    /// The g2o file written.
-    pub g2o: Option<PathBuf>,
+    /// The g2o files written, one per method.
+    pub g2o: Vec<PathBuf>,
+    /// Every match below its method's threshold, accepted or rejected by its check.
+    pub checked: Vec<LoopRow>,
     /// Damaged parts left out (`skip_damaged`), each with the scans it held.
     pub damaged: Vec<crate::sinks::index::damage::DamagedPart>,
 }
@@ -428,7 +450,7 @@ impl std::fmt::Display for Summary {
         for c in &self.calibrations {
             writeln!(f, "calibration written: {}", c.display())?;
         }
-        if let Some(g) = &self.g2o {
+        for g in &self.g2o {
             writeln!(f, "g2o edges written: {}", g.display())?;
         }
         Ok(())
@@ -488,6 +510,24 @@ fn given_threshold(a: &LoopsArgs, method: &str, engine: &Engine) -> Result<Optio
     Ok(Some(c.threshold))
 }
 
+/// Where `--g2o PATH` writes `method`'s edges: `PATH` itself when it is the only method, else
+/// `<stem>.<method>.g2o` beside it.
+pub fn g2o_path(path: &Path, method: &str, methods: usize) -> PathBuf {
+    if methods == 1 {
+        return path.to_path_buf();
+    }
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "loops".into());
+    path.with_file_name(format!("{stem}.{method}.g2o"))
+}
+
+impl LoopsArgs {
+    /// Whether the matches below the threshold are verified: with sources unless
+    /// `--no-verify`, on an index with `--verify`.
+    pub fn verifies(&self) -> bool {
+        if self.sources.is_empty() { self.verify } else { !self.no_verify }
+    }
+}
+
 /// Runs `toporec loops`: the rows of every method, written to `a.out`; with `calibrate`, the
 /// thresholds written beside it (`<out stem>.calibration.json`).
 pub fn run(a: &LoopsArgs) -> Result<Summary> {
@@ -503,16 +543,21 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
     if a.threshold.is_some() as u8 + a.threshold_from.is_some() as u8 + a.calibrate as u8 > 1 {
         return Err(Error::invalid("--threshold, --threshold-from and --calibrate: give one".to_string()));
     }
-    let methods = if a.methods.is_empty() {
-        crate::search::index_methods(&a.index)?.into_iter().map(|m| m.name).collect()
+    let Some(index) = a.index.as_deref() else {
+        return Err(Error::invalid("loops: give --index DIR, or sources to index"));
+    };
+    let methods: Vec<String> = if a.methods.is_empty() {
+        crate::search::index_methods(index)?.into_iter().map(|m| m.name).collect()
     } else {
         a.methods.clone()
     };
-    if a.g2o.is_some() && (!a.verify || methods.len() != 1) {
+    let verifying = a.verifies();
+    if a.g2o.is_some() && !verifying {
         return Err(Error::invalid(
-            "--g2o: needs --verify (the relative pose comes from the alignment) and one --method".to_string(),
+            "--g2o: needs the loops verified (the relative pose comes from the alignment)".to_string(),
         ));
     }
+    let in_sessions = |s: &IndexedScan| a.sessions.is_empty() || a.sessions.contains(&s.session);
     let exclusion = match a.exclude_scans {
         Some(n) => Exclusion::Scans(n),
         None => Exclusion::Seconds(a.exclude_seconds),
@@ -522,8 +567,11 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
     let mut calibrations = Vec::new();
     let damage = Damage::skipping(a.skip_damaged);
     for method in &methods {
-        let engine = Engine::open_with(&a.index, &[], method, &damage)?;
-        let queries = query_descriptors(&a.index, &engine, &damage)?;
+        let engine = Engine::open_with(index, &[], method, &damage)?.retain(&in_sessions)?;
+        if engine.scans.is_empty() {
+            return Err(Error::index(index, format!("no {method} descriptors in sessions {:?}", a.sessions)));
+        }
+        let queries = query_descriptors(index, &engine, &damage)?;
         let rule = Allowed::new(&engine.scans, exclusion);
         let bar = progress_bar(!a.no_progress, engine.scans.len(), &format!("scans searched ({method})"));
         let matches = best_matches_counted(&engine, &queries, &rule, bar.as_ref());
@@ -569,8 +617,8 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             r.accepted = r.distance < threshold;
         }
         let below_threshold = rows.iter().filter(|r| r.accepted).count();
-        if a.verify {
-            let checks = verify::check(&a.index, &rows, a.limits, !a.no_progress, &damage)?;
+        if verifying {
+            let checks = verify::check(index, &rows, a.limits, !a.no_progress, &damage)?;
             for (r, c) in rows.iter_mut().zip(checks) {
                 r.check = c;
                 r.accepted &= c.is_some_and(|c| c.passed);
@@ -597,15 +645,17 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             revisits_found: rows.iter().filter(|r| r.accepted && is_true(r) && has_revisit(r)).count(),
             curve,
             auc,
-            verified: a.verify.then_some(below_threshold),
+            verified: verifying.then_some(below_threshold),
         });
+        if let Some(path) = &a.g2o {
+            let path = g2o_path(path, method, methods.len());
+            verify::write_g2o(&path, &rows)?;
+            summary.g2o.push(path);
+        }
+        summary.checked.extend(rows.iter().filter(|r| r.accepted || r.check.is_some()).cloned());
         all_rows.extend(rows.into_iter().filter(|r| a.all || r.accepted));
     }
     write_rows(&a.out, &all_rows)?;
-    if let Some(path) = &a.g2o {
-        verify::write_g2o(path, &all_rows)?;
-        summary.g2o = Some(path.clone());
-    }
     if a.calibrate {
         let path = calibration_path(&a.out);
         let text = serde_json::to_string_pretty(&calibrations).expect("plain data") + "\n";

@@ -67,9 +67,18 @@ fn load(
             }
         }
     }
+    // The index's pipeline says how each log was read (its topic).
+    let pipeline = crate::pipeline::config::Pipeline::of_index(index).ok();
     for (path, wanted) in mcap {
-        // Any message log (MCAP, ROS 1 bag, rosbag2), read by what it is.
-        let spec = crate::sources::logs::LogSpec::path(Path::new(&path));
+        // Any message log (MCAP, ROS 1 bag, rosbag2), read by what it is, as the index read it.
+        use crate::sources::logs::LogSpec;
+        let mut listed = pipeline.iter().flat_map(|p| &p.sources).filter_map(|s| s.get::<LogSpec>());
+        let listed = listed.find(|l| l.paths.iter().any(|p| p == Path::new(&path)));
+        let spec = LogSpec {
+            points_only: true,
+            ..listed.cloned().unwrap_or_else(|| LogSpec::path(Path::new(&path)))
+        };
+        let spec = LogSpec { paths: vec![path.clone().into()], ..spec };
         match crate::sources::Source::open(&spec) {
             Ok(items) => {
                 for item in items {

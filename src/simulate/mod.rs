@@ -7,6 +7,7 @@
 //! noise on (seed, session), each scan's noise on (seed, session, scan); scans are ray-cast in
 //! parallel and written in order, a chunk at a time (memory does not grow with the count).
 
+mod bags;
 pub mod scene;
 
 use crate::error::{Error, Result, ResultExt};
@@ -103,6 +104,11 @@ pub enum Format {
     Mcap,
     /// KITTI odometry layout.
     Kitti,
+    /// A ROS 1 bag (`bag/<date>.bag`): the clouds on /velodyne_points, the vehicle's odometry
+    /// on /odom, its transforms on /tf and the sensor's mounting on /tf_static.
+    Bag,
+    /// A rosbag2 folder with MCAP storage (`rosbag2/<date>/`), the same topics in CDR.
+    Rosbag2,
 }
 
 /// Everything `simulate` needs.
@@ -434,6 +440,8 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
                     Format::Nclt => Box::new(NcltWriter::new(out, session)?),
                     Format::Mcap => Box::new(McapWriter::new(out, session)?),
                     Format::Kitti => Box::new(KittiWriter::new(out, session, p.rate)?),
+                    Format::Bag => Box::new(bags::Ros1Writer::new(out, session)?),
+                    Format::Rosbag2 => Box::new(bags::Rosbag2Writer::new(out, session)?),
                 })
             })
             .collect::<Result<_>>()?;
@@ -474,7 +482,7 @@ fn ground_truth_row(s: &SimScan) -> String {
     format!("{},{:?},{:?},{:?},0.0,0.0,{:?}\n", s.utime, x, -y, -z, -yaw)
 }
 
-trait SessionWriter {
+pub(crate) trait SessionWriter {
     fn write(&mut self, s: &SimScan) -> Result<()>;
     fn finish(self: Box<Self>) -> Result<()>;
 }
@@ -552,32 +560,7 @@ impl McapWriter {
 
 impl SessionWriter for McapWriter {
     fn write(&mut self, s: &SimScan) -> Result<()> {
-        let mut data = Vec::with_capacity(s.points.len() * 20);
-        for ((p, &i), &r) in s.points.iter().zip(&s.intensity).zip(&s.ring) {
-            p.iter().for_each(|v| data.extend(v.to_le_bytes()));
-            data.extend((i as f32).to_le_bytes());
-            data.extend(r.to_le_bytes());
-            data.extend([0u8; 2]);
-        }
-        let f = |name: &str, offset, dt| PointField { name: name.into(), offset, datatype: dt, count: 1 };
-        let cloud = PointCloud2 {
-            stamp_ns: s.utime * 1000,
-            frame_id: "velodyne".into(),
-            height: 1,
-            width: s.points.len() as u32,
-            fields: vec![
-                f("x", 0, datatype::FLOAT32),
-                f("y", 4, datatype::FLOAT32),
-                f("z", 8, datatype::FLOAT32),
-                f("intensity", 12, datatype::FLOAT32),
-                f("ring", 16, datatype::UINT16),
-            ],
-            is_bigendian: false,
-            point_step: 20,
-            row_step: 20 * s.points.len() as u32,
-            data: &data,
-        };
-        let bytes = pointcloud2::serialize(&cloud, Encoding::Cdr);
+        let bytes = cloud_message(s, Encoding::Cdr);
         let t = (s.utime * 1000) as u64;
         let header = ::mcap::records::MessageHeader {
             channel_id: self.channel,
@@ -595,6 +578,37 @@ impl SessionWriter for McapWriter {
         self.writer.into_inner().commit()?;
         crate::fsutil::write_atomic(&self.gt_path, self.gt.as_bytes())
     }
+}
+
+/// A scan as a `sensor_msgs/PointCloud2` in `encoding` (frame `velodyne`, stamped at its time):
+/// x, y, z, intensity (float32) and ring (uint16), 20 bytes a point.
+pub(crate) fn cloud_message(s: &SimScan, encoding: Encoding) -> Vec<u8> {
+    let mut data = Vec::with_capacity(s.points.len() * 20);
+    for ((p, &i), &r) in s.points.iter().zip(&s.intensity).zip(&s.ring) {
+        p.iter().for_each(|v| data.extend(v.to_le_bytes()));
+        data.extend((i as f32).to_le_bytes());
+        data.extend(r.to_le_bytes());
+        data.extend([0u8; 2]);
+    }
+    let f = |name: &str, offset, dt| PointField { name: name.into(), offset, datatype: dt, count: 1 };
+    let cloud = PointCloud2 {
+        stamp_ns: s.utime * 1000,
+        frame_id: "velodyne".into(),
+        height: 1,
+        width: s.points.len() as u32,
+        fields: vec![
+            f("x", 0, datatype::FLOAT32),
+            f("y", 4, datatype::FLOAT32),
+            f("z", 8, datatype::FLOAT32),
+            f("intensity", 12, datatype::FLOAT32),
+            f("ring", 16, datatype::UINT16),
+        ],
+        is_bigendian: false,
+        point_step: 20,
+        row_step: 20 * s.points.len() as u32,
+        data: &data,
+    };
+    pointcloud2::serialize(&cloud, encoding)
 }
 
 /// KITTI: `kitti/sequences/<NN>/velodyne/<frame>.bin`, `times.txt`, `poses.txt` (camera 0

@@ -17,7 +17,7 @@
 //! k-th pose in time order for frame k).
 
 use super::groundtruth::GroundTruth;
-use super::{NoPose, Pose, Scan, ScanFailure, ScanStream, SourceError};
+use super::{NoPose, Scan, ScanFailure, ScanStream, SourceError};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -38,16 +38,7 @@ pub enum FileNames {
     Nanoseconds,
 }
 
-/// The layout of a pose file.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum PoseFormat {
-    /// NCLT's ground-truth CSV (`utime, x, y, z, roll, pitch, heading`).
-    #[default]
-    Nclt,
-    /// TUM's `t x y z qx qy qz qw` (seconds).
-    Tum,
-}
+pub use super::poses::PoseFormat;
 
 /// `kind = "clouds"` in a pipeline file.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -103,40 +94,7 @@ fn cloud_files(dir: &Path) -> Result<Vec<PathBuf>, SourceError> {
     Ok(files)
 }
 
-/// TUM trajectory text: `t x y z qx qy qz qw` per line (seconds), `#` comments.
-pub fn parse_tum(text: &str, path: &Path) -> GroundTruth {
-    let mut gt = GroundTruth { path: path.to_owned(), ..Default::default() };
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let v: Option<Vec<f64>> = line.split_whitespace().map(|f| f.parse().ok()).collect();
-        match v.filter(|v| v.len() >= 8 && v[0].is_finite()) {
-            Some(v) => {
-                let [x, y, z, qx, qy, qz, qw] = [v[1], v[2], v[3], v[4], v[5], v[6], v[7]];
-                let yaw = (2.0 * (qw * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz));
-                let pose = Pose { x, y, z, yaw };
-                let finite = [x, y, z, yaw].iter().all(|c| c.is_finite());
-                if !finite {
-                    gt.non_finite_rows += 1;
-                }
-                gt.rows.push(((v[0] * 1e6).round() as i64, finite.then_some(pose)));
-            }
-            None => {
-                let e = SourceError::Parse {
-                    path: path.to_owned(),
-                    line: i + 1,
-                    message: "expected 8 numbers: t x y z qx qy qz qw".into(),
-                };
-                tracing::warn!("{e}");
-                gt.bad_lines.push(e.to_string());
-            }
-        }
-    }
-    gt.rows.sort_by_key(|r| r.0);
-    gt
-}
+pub use super::poses::parse_tum;
 
 impl super::Kind for CloudsSpec {
     const NAME: &'static str = "clouds";
@@ -211,12 +169,15 @@ impl CloudsSpec {
     fn ground_truth(&self) -> Result<Option<Arc<GroundTruth>>, SourceError> {
         let Some(path) = &self.poses else { return Ok(None) };
         Ok(Some(Arc::new(match self.poses_format {
-            PoseFormat::Nclt => GroundTruth::read(path)?,
-            PoseFormat::Tum => {
+            // KITTI rows have no times here: row k is frame k.
+            PoseFormat::Kitti => {
                 let text = std::fs::read_to_string(path)
                     .map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
-                parse_tum(&text, path)
+                let rows = super::poses::kitti_rows(path, &text)?;
+                let rows = rows.into_iter().enumerate().map(|(k, p)| (k as i64, p)).collect();
+                GroundTruth { path: path.to_owned(), rows, ..Default::default() }
             }
+            format => super::poses::read_file(path, format, None, None)?,
         })))
     }
 
@@ -353,7 +314,7 @@ mod tests {
             format!("# t x y z qx qy qz qw\n1.5 1 2 3 0 0 {half} {half}\n0.5 0 0 0 0 0 0 1\nbad line\n");
         let gt = parse_tum(&text, Path::new("p.txt"));
         assert_eq!(gt.rows.len(), 2);
-        assert_eq!(gt.rows[0], (500_000, Some(Pose { x: 0.0, y: 0.0, z: 0.0, yaw: 0.0 })));
+        assert_eq!(gt.rows[0], (500_000, Some(crate::sources::Pose { x: 0.0, y: 0.0, z: 0.0, yaw: 0.0 })));
         let p = gt.rows[1].1.unwrap();
         assert_eq!((gt.rows[1].0, p.x, p.y, p.z), (1_500_000, 1.0, 2.0, 3.0));
         assert!((p.yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-12);

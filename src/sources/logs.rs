@@ -13,6 +13,8 @@
 use super::groundtruth::GroundTruth;
 use super::mcap_reader::{ChannelInfo, McapFault, McapMessages, RawMessage, is_point_cloud};
 use super::pointcloud2::{self, Encoding};
+use super::poses::{Choice, LogPoses, PoseFormat, PoseKeys, ScanPoses};
+use super::rosmsg::PoseKind;
 use super::{Scan, ScanFailure, ScanStream, SourceError, ros1bag, rosbag2};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -120,15 +122,34 @@ pub struct LogSpec {
     /// Session name for all logs (default: a file's stem, a folder's name).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub session: Option<String>,
-    /// Poses in NCLT's ground-truth CSV layout, joined by nearest utime.
+    /// A pose file (its layout `poses_format`), joined by nearest time; without it, the log's own
+    /// poses (see [`super::poses`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub poses: Option<PathBuf>,
+    /// The layout of `poses`: `nclt` (default), `tum` or `kitti`.
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub poses_format: PoseFormat,
+    /// With `poses_format = "kitti"`: the times of its rows (seconds, one per line).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poses_times: Option<PathBuf>,
+    /// The log's pose topic: an Odometry, PoseStamped or PoseWithCovarianceStamped topic, or
+    /// `/tf` for the transform chain (default: the chain when it reaches the cloud's frame, else
+    /// the only pose topic).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poses_topic: Option<String>,
+    /// `parent:child`: the transform chain from `parent` down to `child` (the cloud's frame), or,
+    /// with a pose topic, the frame its poses are of and the cloud's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_frames: Option<String>,
     /// Largest time gap for a pose join, milliseconds.
     #[serde(default = "default_tolerance_ms")]
     pub tolerance_ms: f64,
     /// The name the entry was given (`rosbag`, or `mcap` with `files`): it is written back so.
     #[serde(skip)]
     pub named: LogName,
+    /// Read the scans without joining poses (what needs only their points: loops' checks).
+    #[serde(skip)]
+    pub points_only: bool,
 }
 
 /// The `kind` a message-log entry is written as.
@@ -145,6 +166,10 @@ fn default_tolerance_ms() -> f64 {
     100.0
 }
 
+fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
+}
+
 impl LogSpec {
     /// A spec for one log with defaults.
     pub fn path(path: &Path) -> Self {
@@ -153,8 +178,13 @@ impl LogSpec {
             topic: None,
             session: None,
             poses: None,
+            poses_format: PoseFormat::default(),
+            poses_times: None,
+            poses_topic: None,
+            pose_frames: None,
             tolerance_ms: default_tolerance_ms(),
             named: LogName::Rosbag,
+            points_only: false,
         }
     }
 
@@ -215,6 +245,16 @@ impl super::Source for LogSpec {
         let key = if self.named == LogName::Mcap { "files" } else { "paths" };
         let mut out = super::required(key, &self.paths, inputs);
         out.extend(super::missing("poses", self.poses.as_slice(), inputs));
+        out.extend(super::missing("poses_times", self.poses_times.as_slice(), inputs));
+        if let Some(Err(e)) = self.pose_frames.as_deref().map(super::poses::parse_frames) {
+            out.push(("pose_frames", e));
+        }
+        if self.poses.is_some() && (self.poses_topic.is_some() || self.pose_frames.is_some()) {
+            out.push((
+                "poses",
+                "a pose file, or the log's poses (poses_topic, pose_frames): give one".into(),
+            ));
+        }
         out.extend(super::tolerance(self.tolerance_ms));
         out
     }
@@ -232,7 +272,7 @@ impl super::Source for LogSpec {
     }
 
     fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
-        self.paths.iter_mut().chain(self.poses.iter_mut()).collect()
+        self.paths.iter_mut().chain(self.poses.iter_mut()).chain(self.poses_times.iter_mut()).collect()
     }
 
     fn shards_by_session(&self) -> bool {
@@ -259,30 +299,88 @@ impl LogSpec {
 
     /// How the logs are read.
     fn settings(&self) -> LogSettings {
-        LogSettings {
-            topic: self.topic.clone(),
-            session: self.session.clone(),
-            poses: self.poses.clone(),
-            tolerance_ms: self.tolerance_ms,
+        LogSettings { spec: Arc::new(self.clone()) }
+    }
+
+    /// The pose keys, parsed.
+    fn pose_keys(&self) -> PoseKeys {
+        PoseKeys {
+            topic: self.poses_topic.clone(),
+            frames: self.pose_frames.as_deref().and_then(|f| super::poses::parse_frames(f).ok()),
         }
+    }
+
+    /// What `path` (one of the spec's logs) holds of poses and how its scans take theirs: the
+    /// choice of the keys, or the one found (`None`: no pose in the log). An error names the
+    /// file and what to pass.
+    pub fn pose_choice(&self, path: &Path) -> Result<(LogPoses, Option<Choice>), SourceError> {
+        let kind = kind_of(path)?;
+        let channels = kind.channels(path)?;
+        let topic = resolve_topic(path, &channels, self.topic.as_deref())?;
+        let poses = LogPoses::gather(path, &channels, kind.messages(path)?, &topic)?;
+        let choice = poses.choose(path, &self.pose_keys())?;
+        Ok((poses, choice))
     }
 }
 
 /// How a spec reads its logs.
 #[derive(Clone, Debug)]
 struct LogSettings {
-    topic: Option<String>,
-    session: Option<String>,
-    poses: Option<PathBuf>,
-    tolerance_ms: f64,
+    spec: Arc<LogSpec>,
 }
 
 impl LogSettings {
+    /// The pose file, read (KITTI rows with relative times wait for the log's first scan).
     fn ground_truth(&self) -> Result<Option<Arc<GroundTruth>>, SourceError> {
-        Ok(match &self.poses {
-            Some(p) => Some(Arc::new(GroundTruth::read(p)?)),
-            None => None,
+        let s = &self.spec;
+        Ok(match &s.poses {
+            Some(p) if s.poses_format != PoseFormat::Kitti => Some(Arc::new(super::poses::read_nonempty(
+                p,
+                s.poses_format,
+                s.poses_times.as_deref(),
+                None,
+            )?)),
+            _ => None,
         })
+    }
+
+    /// The poses of the scans of `path`: the file's, else the log's own (gathered in a pass over
+    /// the log when it has pose messages or keys ask for them).
+    fn scan_poses(
+        &self,
+        path: &Path,
+        kind: LogKind,
+        channels: &[ChannelInfo],
+        topic: &str,
+        file: Option<Arc<GroundTruth>>,
+    ) -> Result<Option<ScanPoses>, SourceError> {
+        let s = &self.spec;
+        if s.points_only {
+            return Ok(None);
+        }
+        if let Some(gt) = file {
+            return Ok(Some(ScanPoses::File(gt)));
+        }
+        let keys = s.pose_keys();
+        let has_poses = channels.iter().any(|c| PoseKind::of_schema(&c.schema_name).is_some());
+        let kitti = s.poses.is_some() && s.poses_format == PoseFormat::Kitti;
+        if !kitti && !has_poses && keys == PoseKeys::default() {
+            return Ok(None);
+        }
+        let gathered = LogPoses::gather(path, channels, kind.messages(path)?, topic)?;
+        if let Some(p) = &s.poses {
+            let first_us = gathered.cloud_stamps.iter().min().map(|t| t.div_euclid(1000));
+            let gt = super::poses::read_nonempty(p, s.poses_format, s.poses_times.as_deref(), first_us)?;
+            return Ok(Some(ScanPoses::File(Arc::new(gt))));
+        }
+        let tol = (s.tolerance_ms * 1e6).round() as i64;
+        match gathered.choose(path, &keys)? {
+            None => Ok(None),
+            Some(choice) => {
+                gathered.check_overlap(path, &choice, tol)?;
+                Ok(Some(ScanPoses::Log(Arc::new(gathered), choice)))
+            }
+        }
     }
 
     /// The stream over `paths`, in order. A log that cannot be opened (not a log, truncated
@@ -292,7 +390,7 @@ impl LogSettings {
         let poses = self.ground_truth()?;
         let settings = self.clone();
         Ok(Box::new(paths.into_iter().flat_map(move |path| -> ScanStream {
-            let session = settings.session.clone().unwrap_or_else(|| default_session(&path));
+            let session = settings.spec.session_of(&path);
             match settings.scans_of(&path, poses.clone(), 0..u64::MAX) {
                 Ok(scans) => Box::new(scans),
                 Err(e) => {
@@ -312,14 +410,16 @@ impl LogSettings {
     fn scans_of(
         &self,
         path: &Path,
-        poses: Option<Arc<GroundTruth>>,
+        file: Option<Arc<GroundTruth>>,
         range: std::ops::Range<u64>,
     ) -> Result<LogScans, SourceError> {
         let kind = kind_of(path)?;
-        let topic = resolve_topic(path, &kind.channels(path)?, self.topic.as_deref())?;
-        let session = self.session.clone().unwrap_or_else(|| default_session(path));
+        let channels = kind.channels(path)?;
+        let topic = resolve_topic(path, &channels, self.spec.topic.as_deref())?;
+        let session = self.spec.session_of(path);
+        let poses = self.scan_poses(path, kind, &channels, &topic, file)?;
         let messages = kind.messages(path)?;
-        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
+        let tolerance = (self.spec.tolerance_ms * 1e6).round() as i64;
         Ok(LogScans { messages, path: path.to_owned(), topic, session, poses, tolerance, index: 0, range })
     }
 }
@@ -370,7 +470,8 @@ struct LogScans {
     path: PathBuf,
     topic: String,
     session: String,
-    poses: Option<std::sync::Arc<GroundTruth>>,
+    poses: Option<ScanPoses>,
+    /// The pose join's tolerance, ns.
     tolerance: i64,
     index: u64,
     /// The message indices wanted (all, for a whole file).
@@ -429,12 +530,12 @@ impl Iterator for LogScans {
                     return Some(Err(failure(id, Some(index), e).with_fingerprint(fingerprint)));
                 }
             };
-            let utime =
-                if stamp_ns != 0 { stamp_ns.div_euclid(1000) } else { (message.log_time / 1000) as i64 };
+            let stamp_ns = if stamp_ns != 0 { stamp_ns } else { message.log_time as i64 };
+            let utime = stamp_ns.div_euclid(1000);
             let pose = self
                 .poses
                 .as_ref()
-                .map_or(Err(super::NoPose::NoGroundTruth), |g| g.pose_at(utime, self.tolerance));
+                .map_or(Err(super::NoPose::NoGroundTruth), |p| p.at(stamp_ns, self.tolerance));
             let (pose, no_pose) = super::split_pose(pose);
             return Some(Ok(Scan {
                 id,

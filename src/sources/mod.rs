@@ -19,8 +19,11 @@ pub mod pcd;
 pub mod ply;
 pub mod pointcloud2;
 pub mod pointnetvlad;
+pub mod poses;
 pub mod ros1bag;
 pub mod rosbag2;
+pub mod rosmsg;
+pub mod wire;
 
 pub use crate::error::SourceError;
 

@@ -5,6 +5,8 @@
 //! Points with a non-finite coordinate and exact `(0, 0, 0)` points (the no-return value of
 //! Ouster and others) are dropped; `raw_points` counts them all.
 
+use super::wire::{Reader, Wire, Writer};
+
 /// Datatype codes of `sensor_msgs/PointField`.
 pub mod datatype {
     /// int8
@@ -94,88 +96,15 @@ impl Encoding {
     }
 }
 
-/// A cursor over a serialized message: CDR (aligned from `origin`, either byte order) or ROS 1
-/// (packed little-endian).
-struct Cursor<'a> {
-    buf: &'a [u8],
-    pos: usize,
-    little: bool,
-    /// Alignment origin (CDR: 4, after the encapsulation header); None = packed (ROS 1).
-    origin: Option<usize>,
-    /// XCDR2 aligns 8-byte values to 4.
-    max_align: usize,
-}
-
-impl<'a> Cursor<'a> {
-    fn align(&mut self, n: usize) {
-        if let Some(o) = self.origin {
-            let n = n.min(self.max_align);
-            let rel = self.pos - o;
-            self.pos = o + rel.div_ceil(n) * n;
-        }
-    }
-
-    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], String> {
-        let end = self.pos.checked_add(n).filter(|&e| e <= self.buf.len());
-        let end = end
-            .ok_or_else(|| format!("message ends inside {what} (needs {n} bytes at offset {})", self.pos))?;
-        let s = &self.buf[self.pos..end];
-        self.pos = end;
-        Ok(s)
-    }
-
-    fn u8(&mut self, what: &str) -> Result<u8, String> {
-        Ok(self.take(1, what)?[0])
-    }
-
-    fn u32(&mut self, what: &str) -> Result<u32, String> {
-        self.align(4);
-        let b: [u8; 4] = self.take(4, what)?.try_into().unwrap();
-        Ok(if self.little { u32::from_le_bytes(b) } else { u32::from_be_bytes(b) })
-    }
-
-    fn string(&mut self, what: &str) -> Result<String, String> {
-        let len = self.u32(what)? as usize;
-        let bytes = self.take(len, what)?;
-        // CDR counts the terminating NUL; ROS 1 does not.
-        let bytes = if self.origin.is_some() { bytes.strip_suffix(&[0]).unwrap_or(bytes) } else { bytes };
-        Ok(String::from_utf8_lossy(bytes).into_owned())
-    }
-}
-
 /// Parses a serialized `PointCloud2` (or `foxglove.PointCloud`).
 pub fn parse(buf: &[u8], encoding: Encoding) -> Result<PointCloud2<'_>, String> {
-    let mut c = match encoding {
+    let wire = match encoding {
         Encoding::FoxgloveProtobuf => return parse_foxglove(buf),
-        Encoding::Cdr => {
-            if buf.len() < 4 {
-                return Err("message shorter than the 4-byte CDR header".into());
-            }
-            let kind = buf[1];
-            let xcdr2 = matches!(kind, 0x06..=0x0b | 0x10..=0x15);
-            Cursor {
-                buf,
-                pos: 4,
-                little: kind % 2 == 1,
-                origin: Some(4),
-                max_align: if xcdr2 { 4 } else { 8 },
-            }
-        }
-        Encoding::Ros1 => Cursor { buf, pos: 0, little: true, origin: None, max_align: 8 },
+        Encoding::Cdr => Wire::Cdr,
+        Encoding::Ros1 => Wire::Ros1,
     };
-    let stamp_ns = match encoding {
-        Encoding::Cdr => {
-            let sec = c.u32("header.stamp.sec")? as i32 as i64;
-            sec * 1_000_000_000 + c.u32("header.stamp.nanosec")? as i64
-        }
-        Encoding::Ros1 => {
-            c.u32("header.seq")?;
-            let sec = c.u32("header.stamp.secs")? as i64;
-            sec * 1_000_000_000 + c.u32("header.stamp.nsecs")? as i64
-        }
-        Encoding::FoxgloveProtobuf => unreachable!("returned above"),
-    };
-    let frame_id = c.string("header.frame_id")?;
+    let mut c = Reader::new(buf, wire)?;
+    let (stamp_ns, frame_id) = c.header()?;
     let height = c.u32("height")?;
     let width = c.u32("width")?;
     let n_fields = c.u32("fields")? as usize;
@@ -306,52 +235,26 @@ impl PointCloud2<'_> {
 
 /// Serializes a `PointCloud2` little-endian (test fixtures, the simulator's MCAP writer).
 pub fn serialize(cloud: &PointCloud2<'_>, encoding: Encoding) -> Vec<u8> {
-    let mut out = Vec::with_capacity(cloud.data.len() + 256);
     assert_ne!(encoding, Encoding::FoxgloveProtobuf, "serialize writes PointCloud2");
-    let cdr = encoding == Encoding::Cdr;
-    let align = |out: &mut Vec<u8>, n: usize| {
-        if cdr {
-            while !(out.len() - 4).is_multiple_of(n) {
-                out.push(0);
-            }
-        }
-    };
-    let put_u32 = |out: &mut Vec<u8>, v: u32| {
-        align(out, 4);
-        out.extend_from_slice(&v.to_le_bytes());
-    };
-    let put_str = |out: &mut Vec<u8>, s: &str| {
-        put_u32(out, (s.len() + cdr as usize) as u32);
-        out.extend_from_slice(s.as_bytes());
-        if cdr {
-            out.push(0);
-        }
-    };
-    let (sec, nsec) = (cloud.stamp_ns.div_euclid(1_000_000_000), cloud.stamp_ns.rem_euclid(1_000_000_000));
-    if cdr {
-        out.extend_from_slice(&[0, 1, 0, 0]);
-    } else {
-        out.extend_from_slice(&0u32.to_le_bytes()); // seq
-    }
-    put_u32(&mut out, sec as u32);
-    put_u32(&mut out, nsec as u32);
-    put_str(&mut out, &cloud.frame_id);
-    put_u32(&mut out, cloud.height);
-    put_u32(&mut out, cloud.width);
-    put_u32(&mut out, cloud.fields.len() as u32);
+    let wire = if encoding == Encoding::Cdr { Wire::Cdr } else { Wire::Ros1 };
+    let mut out = Writer::new(wire, cloud.data.len() + 256);
+    out.header(cloud.stamp_ns, &cloud.frame_id);
+    out.u32(cloud.height);
+    out.u32(cloud.width);
+    out.u32(cloud.fields.len() as u32);
     for f in &cloud.fields {
-        put_str(&mut out, &f.name);
-        put_u32(&mut out, f.offset);
-        out.push(f.datatype);
-        put_u32(&mut out, f.count);
+        out.string(&f.name);
+        out.u32(f.offset);
+        out.u8(f.datatype);
+        out.u32(f.count);
     }
-    out.push(cloud.is_bigendian as u8);
-    put_u32(&mut out, cloud.point_step);
-    put_u32(&mut out, cloud.row_step);
-    put_u32(&mut out, cloud.data.len() as u32);
-    out.extend_from_slice(cloud.data);
-    out.push(1); // is_dense
-    out
+    out.u8(cloud.is_bigendian as u8);
+    out.u32(cloud.point_step);
+    out.u32(cloud.row_step);
+    out.u32(cloud.data.len() as u32);
+    out.bytes(cloud.data);
+    out.u8(1); // is_dense
+    out.finish()
 }
 
 /// Parses a `foxglove.PointCloud` protobuf message (Foxglove's `PointCloud.proto` schema) into the PointCloud2 form
