@@ -294,7 +294,8 @@ fn loops_find_the_revisits_of_a_three_lap_drive() {
     let kept: Vec<Vec<&str>> =
         lines.map(|l| l.split(',').collect::<Vec<_>>()).filter(|f| f[column("verified")] == "true").collect();
     assert!(!kept.is_empty());
-    let edges: Vec<Vec<f64>> = std::fs::read_to_string(&g2o)
+    assert!(!g2o.exists(), "--g2o names a stem: one file per method beside it");
+    let edges: Vec<Vec<f64>> = std::fs::read_to_string(dir.join("loops.toporec-plus.g2o"))
         .unwrap()
         .lines()
         .map(|l| {

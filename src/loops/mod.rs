@@ -87,8 +87,8 @@ pub struct LoopsArgs {
     /// What a kept alignment must reach.
     #[command(flatten)]
     pub limits: verify::Limits,
-    /// Write the verified loops as g2o `EDGE_SE3:QUAT` lines to this file (with verification;
-    /// with several methods, each to `<stem>.<method>.g2o` beside it).
+    /// Write each method's verified loops as g2o `EDGE_SE3:QUAT` lines, to `<stem>.<method>.g2o`
+    /// beside this path (with verification).
     #[arg(long)]
     pub g2o: Option<PathBuf>,
     /// No progress bar.
@@ -510,12 +510,9 @@ fn given_threshold(a: &LoopsArgs, method: &str, engine: &Engine) -> Result<Optio
     Ok(Some(c.threshold))
 }
 
-/// Where `--g2o PATH` writes `method`'s edges: `PATH` itself when it is the only method, else
-/// `<stem>.<method>.g2o` beside it.
-pub fn g2o_path(path: &Path, method: &str, methods: usize) -> PathBuf {
-    if methods == 1 {
-        return path.to_path_buf();
-    }
+/// Where `--g2o PATH` writes `method`'s edges: `<stem>.<method>.g2o` beside `PATH`, one file
+/// per method whatever their number, so a script's path does not depend on `--method`.
+pub fn g2o_path(path: &Path, method: &str) -> PathBuf {
     let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "loops".into());
     path.with_file_name(format!("{stem}.{method}.g2o"))
 }
@@ -648,7 +645,7 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             verified: verifying.then_some(below_threshold),
         });
         if let Some(path) = &a.g2o {
-            let path = g2o_path(path, method, methods.len());
+            let path = g2o_path(path, method);
             verify::write_g2o(&path, &rows)?;
             summary.g2o.push(path);
         }
