@@ -46,6 +46,10 @@
 //!    The polar grid finds the street; the offset says which of its neighbouring scans the
 //!    query stands nearest.
 //!
+//! 6. **Lateral views** ([`lateral`], `lateral`, none by default). The query's polar grid is
+//!    also resampled as seen from origins moved sideways, and a candidate's distance is the
+//!    smallest over the views: a revisit driven back a lane over (`docs/loops.md`).
+//!
 //! Nothing is trained or fitted: no codebook. A turn by a multiple of 90° maps the square
 //! grid and the polar grid onto themselves (with `sectors` a multiple of 4; angles are taken
 //! within a quadrant, so a quarter turn gives the same numbers), so the distance of a scan to
@@ -108,6 +112,11 @@ pub struct PlusParams {
     /// The best candidates by the polar distance whose pose relative to the query is found and
     /// which are then ranked by it (0: none).
     pub fine: usize,
+    /// Lateral views of the query (m): for each `s`, the query's polar grid is also seen from
+    /// the origins `s` to its left and to its right ([`lateral`]), and a candidate's distance
+    /// is the smallest over the views. Empty (the default): the query as scanned alone.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub lateral: Vec<f64>,
 }
 
 impl Default for PlusParams {
@@ -124,6 +133,7 @@ impl Default for PlusParams {
             image_side: 40,
             image_cell: 1.0,
             fine: 3,
+            lateral: Vec::new(),
         }
     }
 }
@@ -148,6 +158,7 @@ impl PlusParams {
 mod distance;
 mod field;
 mod keys;
+mod lateral;
 pub mod pose;
 mod searcher;
 #[cfg(test)]
@@ -196,6 +207,11 @@ impl super::Computed for PlusParams {
         }
         if !((8..=256).contains(&self.image_side) && self.image_side.is_multiple_of(2)) {
             out.push(format!("{NAME}.image_side: must be even, in [8, 256]; found {}", self.image_side));
+        }
+        if let Some(s) =
+            self.lateral.iter().find(|s| !(s.is_finite() && **s > 0.0 && **s <= self.max_radius / 4.0))
+        {
+            out.push(format!("{NAME}.lateral: each view must be in (0, max_radius / 4] m; found {s}"));
         }
         if !(self.image_cell.is_finite() && (0.1..=10.0).contains(&self.image_cell)) {
             out.push(format!("{NAME}.image_cell: must be in [0.1, 10] m; found {}", self.image_cell));

@@ -5,6 +5,7 @@
 use super::PlusParams;
 use super::distance::{Entry, Query, columns_of, distance_to, reach};
 use super::keys::*;
+use super::lateral;
 use super::pose::Aligner;
 use crate::methods::Computed;
 use crate::methods::searcher::{Allowed, Hit, SearchBudget, SearchTimes};
@@ -511,11 +512,19 @@ impl Searcher {
         };
         let candidates_secs = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
-        let q = Query::new(query, p);
+        let views: Vec<Query> = std::iter::once(Query::new(query, p))
+            .chain(
+                p.lateral.iter().flat_map(|&s| [s, -s]).map(|s| Query::new(&lateral::view(query, s, p), p)),
+            )
+            .collect();
         let mut hits: Vec<PlusHit> = rows
             .into_iter()
             .map(|row| {
-                let (d, yaw) = distance_to(&q, self.entry(row), p);
+                // The smallest over the views; the query as scanned wins a tie.
+                let (d, yaw) = views
+                    .iter()
+                    .map(|q| distance_to(q, self.entry(row), p))
+                    .fold((f64::INFINITY, 0.0), |best, d| if d.0 < best.0 { d } else { best });
                 (row, d, yaw)
             })
             .collect();

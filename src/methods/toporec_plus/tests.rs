@@ -6,6 +6,7 @@ use super::distance::*;
 use super::field::*;
 use super::keys::*;
 use super::searcher::*;
+use crate::methods::Computed as _;
 use crate::methods::Hit;
 use crate::methods::Searcher as _;
 use crate::types::Point;
@@ -256,4 +257,29 @@ fn the_fine_stage_finds_where_the_query_stands() {
     assert!((x - tx).hypot(y - ty) <= 0.5, "pose ({x:.2}, {y:.2}), expected ({tx}, {ty})");
     let off = (yaw + 30.0).rem_euclid(360.0).min((-30.0 - yaw).rem_euclid(360.0));
     assert!(off <= 2.0, "yaw {yaw}");
+}
+
+#[test]
+fn a_lateral_view_finds_the_scan_from_the_other_lane() {
+    // The same walls scanned from 3 m to the left (y) and turned half round, as on the drive
+    // back on the other side of the road. Seen from the origin 3 m to its side, the query's
+    // grid is nearer the first scan's than the query's own, and the yaw stays half a turn.
+    let p = PlusParams::default();
+    let here = describe(&scene(), &p).unwrap();
+    let moved: Vec<Point> = scene().iter().map(|&[x, y, z]| [x, y - 3.0, z]).collect();
+    let there = describe(&turned(&moved, 2), &p).unwrap();
+    let (plain, _) = distance(&there, &here, &p);
+    let lateral = PlusParams { lateral: vec![3.0], ..p.clone() };
+    let searcher = Searcher::new(here.clone(), lateral.clone());
+    let (hits, _) = searcher.search(&there, 1);
+    assert!(hits[0].distance < 0.8 * plain, "lateral view {} against {plain}", hits[0].distance);
+    let yaw = hits[0].yaw_degrees.unwrap();
+    assert!((yaw - 180.0).abs() <= 12.0, "yaw {yaw}");
+    // Without views the searcher gives the plain distance; a view of nothing moved is the
+    // grid itself (0.000 here; 0.239 against 0.110 above).
+    let (hits, _) = Searcher::new(here.clone(), p.clone()).search(&there, 1);
+    assert_eq!(hits[0].distance, plain);
+    let (same, _) = distance(&super::lateral::view(&here, 1e-9, &p), &here, &p);
+    assert!(same < 0.01, "unmoved view {same}");
+    assert!(PlusParams { lateral: vec![0.0], ..p.clone() }.problems()[0].contains("lateral"));
 }
