@@ -46,7 +46,7 @@
 //!    The polar grid finds the street; the offset says which of its neighbouring scans the
 //!    query stands nearest.
 //!
-//! 6. **Lateral views** ([`lateral`], `lateral`, none by default). The query's polar grid is
+//! 6. **Lateral views** ([`PlusParams::lateral`], none by default). The query's polar grid is
 //!    also resampled as seen from origins moved sideways, and a candidate's distance is the
 //!    smallest over the views: a revisit driven back a lane over (`docs/loops.md`).
 //!
@@ -113,8 +113,8 @@ pub struct PlusParams {
     /// which are then ranked by it (0: none).
     pub fine: usize,
     /// Lateral views of the query (m): for each `s`, the query's polar grid is also seen from
-    /// the origins `s` to its left and to its right ([`lateral`]), and a candidate's distance
-    /// is the smallest over the views. Empty (the default): the query as scanned alone.
+    /// the origins `s` to its left and to its right (resampled, `lateral.rs`), and a
+    /// candidate's distance is the smallest over the views. Empty (the default): the query as scanned alone.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub lateral: Vec<f64>,
 }
