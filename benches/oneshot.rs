@@ -78,7 +78,7 @@ fn main() {
         &pipeline,
         format!(
             "[output]\nindex = \"by-hand\"\n\n[[sources]]\nkind = \"rosbag\"\npaths = [{:?}]\n\n\
-             [descriptors]\nmethods = [\"toporec-plus\"]\n",
+             [descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\nlateral = [3.0]\n",
             bag.display().to_string()
         ),
     )

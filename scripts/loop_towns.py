@@ -13,6 +13,9 @@ least 10 s earlier within 5 m), the separable recall (the share of revisits foun
 1 with the best threshold for the drive itself), F1 max, and, for the methods with a default
 threshold, precision and recall at it.
 
+With --same, same-direction revisits instead: two sessions of one lap each (`--sessions 2
+--laps 1`), a revisit a second-session scan with a first-session scan within 5 m.
+
     python3 scripts/loop_towns.py --towns 13 --offsets 0,5.5 [--methods toporec-plus,scancontext-pp]
         [--toporec PATH (default: toporec on the PATH, else target/release/toporec)] [--out out/towns] [--json out/towns.json]
 """
@@ -53,28 +56,40 @@ def pipeline(compare, data, index, methods, extra):
     return text + "\n" + extra
 
 
-def poses(gt):
+def poses(ground_truth):
+    """Every scan's (x, y) by its id, `<session>/<utime>`, from the drive's ground-truth files."""
     out = {}
-    with open(gt) as f:
-        for row in csv.reader(f):
-            out[row[0]] = (float(row[1]), float(row[2]))
+    for name in sorted(os.listdir(ground_truth)):
+        session = name[len("groundtruth_"):-len(".csv")]
+        with open(os.path.join(ground_truth, name)) as f:
+            for row in csv.reader(f):
+                out[f"{session}/{row[0]}"] = (float(row[1]), float(row[2]))
     return out
 
 
-def drive_facts(gt):
-    """Ids in order, the ids of the second lap, the revisits among them, the separation."""
-    p = poses(gt)
-    ids = sorted(p, key=int)
-    half = len(ids) // 2
-    first, second = ids[:half], ids[half:]
+def drive_facts(ground_truth):
+    """The revisits and the separation of a drive: with one session, its second lap against its
+    first (a revisit: a scan at least 10 s earlier within 5 m); with two, the second against the
+    first (a revisit: a scan of the first within 5 m)."""
+    p = poses(ground_truth)
+    ids = sorted(p, key=lambda i: (i.split("/")[0], int(i.split("/")[1])))
+    sessions = sorted({i.split("/")[0] for i in ids})
+    if len(sessions) == 1:
+        half = len(ids) // 2
+        first, second = ids[:half], ids[half:]
+    else:
+        first = [i for i in ids if i.startswith(sessions[0] + "/")]
+        second = [i for i in ids if not i.startswith(sessions[0] + "/")]
     dist = lambda a, b: math.hypot(p[a][0] - p[b][0], p[a][1] - p[b][1])
+    utime = lambda i: int(i.split("/")[1])
     near = sorted(min(dist(q, f) for f in first) for q in second)
     separation = near[len(near) // 2]
-    revisits = {
-        q for i, q in enumerate(ids) if i >= half
-        and any(int(q) - int(e) >= EXCLUDE_S * 1e6 and dist(q, e) <= RADIUS for e in ids[:i])
-    }
-    return ids, set(second), revisits, separation
+    if len(sessions) == 1:
+        revisits = {q for q in second if any(
+            utime(q) - utime(e) >= EXCLUDE_S * 1e6 and dist(q, e) <= RADIUS for e in ids if utime(e) < utime(q))}
+    else:
+        revisits = {q for q in second if any(dist(q, e) <= RADIUS for e in first)}
+    return revisits, separation
 
 
 def scores(rows, revisits):
@@ -110,10 +125,12 @@ def scores(rows, revisits):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--towns", required=True)
-    ap.add_argument("--offsets", required=True)
+    ap.add_argument("--offsets", default="0")
     ap.add_argument("--methods", default=",".join(ALL_METHODS))
     ap.add_argument("--toporec", default=shutil.which("toporec") or "target/release/toporec")
     ap.add_argument("--out", default="out/towns")
+    ap.add_argument("--same", action="store_true",
+                    help="same-direction revisits: two sessions of one lap, the second against the first")
     ap.add_argument("--only", help="seek loops with these methods of the index alone")
     ap.add_argument("--json")
     ap.add_argument("--extra", default="", help="TOML appended to the pipeline (a method's settings)")
@@ -130,14 +147,14 @@ def main():
     print(f"{'town':>5} {'offset':>6} {'sep m':>6} {'revisits':>8} {'method':<20} {'separable':>9} "
           f"{'F1 max':>7} {'accepted':>8} {'false':>5} {'recall@def':>10}")
     for town in a.towns.split(","):
-        for offset in a.offsets.split(","):
+        for offset in ["same"] if a.same else a.offsets.split(","):
+            drive = ["--sessions", "2", "--laps", "1"] if a.same else \
+                ["--sessions", "1", "--laps", "2", "--lap-offset", offset]
             data = os.path.join(out, f"sim-{town}-{offset}")
             if not os.path.isdir(data):
-                run([a.toporec, "simulate", "-o", data, "--sessions", "1", "--laps", "2",
-                     "--lap-offset", offset, "--seed", town, "--sensor", "hdl64",
+                run([a.toporec, "simulate", "-o", data] + drive + ["--seed", town, "--sensor", "hdl64",
                      "--azimuth-res", "1.0", "--rate", "5", "--format", "nclt"])
-            gt = os.path.join(data, "ground_truth/groundtruth_2026-01-01.csv")
-            _, second, revisits, sep = drive_facts(gt)
+            revisits, sep = drive_facts(os.path.join(data, "ground_truth"))
             index = os.path.join(out, f"index-{town}-{offset}{a.tag}")
             toml = os.path.join(out, f"index-{town}-{offset}{a.tag}.toml")
             with open(toml, "w") as f:
@@ -154,16 +171,16 @@ def main():
                 with open(csv_out) as f:
                     for r in csv.DictReader(f):
                         t = float(r["true_distance_m"]) if r["true_distance_m"] else None
-                        rows.append((r["query_scan"].split("/")[-1], float(r["distance"]), t))
+                        rows.append((r["query_scan"], float(r["distance"]), t))
                         if r["accepted"] == "true":
                             accepted += 1
                             if t is None or t > RADIUS:
                                 false += 1
-                            elif r["query_scan"].split("/")[-1] in revisits:
+                            elif r["query_scan"] in revisits:
                                 found += 1
                 separable, f1 = scores(rows, revisits)
                 rec = found / len(revisits) if method in WITH_DEFAULT else None
-                results.append(dict(town=int(town), offset=float(offset), separation_m=sep,
+                results.append(dict(town=int(town), offset=None if a.same else float(offset), separation_m=sep,
                                     revisits=len(revisits), method=method, separable=separable,
                                     f1_max=f1, accepted=accepted if rec is not None else None,
                                     false=false if rec is not None else None, recall_default=rec))

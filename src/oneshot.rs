@@ -4,7 +4,8 @@
 //! Each source is whatever `inspect` recognises ([`crate::sources::Input`]): a message log, an
 //! NCLT session, a KITTI sequence, a folder of clouds; its sessions are the ones `inspect` lists.
 //! The pipeline is made here — the sources with the options given (`--topic`, the poses), and
-//! toporec's defaults with toporec-plus (or the methods asked for) — and kept by the index as
+//! toporec's defaults with toporec-plus, looking 3 m to either side for revisits driven back a
+//! lane over (or the methods asked for) — and kept by the index as
 //! every run's is: everything chosen (the topic, where the poses come from, their frames, the
 //! tolerance) is written in it, so `toporec run` on it, and `toporec repair`, give the same
 //! index. The index goes to `out/<first source's name>` unless `--index` says otherwise, and the
@@ -132,6 +133,18 @@ pub fn pipeline(
     } else {
         methods.to_vec()
     };
+    // toporec-plus looks sideways too: a robot's own log holds its revisits driven back a lane
+    // over (docs/loops.md).
+    if methods.iter().any(|m| m == crate::methods::toporec_plus::NAME) {
+        let lateral = crate::methods::toporec_plus::PlusParams::for_loops().lateral;
+        doc.insert(
+            crate::methods::toporec_plus::NAME.into(),
+            toml::Value::Table(toml::Table::from_iter([(
+                "lateral".to_string(),
+                toml::Value::Array(lateral.into_iter().map(toml::Value::Float).collect()),
+            )])),
+        );
+    }
     doc.insert(
         "descriptors".into(),
         toml::Value::Table(toml::Table::from_iter([(

@@ -430,8 +430,9 @@ fn verify_names_a_scan_it_cannot_read_again_and_keeps_going() {
 
 /// The drive back a lane over (docs/loops.md, "Reversed revisits a lane over"): town 13, the
 /// second lap reversed 3.5 m beside the first, HDL-64E at 1°. toporec-plus at its defaults
-/// misses most of these revisits at its threshold; with lateral views it finds them, with at
-/// most one false loop.
+/// misses most of these revisits at its threshold; with the lateral views `toporec loops
+/// <source>` chooses, at their own default threshold, it finds them, with at most one false
+/// loop.
 #[test]
 fn lateral_views_find_the_reversed_revisits_a_lane_over() {
     let dir = scratch_dir("loops_lateral");
@@ -475,8 +476,6 @@ fn lateral_views_find_the_reversed_revisits_a_lane_over() {
             index.to_str().unwrap(),
             "--exclude-seconds",
             "10",
-            "--threshold",
-            "0.3619",
             "-o",
             out.to_str().unwrap(),
             "--no-progress",

@@ -80,11 +80,16 @@ fn one_command_on_a_bag_finds_the_loops_a_pipeline_and_loops_verify_find_on_its_
     assert!(dir.join("loops.toporec-plus.g2o").is_file(), "g2o per method");
     let ours = loop_rows(&out);
     assert!(ours.len() >= 10, "the second lap closes loops: {ours:?}");
+    // toporec-plus with lateral views, written in the pipeline the index keeps.
+    let made = std::fs::read_to_string(dir.join("idx/pipeline.toml")).unwrap();
+    assert!(made.contains("lateral = [3.0]"), "{made}");
+    assert!(err.contains("below 0.3534"), "the threshold of those settings: {err}");
 
-    // By hand: the MCAP copy with its ground-truth file, a pipeline, then loops --verify.
+    // By hand: the MCAP copy with its ground-truth file, a pipeline (toporec-plus with the
+    // lateral views the one command chooses), then loops --verify.
     let mcap = dir.join("mcap/2026-01-01.mcap");
     let pipeline = format!(
-        "[output]\nindex = {:?}\n[[sources]]\nkind = \"rosbag\"\npaths = [{:?}]\nposes = {:?}\n[descriptors]\nmethods = [\"toporec-plus\"]\n",
+        "[output]\nindex = {:?}\n[[sources]]\nkind = \"rosbag\"\npaths = [{:?}]\nposes = {:?}\n[descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\nlateral = [3.0]\n",
         dir.join("by-hand").display().to_string(),
         mcap.display().to_string(),
         dir.join("mcap/groundtruth_2026-01-01.csv").display().to_string()

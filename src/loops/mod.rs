@@ -43,7 +43,7 @@ pub struct LoopsArgs {
     #[command(flatten)]
     pub from: crate::oneshot::SourceOptions,
     /// The descriptor methods (repeatable; default: every method of the index; with sources,
-    /// toporec-plus).
+    /// toporec-plus, with lateral views of 3 m).
     #[arg(long = "method")]
     pub methods: Vec<String>,
     /// Only these sessions' scans, as queries and as matches (repeatable; default: all; with
