@@ -488,4 +488,37 @@ fn lateral_views_find_the_reversed_revisits_a_lane_over() {
     // Percentages; measured 100 % and 36 % without views, 99 % and 99 % with them.
     assert!(recall < 50.0, "without views: recall {recall}");
     assert!(lateral_recall >= 95.0 && lateral_precision >= 99.0, "{lateral_precision} {lateral_recall}");
+
+    // The online detector with those settings, fed the raw scans in time order, finds what
+    // `loops` finds on the index, at the same default threshold.
+    let lateral = dir.join("lateral");
+    let expected = loops_rows(
+        lateral.to_str().unwrap(),
+        &["--all", "--exclude-seconds", "10", "--no-progress"],
+        &dir.join("lateral-all.csv"),
+    );
+    let method = toporec::loops::detector::method_of_index(&lateral, "toporec-plus").unwrap();
+    assert_eq!(method, toporec::Method::of(toporec::methods::toporec_plus::PlusParams::for_loops()));
+    let threshold = toporec::loops::default_threshold(&method).unwrap();
+    let exclusion = toporec::loops::Exclusion::Seconds(10.0);
+    let mut detector = toporec::loops::Detector::new(method, exclusion, threshold).unwrap();
+    let session = "2026-01-01";
+    let folder = data.join("velodyne_data").join(session).join("velodyne_sync");
+    let mut files: Vec<_> = std::fs::read_dir(&folder).unwrap().map(|e| e.unwrap().path()).collect();
+    files.sort();
+    let mut ids = Vec::new();
+    let mut found = Vec::new();
+    for f in files {
+        let stem = f.file_stem().unwrap().to_str().unwrap().to_string();
+        let points = toporec::sources::read_cloud(&f, None).unwrap();
+        let query = format!("{session}/{stem}");
+        if let Some(h) = detector.add(&points, Some(stem.parse().unwrap()), session, None).unwrap() {
+            let matched: &String = &ids[h.row];
+            let row = ("toporec-plus".to_string(), query.clone(), session.to_string(), matched.clone());
+            found.push((row.0, row.1, row.2, row.3, session.to_string(), h.distance, h.accepted));
+        }
+        ids.push(query);
+    }
+    assert!(found.iter().filter(|r| r.6).count() >= 95, "the detector's accepted loops");
+    assert_eq!(found, expected);
 }
