@@ -10,7 +10,8 @@
 //! 1,000,000) holds the descriptors of 10,000 distinct simulated scans (one drive of 5,000
 //! scans a session, two sessions), each repeated with its sectors turned by a random shift and
 //! its codes scaled by a random factor in [0.8, 1.2] and noised, so keys and columns look like
-//! real ones.
+//! real ones. The queries are timed without and with the lateral views of
+//! `toporec loops <source>` (`PlusParams::for_loops`), interleaved, over the same searcher.
 //!
 //! Run: `cargo bench --bench toporec_plus`.
 
@@ -173,6 +174,41 @@ fn main() {
             mean(&cand),
             mean(&rerank),
             total.len()
+        );
+
+        // Lateral views (`PlusParams::for_loops`, what `toporec loops <source>` indexes with): a
+        // search-time setting over the same entries, switched query by query.
+        let mut searcher = searcher;
+        let views = PlusParams::for_loops().lateral;
+        let (mut plain_ms, mut views_ms, mut plain_rerank, mut views_rerank) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for round in 0..4 {
+            for q in &queries {
+                for (lateral, out, rerank) in
+                    [(Vec::new(), &mut plain_ms, &mut plain_rerank), (views.clone(), &mut views_ms, &mut views_rerank)]
+                {
+                    searcher.set_lateral(lateral);
+                    let t = Instant::now();
+                    let (_, times) = std::hint::black_box(searcher.search(q, 25));
+                    if round > 0 {
+                        out.push(t.elapsed().as_secs_f64() * 1e3);
+                        rerank.push(times.rerank * 1e3);
+                    }
+                }
+            }
+        }
+        searcher.set_lateral(Vec::new());
+        let middle = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let (plain_q, views_q) = (middle(&mut plain_ms), middle(&mut views_ms));
+        println!(
+            "with lateral views {views:?} m: a query {views_q:.3} ms (re-rank {:.3} ms) against {plain_q:.3} ms (re-rank {:.3} ms) without (medians of {} interleaved queries each): {:.3}x",
+            middle(&mut views_rerank),
+            middle(&mut plain_rerank),
+            views_ms.len(),
+            views_q / plain_q
         );
 
         // The same searcher cached as an index keeps it, then opened by mapping the file, as

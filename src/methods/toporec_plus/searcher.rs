@@ -488,6 +488,12 @@ impl Searcher {
         fused.into_iter().take(wanted).map(|(_, row)| row).collect()
     }
 
+    /// Sets the query's lateral views ([`PlusParams::lateral`]): a search-time setting, the
+    /// entries are the same with any.
+    pub fn set_lateral(&mut self, lateral: Vec<f64>) {
+        self.params.lateral = lateral;
+    }
+
     /// The `k` best rows for `query`, by (distance, row), with the time of each step.
     pub fn search(&self, query: &[f32], k: usize) -> (Vec<Hit>, SearchTimes) {
         self.search_where(query, k, &|_| true)
