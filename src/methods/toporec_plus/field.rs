@@ -143,8 +143,37 @@ impl HeightField {
     }
 }
 
+/// Where a place falls on the polar grid, given its range in rings and its azimuth in sectors
+/// from the grid's origin (0 at the origin and at azimuth 0).
+pub(super) struct Place {
+    /// The cell it lies in: (ring, sector).
+    pub(super) cell: (usize, usize),
+    /// Its two nearest ring centres, with their linear weights (the same ring twice, weights
+    /// 1 and 0, inside the first centre and outside the last).
+    pub(super) rings: [(usize, f64); 2],
+    /// Its two nearest sector centres, with their linear weights.
+    pub(super) sectors: [(usize, f64); 2],
+}
+
+impl Place {
+    pub(super) fn at(ring: f64, sector: f64, p: &PlusParams) -> Self {
+        let (rings, sectors) = (p.rings, p.sectors);
+        let u = (ring - 0.5).clamp(0.0, (rings - 1) as f64);
+        let inner = (u as usize).min(rings - 1);
+        let w = u - inner as f64;
+        let v = sector - 0.5;
+        let (first, ws) = (v.floor(), v - v.floor());
+        let before = (first as i64).rem_euclid(sectors as i64) as usize;
+        Place {
+            cell: ((ring as usize).min(rings - 1), (sector as usize).min(sectors - 1)),
+            rings: [(inner, 1.0 - w), ((inner + 1).min(rings - 1), w)],
+            sectors: [(before, 1.0 - ws), ((before + 1) % sectors, ws)],
+        }
+    }
+}
+
 /// The code of a share of a channel's scale: its square root in 256 levels.
-fn code(share: f64) -> f32 {
+pub(super) fn code(share: f64) -> f32 {
     (share.min(1.0).sqrt() * LEVELS).round() as f32
 }
 
@@ -168,25 +197,18 @@ pub fn describe(points: &[Point], p: &PlusParams) -> Result<Vec<f32>, String> {
         if range > p.max_radius {
             continue;
         }
+        let at = Place::at(range / p.max_radius * rings as f64, azimuth / sector, p);
         // Relief: shared between the two nearest ring centres and the two nearest sector
         // centres, linearly.
-        let u = (range / p.max_radius * rings as f64 - 0.5).clamp(0.0, (rings - 1) as f64);
-        let inner = (u as usize).min(rings - 1);
-        let outer = (inner + 1).min(rings - 1);
-        let w = u - inner as f64;
-        let v = azimuth / sector - 0.5;
-        let (first, ws) = (v.floor(), v - v.floor());
-        let before = (first as i64).rem_euclid(sectors as i64) as usize;
-        let after = (before + 1) % sectors;
         let value = r as f64;
-        for (ring, weight) in [(inner, 1.0 - w), (outer, w)] {
+        let [(before, w_before), (after, w_after)] = at.sectors;
+        for (ring, weight) in at.rings {
             let row = &mut grid[(RELIEF * rings + ring) * sectors..(RELIEF * rings + ring + 1) * sectors];
-            row[before] += weight * (1.0 - ws) * value;
-            row[after] += weight * ws * value;
+            row[before] += weight * w_before * value;
+            row[after] += weight * w_after * value;
         }
         // Height: the highest square of the cell it falls in.
-        let ring = ((range / p.max_radius * rings as f64) as usize).min(rings - 1);
-        let s = ((azimuth / sector) as usize).min(sectors - 1);
+        let (ring, s) = at.cell;
         let h = (field.height[k as usize] as f64 + p.lidar_height).max(0.0);
         let cell = &mut grid[((1 - RELIEF) * rings + ring) * sectors + s];
         *cell = cell.max(h);

@@ -12,6 +12,7 @@
 //! in. Cells whose centre lies beyond `max_radius` of the sensor are empty. The near cells of
 //! a view are coarse (a 4 m ring resampled), the far ones nearly exact.
 
+use super::field::{Place, code};
 use super::{CHANNELS, LEVELS, PlusParams, RELIEF};
 use std::f64::consts::TAU;
 
@@ -34,28 +35,21 @@ pub(super) fn view(d: &[f32], shift: f64, p: &PlusParams) -> Vec<f32> {
                 continue;
             }
             let stored = |ch: usize, i: usize, j: usize| d[ch * plane + i * sectors + j] as f64;
-            *height = stored(
-                CHANNELS - 1 - RELIEF,
-                ((range / ring_width) as usize).min(rings - 1),
-                ((azimuth / sector_angle) as usize).min(sectors - 1),
-            ) as f32;
-            let u = (range / ring_width - 0.5).clamp(0.0, (rings - 1) as f64);
-            let (inner, w) = (u as usize, u.fract());
-            let outer = (inner + 1).min(rings - 1);
-            let v = azimuth / sector_angle - 0.5;
-            let before = (v.floor() as i64).rem_euclid(sectors as i64) as usize;
-            let (after, ws) = ((before + 1) % sectors, v - v.floor());
+            let at = Place::at(range / ring_width, azimuth / sector_angle, p);
+            *height = stored(CHANNELS - 1 - RELIEF, at.cell.0, at.cell.1) as f32;
             // Codes are square roots of shares: the shares are what add up.
             let share = |i: usize, j: usize| (stored(RELIEF, i, j) / LEVELS).powi(2);
-            let at = (1.0 - w) * ((1.0 - ws) * share(inner, before) + ws * share(inner, after))
-                + w * ((1.0 - ws) * share(outer, before) + ws * share(outer, after));
+            let ([(inner, w_inner), (outer, w_outer)], [(before, w_before), (after, w_after)]) =
+                (at.rings, at.sectors);
+            let shared = w_inner * (w_before * share(inner, before) + w_after * share(inner, after))
+                + w_outer * (w_before * share(outer, before) + w_after * share(outer, after));
             // A cell's area grows with its ring's radius.
-            relief[i * sectors + j] = at * r / range.max(0.5 * ring_width);
+            relief[i * sectors + j] = shared * r / range.max(0.5 * ring_width);
         }
     }
     let largest = relief.iter().copied().fold(0.0, f64::max);
-    for (code, &v) in out[RELIEF * plane..(RELIEF + 1) * plane].iter_mut().zip(&relief) {
-        *code = if largest > 0.0 { ((v / largest).min(1.0).sqrt() * LEVELS).round() as f32 } else { 0.0 };
+    for (c, &v) in out[RELIEF * plane..(RELIEF + 1) * plane].iter_mut().zip(&relief) {
+        *c = if largest > 0.0 { code(v / largest) } else { 0.0 };
     }
     out
 }
