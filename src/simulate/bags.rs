@@ -281,13 +281,7 @@ impl Rosbag2Writer {
         let name = session_name(session);
         let dir = out.join("rosbag2").join(&name);
         let path = dir.join(format!("{name}_0.mcap"));
-        let file = crate::fsutil::AtomicFile::create(&path)?;
-        let mut writer = ::mcap::WriteOptions::new()
-            .compression(Some(::mcap::Compression::Zstd))
-            .profile("ros2")
-            .library("toporec-simulate")
-            .create(file)
-            .at(&path)?;
+        let mut writer = super::ros2_mcap(&path)?;
         let mut channels = [0u16; 4];
         for (i, (topic, kind)) in TOPICS.iter().enumerate() {
             let (schema, text) = match kind {

@@ -537,18 +537,24 @@ struct McapWriter {
 
 const POINTCLOUD2_MSG: &str = "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n";
 
+/// An MCAP file of ROS 2 messages in zstd chunks at `path`, written atomically (the simulator's
+/// MCAP copy and its rosbag2 folders).
+fn ros2_mcap(path: &Path) -> Result<::mcap::Writer<crate::fsutil::AtomicFile>> {
+    let file = crate::fsutil::AtomicFile::create(path)?;
+    ::mcap::WriteOptions::new()
+        .compression(Some(::mcap::Compression::Zstd))
+        .profile("ros2")
+        .library("toporec-simulate")
+        .create(file)
+        .at(path)
+}
+
 impl McapWriter {
     fn new(out: &Path, session: usize) -> Result<Self> {
         let name = session_name(session);
         let dir = out.join("mcap");
         let path = dir.join(format!("{name}.mcap"));
-        let file = crate::fsutil::AtomicFile::create(&path)?;
-        let mut writer = ::mcap::WriteOptions::new()
-            .compression(Some(::mcap::Compression::Zstd))
-            .profile("ros2")
-            .library("toporec-simulate")
-            .create(file)
-            .at(&path)?;
+        let mut writer = ros2_mcap(&path)?;
         let schema = writer
             .add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSG.as_bytes())
             .at(&path)?;
