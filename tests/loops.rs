@@ -232,13 +232,19 @@ fn simulated_index(dir: &Path, drive: &[&str]) -> std::path::PathBuf {
     args.extend_from_slice(drive);
     let o = toporec(&args);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let pipeline = dir.join("drive.toml");
+    nclt_index(dir, &data, "idx", "[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\"]\n")
+}
+
+/// `dir/<name>`: an index of the NCLT-layout drive in `data` with `descriptors` (the pipeline's
+/// `[descriptors]` and method sections), made by `toporec run`.
+fn nclt_index(dir: &Path, data: &Path, name: &str, descriptors: &str) -> std::path::PathBuf {
+    let pipeline = dir.join(format!("{name}.toml"));
     let body = format!(
-        "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"scancontext\", \"toporec-plus\"]\n",
+        "[output]\nindex = \"{name}\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n{descriptors}",
         data.join("velodyne_data").display().to_string()
     );
     std::fs::write(&pipeline, body).unwrap();
-    let index = dir.join("idx");
+    let index = dir.join(name);
     let o = run_pipeline(&pipeline, &index, 2);
     assert!(o.status.success(), "{}", text(&o.stderr));
     index
@@ -460,15 +466,12 @@ fn lateral_views_find_the_reversed_revisits_a_lane_over() {
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let scores = |name: &str, settings: &str| {
-        let pipeline = dir.join(format!("{name}.toml"));
-        let body = format!(
-            "[output]\nindex = \"{name}\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"toporec-plus\"]\n{settings}",
-            data.join("velodyne_data").display().to_string()
+        let index = nclt_index(
+            &dir,
+            &data,
+            name,
+            &format!("[descriptors]\nmethods = [\"toporec-plus\"]\n{settings}"),
         );
-        std::fs::write(&pipeline, body).unwrap();
-        let index = dir.join(name);
-        let o = run_pipeline(&pipeline, &index, 2);
-        assert!(o.status.success(), "{}", text(&o.stderr));
         let out = dir.join(format!("{name}.csv"));
         let o = toporec(&[
             "loops",

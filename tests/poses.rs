@@ -102,20 +102,27 @@ fn simulated(dir: &Path, scans: usize) -> PathBuf {
     dir.to_owned()
 }
 
-#[test]
-fn a_simulated_bags_poses_are_its_ground_truth() {
-    let dir = simulated(&scratch_dir("poses_simulated"), 12);
-    let gt = toporec::sources::groundtruth::GroundTruth::read(&dir.join("mcap/groundtruth_2026-01-01.csv"))
-        .unwrap();
-    let want: Vec<(u64, [f64; 4])> = gt
-        .rows
+/// The simulated drive's ground-truth file.
+fn ground_truth(dir: &Path) -> toporec::sources::groundtruth::GroundTruth {
+    toporec::sources::groundtruth::GroundTruth::read(&dir.join("mcap/groundtruth_2026-01-01.csv")).unwrap()
+}
+
+/// A ground truth scan by scan: (scan index, [x, y, z, yaw°]).
+fn truth(gt: &toporec::sources::groundtruth::GroundTruth) -> Vec<(u64, [f64; 4])> {
+    gt.rows
         .iter()
         .enumerate()
         .map(|(i, (_, p))| {
             let p = p.unwrap();
             (i as u64, [p.x, p.y, p.z, p.yaw.to_degrees()])
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn a_simulated_bags_poses_are_its_ground_truth() {
+    let dir = simulated(&scratch_dir("poses_simulated"), 12);
+    let want = truth(&ground_truth(&dir));
     for log in ["bag/2026-01-01.bag", "rosbag2/2026-01-01"] {
         let path = dir.join(log);
         assert_poses(&joined(LogSpec::path(&path)), &want, &format!("{log}, /tf"));
@@ -128,16 +135,8 @@ fn a_simulated_bags_poses_are_its_ground_truth() {
 fn pose_files_in_tum_kitti_and_nclt_layouts_are_joined_by_time() {
     let dir = simulated(&scratch_dir("poses_files"), 6);
     let bag = dir.join("bag/2026-01-01.bag");
-    let gt = toporec::sources::groundtruth::GroundTruth::read(&dir.join("mcap/groundtruth_2026-01-01.csv"))
-        .unwrap();
-    let want: Vec<(u64, [f64; 4])> = gt
-        .rows
-        .iter()
-        .enumerate()
-        .map(|(i, (_, p))| {
-            (i as u64, [p.unwrap().x, p.unwrap().y, p.unwrap().z, p.unwrap().yaw.to_degrees()])
-        })
-        .collect();
+    let gt = ground_truth(&dir);
+    let want = truth(&gt);
     let (mut tum, mut kitti, mut times) = (String::new(), String::new(), String::new());
     let t0 = gt.rows[0].0;
     for (t, p) in &gt.rows {
