@@ -91,6 +91,11 @@ type Chart<'a, DB> = ChartContext<
 >;
 
 /// The series legend, boxed, at `position`.
+/// A series' mark in the legend: 20 pixels of its line.
+fn legend_line(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style)
+}
+
 fn legend<'a, DB: DrawingBackend + 'a>(chart: &mut Chart<'a, DB>, position: SeriesLabelPosition) -> Result<()>
 where
     DB::ErrorType: 'static,
@@ -131,7 +136,7 @@ impl Figure for Curves<'_> {
                 .draw_series(LineSeries::new(points, color.stroke_width(2)))
                 .map_err(e)?
                 .label(name.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                .legend(legend_line(color.stroke_width(2)));
         }
         legend(&mut chart, SeriesLabelPosition::LowerRight)?;
         Ok(())
@@ -167,7 +172,7 @@ impl Figure for PrCurves<'_> {
                 .draw_series(LineSeries::new(points.iter().copied(), color.stroke_width(2)))
                 .map_err(e)?
                 .label(name.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                .legend(legend_line(color.stroke_width(2)));
         }
         legend(&mut chart, SeriesLabelPosition::LowerLeft)?;
         Ok(())
@@ -357,7 +362,7 @@ impl Figure for LoopsMap<'_> {
                 .draw_series(LineSeries::new(line, color.stroke_width(1)))
                 .map_err(e)?
                 .label(session.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(1)));
+                .legend(legend_line(color.stroke_width(1)));
         }
         // An arc between two places on the walking-order line; a straight edge between poses.
         let path = |edge: &LoopEdge| -> Vec<(f64, f64)> {
@@ -381,7 +386,7 @@ impl Figure for LoopsMap<'_> {
                 .draw_series(edges.into_iter().map(|l| PathElement::new(path(l), color.stroke_width(2))))
                 .map_err(e)?
                 .label(format!("{label} ({n})"))
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                .legend(legend_line(color.stroke_width(2)));
         }
         legend(&mut chart, SeriesLabelPosition::UpperRight)?;
         Ok(())
