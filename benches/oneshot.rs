@@ -10,6 +10,9 @@
 //!
 //! Run: `cargo bench --bench oneshot`.
 
+mod common;
+
+use common::median;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -60,11 +63,6 @@ fn rows(csv: &Path) -> Vec<String> {
     let mut lines: Vec<String> = std::fs::read_to_string(csv).unwrap().lines().map(str::to_string).collect();
     lines.sort();
     lines
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 fn main() {

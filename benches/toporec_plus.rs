@@ -17,7 +17,7 @@
 
 mod common;
 
-use common::{median_ms, simulated_scans, turned_copy};
+use common::{median, median_ms, simulated_scans, turned_copy};
 use std::path::Path;
 use std::time::Instant;
 use toporec::homology::{Point, alpha_persistence};
@@ -198,16 +198,12 @@ fn main() {
             }
         }
         searcher.set_lateral(Vec::new());
-        let middle = |v: &mut Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
-        let (plain_q, views_q) = (middle(&mut plain_ms), middle(&mut views_ms));
+        let (queries_timed, plain_q, views_q) = (views_ms.len(), median(plain_ms), median(views_ms));
         println!(
             "with lateral views {views:?} m: a query {views_q:.3} ms (re-rank {:.3} ms) against {plain_q:.3} ms (re-rank {:.3} ms) without (medians of {} interleaved queries each): {:.3}x",
-            middle(&mut views_rerank),
-            middle(&mut plain_rerank),
-            views_ms.len(),
+            median(views_rerank),
+            median(plain_rerank),
+            queries_timed,
             views_q / plain_q
         );
 
@@ -279,12 +275,9 @@ fn main() {
                 }
             }
         }
-        let median = |v: &mut Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
-        let warm_open = median(&mut warm_opens);
-        let (checked, unchecked) = (median(&mut checked_ms), median(&mut unchecked_ms));
+        let queries_timed = checked_ms.len();
+        let warm_open = median(warm_opens);
+        let (checked, unchecked) = (median(checked_ms), median(unchecked_ms));
         println!(
             "cached: {:.2} GB file ({:.1} KB an entry) written in {written:.1} s; opened with every checksum checked in {warm_open:.2} s from the page cache (median of 4), {} cold",
             bytes as f64 / 1e9,
@@ -293,7 +286,7 @@ fn main() {
         );
         println!(
             "a query of the checked cache {checked:.3} ms, of the same bytes mapped unchecked {unchecked:.3} ms (medians of {} interleaved queries each): {:.3}x",
-            checked_ms.len(),
+            queries_timed,
             checked / unchecked
         );
         let _ = std::fs::remove_file(&path);
