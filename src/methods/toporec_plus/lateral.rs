@@ -16,13 +16,13 @@ use super::field::{Place, code};
 use super::{CHANNELS, LEVELS, PlusParams, RELIEF};
 use std::f64::consts::TAU;
 
-/// The descriptor `d` with its polar grid seen from the origin (0, `shift`) (m, left of the
-/// sensor; negative: right), its image unchanged.
+/// The polar grid of the descriptor `d` as seen from the origin (0, `shift`) (m, left of the
+/// sensor; negative: right): a descriptor's first part, all a query's matching reads.
 pub(super) fn view(d: &[f32], shift: f64, p: &PlusParams) -> Vec<f32> {
     let (rings, sectors) = (p.rings, p.sectors);
     let (ring_width, sector_angle) = (p.max_radius / rings as f64, TAU / sectors as f64);
     let plane = rings * sectors;
-    let mut out = d.to_vec();
+    let mut out = d[..p.polar_len()].to_vec();
     let mut relief = vec![0f64; plane];
     for i in 0..rings {
         for j in 0..sectors {
