@@ -8,6 +8,11 @@
 //! first, `REPS` times on 1 and 2 threads; medians of each and their ratio. Both forms' loops
 //! tables are checked to hold the same rows.
 //!
+//! Then what joining new poses costs: the bag indexed (`toporec run <bag>`, toporec-plus) from an
+//! empty index, against the same index brought up to date with another pose file (the log's own
+//! poses moved 1 m: every scan's rows written anew, no descriptor computed) and against a run
+//! with nothing to do; 2 threads, medians of `REPS`.
+//!
 //! Run: `cargo bench --bench oneshot`.
 
 mod common;
@@ -145,4 +150,47 @@ fn main() {
         let (o, h) = (median(one), median(hand));
         println!("{threads:>8} {o:>14.2} {h:>14.2} {:>7.3}", o / h);
     }
+    rejoin(bin, &bag, &dir);
+}
+
+/// Indexing the bag, against joining other poses into its index and against a run with
+/// nothing to do.
+fn rejoin(bin: &str, bag: &Path, dir: &Path) {
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let index = dir.join("rejoin");
+    let moved = dir.join("moved.tum");
+    let run = |extra: &[&str]| {
+        let mut args = vec!["run".to_string(), s(bag), "--index".into(), s(&index), "--no-progress".into()];
+        args.extend(["-t".into(), "2".into()]);
+        args.extend(extra.iter().map(|a| a.to_string()));
+        let out = Command::new(bin).args(&args).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let (mut indexing, mut joining, mut nothing) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..REPS {
+        let _ = std::fs::remove_dir_all(&index);
+        indexing.push(seconds(|| {
+            run(&[]);
+        }));
+        let mut tum = String::new();
+        for r in toporec::sinks::index::IndexReader::open(&index).unwrap().scans().unwrap() {
+            let (Some(t), Some(p)) = (r.utime, r.pose) else { continue };
+            let (qz, qw) = ((p.yaw / 2.0).sin(), (p.yaw / 2.0).cos());
+            tum += &format!("{:.6} {} {} {} 0 0 {qz} {qw}\n", t as f64 * 1e-6, p.x + 1.0, p.y, p.z);
+        }
+        std::fs::write(&moved, tum).unwrap();
+        let mut said = String::new();
+        joining.push(seconds(|| said = run(&["--poses", &s(&moved)])));
+        assert!(said.contains("1000 up-to-date scans took new poses"), "{said}");
+        nothing.push(seconds(|| {
+            run(&["--poses", &s(&moved)]);
+        }));
+    }
+    let (i, j, n) = (median(indexing), median(joining), median(nothing));
+    println!("\njoining new poses into the 1,000-scan index (2 threads, medians of {REPS})");
+    println!("{:>24} {:>8} {:>9}", "", "s", "of index");
+    println!("{:>24} {i:>8.2} {:>9.3}", "index from empty", 1.0);
+    println!("{:>24} {j:>8.2} {:>9.3}", "join new poses", j / i);
+    println!("{:>24} {n:>8.2} {:>9.3}", "nothing to do", n / i);
 }

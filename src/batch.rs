@@ -296,7 +296,7 @@ impl BatchDescriber {
             ScanInput::Points { scan_id, session, path, utime, pose, points } => {
                 let scan = Scan::of_points(scan_id, session, path, points);
                 let no_pose = pose.is_none().then_some(crate::sources::NoPose::NoGroundTruth);
-                return Ok(Scan { utime: utime.unwrap_or(0), pose, no_pose, ..scan });
+                return Ok(Scan { utime, pose, no_pose, ..scan });
             }
             ScanInput::File { path, bytes, format } => (path, bytes, format),
             ScanInput::Path { path, format } => match std::fs::read(&path) {

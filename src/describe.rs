@@ -159,6 +159,13 @@ impl Describer {
 
     /// The baseline descriptors of a raw scan (sensor frame), one per computed method.
     pub fn describe_raw(&self, points: &[Point], label: &str) -> Result<Vec<Vec<f32>>, DescribeError> {
+        if !self.computed.is_empty() && points.len() < crate::methods::MIN_RAW_POINTS {
+            return Err(DescribeError::Skipped(format!(
+                "{label}: {} points, fewer than the {} a raw-scan method needs",
+                points.len(),
+                crate::methods::MIN_RAW_POINTS
+            )));
+        }
         catch(label, || {
             let mut out = Vec::with_capacity(self.computed.len());
             for m in &self.computed {
@@ -270,7 +277,7 @@ impl Describer {
             seq: position,
             source_path: scan.path.display().to_string(),
             message_index: scan.message_index,
-            utime: Some(scan.utime),
+            utime: scan.utime,
             pose: scan.pose,
             raw_points: scan.raw_points as u64,
             kept_points: 0,

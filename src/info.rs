@@ -36,6 +36,8 @@ pub struct IndexInfo {
     pub bytes: u64,
     /// The effective pipeline the index was made with (TOML), when it records one.
     pub pipeline: Option<String>,
+    /// Where the scans' poses came from, as the last run joined them, with fingerprints.
+    pub poses: Vec<crate::sources::poses::PoseOrigin>,
 }
 
 /// One descriptor method of an index.
@@ -112,6 +114,7 @@ pub fn info_with(index: &Path, damage: &Damage) -> Result<IndexInfo> {
             files: manifest.files.len(),
             bytes: manifest.files.iter().map(|f| f.bytes).sum(),
             pipeline: manifest.pipeline.clone(),
+            poses: manifest.poses.clone(),
         })
     })
 }
@@ -186,6 +189,21 @@ impl std::fmt::Display for IndexInfo {
             let id = if m.kind == crate::methods::TOPOREC { "codebook" } else { "id" };
             let settings = serde_json::to_string(&m.settings).unwrap_or_default();
             writeln!(f, "  {name}: length {}, {id} {}, {} rows, {settings}", m.length, m.id, m.rows)?;
+        }
+        if !self.poses.is_empty() {
+            writeln!(f, "poses:")?;
+        }
+        for o in &self.poses {
+            let file = o.file_xxh3.as_ref().map(|h| format!(", file {h}")).unwrap_or_default();
+            writeln!(
+                f,
+                "  {}: {}: {} of {} scans with a pose (poses {}{file})",
+                o.sessions.join(", "),
+                o.origin,
+                o.with_pose,
+                o.scans,
+                o.poses_xxh3
+            )?;
         }
         match &self.pipeline {
             Some(p) => {

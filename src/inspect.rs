@@ -75,8 +75,10 @@ fn scans_report(stream: ScanStream, out: &mut String) {
                 *sessions.entry(session).or_default() += 1;
                 kept.push(points.len());
                 raw.push(raw_points);
-                first = Some(first.map_or(utime, |f| f.min(utime)));
-                last = Some(last.map_or(utime, |l| l.max(utime)));
+                if let Some(utime) = utime {
+                    first = Some(first.map_or(utime, |f: i64| f.min(utime)));
+                    last = Some(last.map_or(utime, |l: i64| l.max(utime)));
+                }
                 posed += pose.is_some() as usize;
                 max_r = max_r.max(max_range(&points));
                 if let Some(r) = ring {

@@ -60,7 +60,8 @@ pub struct Made {
     pub text: String,
     /// The sessions the sources hold, in order.
     pub sessions: Vec<String>,
-    /// How each message log's scans take their poses, in words (`<log>: <choice>`).
+    /// Notes on the logs that hold no pose (`<log>: no poses in the log …`); where the others'
+    /// come from, the run's summary says ([`crate::pipeline::RunSummary::poses`]).
     pub poses: Vec<String>,
 }
 
@@ -72,6 +73,43 @@ pub fn default_index(sources: &[PathBuf]) -> PathBuf {
         name.map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "index".into())
     });
     PathBuf::from("out").join(first.unwrap_or_else(|| "index".into()))
+}
+
+/// Refuses the default index folder `index` (`out/<name>`) when it holds an index of other
+/// sources: one none of whose sessions comes from any of `made`'s places (a log, a session
+/// folder). Two sources of the same name (a copy of a session folder elsewhere, another
+/// `drive.bag`) never share an index silently; the same sources, or some of them with others
+/// added, reuse it incrementally.
+pub fn check_default_index(index: &Path, made: &Made) -> Result<()> {
+    if !index.join(crate::sinks::index::MANIFEST_FILE).is_file() {
+        return Ok(());
+    }
+    let Ok(held) = Pipeline::of_index(index) else { return Ok(()) };
+    let places = |p: &Pipeline| -> Vec<PathBuf> {
+        let mut out: Vec<PathBuf> = p
+            .sources
+            .iter()
+            .flat_map(|s| s.sessions().unwrap_or_default())
+            .map(|(_, place)| std::fs::canonicalize(&place).unwrap_or(place))
+            .collect();
+        out.sort();
+        out.dedup();
+        out
+    };
+    let (theirs, ours) = (places(&held), places(&made.pipeline));
+    if theirs.is_empty() || ours.iter().any(|p| theirs.contains(p)) {
+        return Ok(());
+    }
+    let list = |v: &[PathBuf]| v.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ");
+    Err(Error::index(
+        index,
+        format!(
+            "holds the index of {}, not of {}: give --index DIR for this source's own index (or remove {})",
+            list(&theirs),
+            list(&ours),
+            index.display()
+        ),
+    ))
 }
 
 /// The pipeline of `sources` with `options`, computing `methods` (toporec-plus when empty),
@@ -100,7 +138,7 @@ pub fn pipeline(
         let spec = match spec.get::<LogSpec>() {
             Some(log) => {
                 let (spec, said) = settle_log_poses(log, path, options)?;
-                poses.push(said);
+                poses.extend(said);
                 spec
             }
             None if options.poses.is_some()
@@ -164,8 +202,8 @@ pub fn pipeline(
 
 /// A log's spec with its poses settled: the file given, or the log's own as the keys choose or
 /// as found, written as explicit keys (so the pipeline says what was chosen). Returns the
-/// spec and the choice in words.
-fn settle_log_poses(log: &LogSpec, path: &Path, o: &SourceOptions) -> Result<(SourceSpec, String)> {
+/// spec and, when the log holds no pose, a note saying so.
+fn settle_log_poses(log: &LogSpec, path: &Path, o: &SourceOptions) -> Result<(SourceSpec, Option<String>)> {
     let mut spec = LogSpec { tolerance_ms: o.tolerance_ms, ..log.clone() };
     if let Some(file) = &o.poses {
         let format =
@@ -180,21 +218,22 @@ fn settle_log_poses(log: &LogSpec, path: &Path, o: &SourceOptions) -> Result<(So
             o.poses_times.as_ref().map(|t| std::path::absolute(t).unwrap_or_else(|_| t.clone()));
         // Read now: a file that holds no pose of its layout is an error, not a run without poses.
         crate::sources::poses::read_nonempty(file, format, o.poses_times.as_deref(), Some(0))?;
-        let said = format!("{}: poses from {} ({format:?} layout)", path.display(), file.display());
-        return Ok((SourceSpec::new(spec), said));
+        return Ok((SourceSpec::new(spec), None));
     }
     spec.poses_topic = o.poses_topic.clone();
     spec.pose_frames = o.pose_frames.as_ref().map(|(a, b)| format!("{a}:{b}"));
     let (gathered, choice) = spec.pose_choice(path)?;
     let said = match &choice {
-        None => format!("{}: no poses in the log (give --poses FILE for loop distances)", path.display()),
+        None => {
+            Some(format!("{}: no poses in the log (give --poses FILE for loop distances)", path.display()))
+        }
         Some(c) => {
             let tol = (o.tolerance_ms * 1e6).round() as i64;
             gathered.check_overlap(path, c, tol)?;
             let keys = c.keys();
             spec.poses_topic = keys.topic;
             spec.pose_frames = keys.frames.map(|(a, b)| format!("{a}:{b}"));
-            format!("{}: poses from {}", path.display(), c.describe())
+            None
         }
     };
     Ok((SourceSpec::new(spec), said))
@@ -223,12 +262,18 @@ pub fn loops(a: &crate::loops::LoopsArgs, threads: usize) -> Result<Loops> {
     let start = std::time::Instant::now();
     let index = a.index.clone().unwrap_or_else(|| default_index(&a.sources));
     let made = pipeline(&a.sources, &a.from, &a.methods, &index)?;
+    if a.index.is_none() {
+        check_default_index(&index, &made)?;
+    }
     let opts = crate::pipeline::RunOptions {
         index: Some(index.clone()),
         progress: !a.no_progress,
         ..crate::pipeline::RunOptions::new(threads)
     };
     let run = crate::pipeline::run(&made.pipeline, &opts)?;
+    if run.indexed == 0 {
+        return Err(nothing_read(&a.sources, &run));
+    }
     let mut args = a.clone();
     args.index = Some(index.clone());
     if args.sessions.is_empty() {
@@ -292,6 +337,22 @@ pub fn loops(a: &crate::loops::LoopsArgs, threads: usize) -> Result<Loops> {
     })
 }
 
+/// The error of a run of `sources` that left no scan to search: every scan failed or was
+/// skipped; the first reasons are given.
+fn nothing_read(sources: &[PathBuf], run: &crate::pipeline::RunSummary) -> Error {
+    let names: Vec<String> = sources.iter().map(|p| p.display().to_string()).collect();
+    let skipped: u64 = run.skipped.values().sum();
+    let mut reasons: Vec<String> = run.failures.iter().take(3).cloned().collect();
+    reasons.extend(run.skipped.keys().map(|k| format!("skipped: {k}")).take(3 - reasons.len().min(3)));
+    let reasons = if reasons.is_empty() { "no scan in them".to_string() } else { reasons.join("; ") };
+    Error::invalid(format!(
+        "{}: no scan could be read and described ({} read, {} errors, {skipped} skipped): {reasons}",
+        names.join(", "),
+        run.read,
+        run.errors
+    ))
+}
+
 impl std::fmt::Display for Loops {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let (scans, posed) = self.scans;
@@ -302,8 +363,36 @@ impl std::fmt::Display for Loops {
             self.run.read,
             self.run.computed
         )?;
+        let run = &self.run;
+        if run.errors > 0 || !run.skipped.is_empty() {
+            let skipped: u64 = run.skipped.values().sum();
+            writeln!(
+                f,
+                "scans: {} read, {} indexed, {skipped} skipped, {} errors",
+                run.read, run.indexed, run.errors
+            )?;
+            for (reason, n) in &run.skipped {
+                writeln!(f, "  skipped ({reason}): {n}")?;
+            }
+            for e in &run.failures {
+                writeln!(f, "  error: {e}")?;
+            }
+        }
         for p in &self.made.poses {
             writeln!(f, "{p}")?;
+        }
+        for o in &run.poses {
+            if let Some(w) = o.bad_lines_warning() {
+                writeln!(f, "warning: {w}")?;
+            }
+            writeln!(
+                f,
+                "poses of {}: {}: {} of {} scans with a pose",
+                o.sessions.join(", "),
+                o.origin,
+                o.with_pose,
+                o.scans
+            )?;
         }
         writeln!(f, "scans: {scans} in sessions {}, {posed} with a pose", self.made.sessions.join(", "))?;
         for m in &self.loops.methods {
@@ -319,6 +408,9 @@ impl std::fmt::Display for Loops {
                     m.method, m.accepted, m.threshold
                 )?,
             }
+        }
+        for n in &self.loops.notes {
+            writeln!(f, "note: {n}")?;
         }
         for g in &self.loops.g2o {
             writeln!(f, "g2o edges written: {}", g.display())?;

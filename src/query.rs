@@ -63,7 +63,7 @@ pub fn open_path(path: &Path, topic: Option<&str>) -> Result<ScanStream> {
             session: "query".into(),
             path: path.to_owned(),
             message_index: None,
-            utime: 0,
+            utime: None,
             raw_points: points.len(),
             points,
             intensity: None,

@@ -141,6 +141,57 @@ fn every_doc_command_on_the_samples_runs() {
     assert!(ran >= 7, "the README's quick tour at least: {ran}");
 }
 
+/// The README's quick tour, line by line as a reader types it (comments and all), in a
+/// scratch copy of the repository with `toporec` on the PATH, as its install step puts it: each
+/// exits 0. The install step puts the binary on the PATH.
+#[test]
+fn the_readme_tour_runs_as_written() {
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    let install = readme.split("## Install").nth(1).and_then(|s| sh_blocks(s).into_iter().next()).unwrap();
+    assert!(
+        install.iter().any(|l| l.starts_with("cargo install --locked --path .")),
+        "the install step puts toporec on the PATH: {install:?}"
+    );
+    let tour = readme.split("## A quick tour").nth(1).and_then(|s| sh_blocks(s).into_iter().next()).unwrap();
+    assert!(runnable(&commands(&tour)), "every tour line runs on the samples: {tour:?}");
+    let dir = scratch_dir("docs_tour");
+    for f in ["samples", "pipelines"] {
+        copy_tree(&root().join(f), &dir.join(f));
+    }
+    let bin = dir.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    std::os::unix::fs::symlink(env!("CARGO_BIN_EXE_toporec"), bin.join("toporec")).unwrap();
+    let path = format!("{}:{}", bin.display(), std::env::var("PATH").unwrap_or_default());
+    let lines: Vec<&String> = tour.iter().filter(|l| !l.trim().is_empty()).collect();
+    assert!(lines.len() >= 8, "{lines:?}");
+    for line in lines {
+        let o =
+            Command::new("bash").args(["-c", line]).current_dir(&dir).env("PATH", &path).output().unwrap();
+        assert!(o.status.success(), "`{line}` failed:\n{}{}", text(&o.stdout), text(&o.stderr));
+    }
+    // The tour's query asks where day 2 was on day 1: no scan finds itself.
+    let line = tour.iter().find(|l| l.starts_with("toporec query --index out/sample")).unwrap();
+    let o = Command::new("bash").args(["-c", line]).current_dir(&dir).env("PATH", &path).output().unwrap();
+    let hits = text(&o.stdout);
+    for row in hits.lines().skip(1) {
+        let c: Vec<&str> = row.split(',').collect();
+        assert_eq!(c[3], "2026-01-01", "{row}");
+    }
+}
+
+/// Copies a folder tree.
+fn copy_tree(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        let target = to.join(e.file_name());
+        if e.path().is_dir() {
+            copy_tree(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), target).unwrap();
+        }
+    }
+}
+
 #[test]
 fn blocks_are_read_as_a_shell_reads_them() {
     let block: Vec<String> =

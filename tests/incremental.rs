@@ -348,12 +348,21 @@ fn manifest_json_schema_matches_a_real_manifest() {
         k.sort();
         k
     };
-    assert_eq!(keys(&manifest), required(&schema), "top-level keys");
-    // Every property is required but `methods` (only when the index has other methods).
-    let mut optional = required(&schema);
+    // Every property is required but `methods` (only when the index has other methods) and
+    // `poses` (only when its sources give poses: the sample's ground truth does).
+    let mut with_poses = required(&schema);
+    with_poses.push("poses".into());
+    with_poses.sort();
+    assert_eq!(keys(&manifest), with_poses, "top-level keys");
+    let mut optional = with_poses;
     optional.push("methods".into());
     optional.sort();
     assert_eq!(keys(&schema["properties"]), optional);
+    assert_eq!(
+        keys(&manifest["poses"][0]),
+        ["file", "file_xxh3", "origin", "poses_xxh3", "scans", "sessions", "with_pose"],
+        "pose origins"
+    );
     assert_eq!(keys(&manifest["counts"]), required(&schema["properties"]["counts"]), "counts");
     assert_eq!(
         keys(&manifest["files"][0]),

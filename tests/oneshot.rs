@@ -74,7 +74,7 @@ fn one_command_on_a_bag_finds_the_loops_a_pipeline_and_loops_verify_find_on_its_
     ]);
     let err = text(&o.stderr);
     assert!(o.status.success(), "{err}");
-    assert!(err.contains("poses from /tf chain odom → velodyne"), "{err}");
+    assert!(err.contains("/tf chain odom → velodyne in the log"), "{err}");
     assert!(err.contains("with a pose") && err.contains("verified by ICP"), "{err}");
     assert!(dir.join("loops.png").is_file() && dir.join("loops.svg").is_file(), "the picture");
     assert!(dir.join("loops.toporec-plus.g2o").is_file(), "g2o per method");

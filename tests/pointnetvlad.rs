@@ -63,7 +63,7 @@ fn benchmark_from_simulation(dir: &Path, scans: usize) -> PathBuf {
         let step = (pts.len() / 4096).max(1);
         let pts: Vec<Point> = pts.into_iter().step_by(step).take(4096).collect();
         by_session.entry(scan.session.clone()).or_default().push((
-            scan.utime,
+            scan.utime.unwrap(),
             [360000.0 + pose.x, 140000.0 + pose.y],
             pts,
         ));

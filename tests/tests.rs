@@ -25,4 +25,5 @@ mod shard;
 mod simulate;
 mod sources;
 mod toporec_plus;
+mod truth;
 mod util;

@@ -191,3 +191,34 @@ def test_lidar_iris_is_stored_as_bytes_and_described_and_queried_alike(iris_inde
     hits = index.query([files[3]], k=1, method="lidar-iris")
     assert hits["scan_id"][0].as_py().endswith(files[3].stem)
     assert hits["distance"][0].as_py() == 0.0 and hits["yaw_deg"][0].as_py() == 0.0
+
+
+def test_descriptors_of_an_index_of_toporec_plus(tmp_path):
+    """What `toporec.loops` makes holds toporec-plus alone: descriptors() reads it, an unknown
+    method is an error naming the ones the index holds."""
+    index = tmp_path / "drive"
+    toporec.loops(REPO / "samples" / "drive.bag", index=index, verify=False, threads=2)
+    i = toporec.Index(index)
+    assert i.methods() == ["toporec-plus"]
+    plus = i.descriptors()
+    assert plus.num_rows == 96
+    assert plus.equals(i.descriptors("toporec-plus"))
+    with pytest.raises(Exception, match=r"no descriptors of method `scancontext` \(its methods: toporec-plus\)"):
+        i.descriptors("scancontext")
+
+
+def test_readme_python_snippet_runs_as_written(tmp_path, monkeypatch):
+    """The README's Python block, as written, in a scratch copy of the repository where the
+    README's first command has run."""
+    import shutil
+
+    readme = (REPO / "README.md").read_text()
+    block = readme.split("```python\n", 1)[1].split("```", 1)[0]
+    shutil.copytree(REPO / "samples", tmp_path / "samples")
+    shutil.copytree(REPO / "pipelines", tmp_path / "pipelines")
+    monkeypatch.chdir(tmp_path)
+    toporec.run("pipelines/sample.toml", threads=2)
+    scope: dict = {}
+    exec(compile(block, "README.md", "exec"), scope)
+    assert scope["vectors"].shape == (8, 8)
+    assert set(scope["diagram"]) == {0, 1, 2}

@@ -298,9 +298,12 @@ class Index:
         """One row per persistence pair."""
         return _table(_toporec.index_table(self.path, "diagrams", None))
 
-    def descriptors(self, method: str = "toporec") -> pa.Table:
+    def descriptors(self, method: Optional[str] = None) -> pa.Table:
         """One row per ok scan: the descriptor of ``method`` (a fixed-size list of float32;
-        of uint8 for ``lidar-iris``, its image and its bit-packed template and mask)."""
+        of uint8 for ``lidar-iris``, its image and its bit-packed template and mask). Without
+        ``method``: the index's only method (``toporec-plus`` for what ``toporec.loops`` and
+        ``toporec loops <log>`` make), or ``toporec`` among several. A method the index does not
+        hold is an error naming the ones it does (see :meth:`methods`)."""
         return _table(_toporec.index_table(self.path, "descriptors", method))
 
     def query(

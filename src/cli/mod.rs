@@ -44,8 +44,11 @@ enum Command {
     Run(RunArgs),
     /// Find the k nearest indexed scans of new scans (files, MCAPs, sessions, sequences).
     Query(QueryArgs),
-    /// Loop closures of an index: each scan's best match among the earlier scans (its own
-    /// session's recent ones left out), accepted below a threshold; Parquet or CSV.
+    /// Loop closures of a robot's logs: `loops <log>…` indexes them under `out/<log name>`
+    /// (again only what changed), finds each scan's match among the earlier ones (its own
+    /// session's last 30 s left out) below the method's calibrated threshold, verifies it by
+    /// ICP and draws the drive with its loops beside the table (`<out stem>.png`);
+    /// `loops --index DIR` does the same on an index. Parquet or CSV.
     Loops(toporec::loops::LoopsArgs),
     /// Evaluate place recognition on indexes (Recall@N, Recall@1%), with a JSON report and plots.
     #[command(subcommand)]
@@ -128,7 +131,9 @@ pub fn main() -> ExitCode {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&cli.log_level));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    // Colour only for a terminal: a log file or a pipe gets plain text.
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).init();
     let result = match cli.command {
         Command::Run(args) => run(args),
         Command::Validate(args) => validate(args).map(|()| Done::All),
@@ -231,6 +236,9 @@ fn run(args: RunArgs) -> Result<Done> {
             }
             let index = args.index.clone().unwrap_or_else(|| toporec::oneshot::default_index(inputs));
             let made = toporec::oneshot::pipeline(inputs, &args.from, &args.methods, &index)?;
+            if args.index.is_none() {
+                toporec::oneshot::check_default_index(&index, &made)?;
+            }
             for p in &made.poses {
                 eprintln!("{p}");
             }

@@ -191,9 +191,20 @@ pub fn method_of_index(index: &std::path::Path, name: &str) -> crate::Result<Met
     )
 }
 
+/// The rate at which a window of seconds is counted in scans for scans without a time (a
+/// folder of clouds named by frame): a LiDAR's usual 10 Hz.
+pub const UNTIMED_RATE_HZ: f64 = 10.0;
+
+/// The scans a window of `seconds` spans at [`UNTIMED_RATE_HZ`]: how many neighbours of a scan
+/// without a time are left out.
+pub fn untimed_window(seconds: f64) -> usize {
+    (seconds * UNTIMED_RATE_HZ).ceil() as usize
+}
+
 /// Whether an earlier scan (session, position in its session, time) may be matched with a
 /// later one: always from another session; from the same session, when farther apart than the
-/// exclusion (a scan without a time is never excluded by seconds).
+/// exclusion. Scans without a time are kept apart by position instead: the window's seconds
+/// counted at [`UNTIMED_RATE_HZ`] ([`untimed_window`]), never by a made-up time.
 pub(crate) fn allowed_by(
     exclusion: Exclusion,
     query: (u32, usize, Option<i64>),
@@ -203,10 +214,10 @@ pub(crate) fn allowed_by(
         return true;
     }
     match exclusion {
-        Exclusion::Scans(n) => query.1 - row.1 > n,
+        Exclusion::Scans(n) => query.1.abs_diff(row.1) > n,
         Exclusion::Seconds(s) => match (query.2, row.2) {
             (Some(a), Some(b)) => (a - b).unsigned_abs() as f64 >= s * 1e6,
-            _ => true,
+            _ => query.1.abs_diff(row.1) > untimed_window(s),
         },
     }
 }

@@ -57,8 +57,9 @@ pub struct LoopsArgs {
     /// --exclude-seconds).
     #[arg(long, conflicts_with = "exclude_seconds")]
     pub exclude_scans: Option<usize>,
-    /// Matches with a descriptor distance below this are loops.
-    #[arg(long, value_parser = ranges::finite)]
+    /// Matches with a descriptor distance below this are loops (a distance in the method's own
+    /// units, > 0; default: the method's calibrated one, 0.3534 for toporec-plus with sources).
+    #[arg(long, value_parser = ranges::positive)]
     pub threshold: Option<f64>,
     /// The thresholds of a calibration file (`--calibrate` writes it).
     #[arg(long, conflicts_with = "threshold")]
@@ -129,7 +130,10 @@ pub struct LoopRow {
     /// The query's estimated position in the match's sensor frame (x forward, y left, m), for
     /// methods that give one.
     pub offset: Option<[f64; 2]>,
-    /// The second-best allowed match's distance.
+    /// The runner-up's distance: the second allowed match's, or the match's own where the
+    /// method ranked the runner-up below it although it lies nearer in descriptor distance
+    /// (toporec-plus orders its few best by their pose too). Never below `distance`, so
+    /// `rank2_distance − distance` is a margin ≥ 0: how clearly the match won.
     pub rank2_distance: Option<f64>,
     /// The distance between the two scans' poses (m), when both have one.
     pub true_distance_m: Option<f64>,
@@ -299,7 +303,9 @@ pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> 
                 distance,
                 yaw_degrees: yaw,
                 offset,
-                rank2_distance: best.get(1).map(|b| b.distance),
+                // Never below the match's own: a method that ranks by more than the distance
+                // (toporec-plus's pose) may put a candidate nearer in distance second.
+                rank2_distance: best.get(1).map(|b| b.distance.max(distance)),
                 true_distance_m: match (q.pose, m.pose) {
                     (Some(a), Some(b)) => Some(distance3(a, b)),
                     _ => None,
@@ -391,6 +397,43 @@ pub struct MethodSummary {
     /// With `--verify`: the matches below the threshold that were checked (`accepted` are those
     /// kept).
     pub verified: Option<usize>,
+    /// Scans searched.
+    pub scans: usize,
+    /// Of those, scans without a time (kept apart from their neighbours by position).
+    pub untimed: usize,
+}
+
+impl MethodSummary {
+    /// What the exclusion did, when the user should know: scans without a time kept apart by
+    /// position, and no scan left with a candidate (with why).
+    pub fn exclusion_notes(&self, exclusion: Exclusion) -> Vec<String> {
+        let mut out = Vec::new();
+        if let (Exclusion::Seconds(s), true) = (exclusion, self.untimed > 0) {
+            out.push(format!(
+                "{} of {} scans have no time: a scan's neighbours within {} positions are left out (the {s} s \
+                 exclusion at {} Hz; --exclude-scans N sets it)",
+                self.untimed,
+                self.scans,
+                detector::untimed_window(s),
+                detector::UNTIMED_RATE_HZ
+            ));
+        }
+        if self.matched == 0 && self.scans > 1 {
+            let window = match exclusion {
+                Exclusion::Scans(n) => format!("--exclude-scans {n}"),
+                Exclusion::Seconds(s) if self.untimed > 0 => {
+                    format!("--exclude-seconds {s}, {} positions without times", detector::untimed_window(s))
+                }
+                Exclusion::Seconds(s) => format!("--exclude-seconds {s}"),
+            };
+            out.push(format!(
+                "no loop could be sought: each of the {} scans has every earlier scan of its session within the \
+                 exclusion ({window}); lower it, or add another session",
+                self.scans
+            ));
+        }
+        out
+    }
 }
 
 /// What a run found, per method.
@@ -406,6 +449,9 @@ pub struct Summary {
     pub checked: Vec<LoopRow>,
     /// Damaged parts left out (`skip_damaged`), each with the scans it held.
     pub damaged: Vec<crate::sinks::index::damage::DamagedPart>,
+    /// What the exclusion did, where the user should know (see
+    /// [`MethodSummary::exclusion_notes`]), once per distinct note.
+    pub notes: Vec<String>,
 }
 
 impl std::fmt::Display for Summary {
@@ -446,6 +492,9 @@ impl std::fmt::Display for Summary {
                 )?;
             }
             writeln!(f)?;
+        }
+        for n in &self.notes {
+            writeln!(f, "note: {n}")?;
         }
         for c in &self.calibrations {
             writeln!(f, "calibration written: {}", c.display())?;
@@ -643,7 +692,15 @@ pub fn run(a: &LoopsArgs) -> Result<Summary> {
             curve,
             auc,
             verified: verifying.then_some(below_threshold),
+            scans: engine.scans.len(),
+            untimed: engine.scans.iter().filter(|s| s.utime.is_none()).count(),
         });
+        let notes = summary.methods.last().expect("pushed").exclusion_notes(exclusion);
+        for n in notes {
+            if !summary.notes.contains(&n) {
+                summary.notes.push(n);
+            }
+        }
         if let Some(path) = &a.g2o {
             let path = g2o_path(path, method);
             verify::write_g2o(&path, &rows)?;

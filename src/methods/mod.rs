@@ -33,6 +33,11 @@ pub use searcher::{Hit, SearchBudget, SearchTimes, Searcher};
 use serde::de::DeserializeOwned;
 use std::sync::Arc;
 
+/// The fewest points a raw-scan method describes a place from: a scan with fewer (a stray
+/// two-point file, a frame the sensor dropped) is skipped with the reason, never stored, so it
+/// can never match another at distance 0. Real scans hold thousands.
+pub const MIN_RAW_POINTS: usize = 100;
+
 /// The name of the TopoRec paper's descriptor (alpha persistence + ATOL).
 pub const TOPOREC: &str = "toporec";
 /// The kind name of imported methods in the manifest.

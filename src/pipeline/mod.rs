@@ -31,7 +31,7 @@ pub use summary::RunSummary;
 use crate::describe::{Describer, ScanResult, StageTimes};
 use crate::error::{Error, Result};
 use crate::sinks::index::IndexWriter;
-use crate::sinks::index::writer::CommittedScan;
+use crate::sinks::index::writer::{CommittedScan, Joined};
 use crate::sinks::parquet::Status;
 use crate::sources::{Scan, ScanFailure};
 use crate::vectorize::codebook::Codebook;
@@ -179,8 +179,15 @@ fn run_index(p: &Pipeline, opts: &RunOptions, main: Option<&shard::MainIndex>) -
         summary.methods.push((crate::methods::TOPOREC.into(), codebook.len()));
     }
     summary.methods.extend(p.methods.computed.iter().map(|m| (m.name.clone(), m.len())));
+    if main.is_none() {
+        summary.poses = pose_origins(p, writer.committed());
+        writer.set_pose_origins(summary.poses.clone());
+    }
     // A rebuild switches the index to its new generation here, in one commit.
     writer.finish()?;
+    if let Some(e) = summary.poses.iter().find_map(|o| joins_nothing(o, writer.committed())) {
+        return Err(Error::invalid(e));
+    }
     summary.commits = writer.commits();
     summary.wall = start.elapsed();
     summary.stages = BTreeMap::from([
@@ -194,6 +201,61 @@ fn run_index(p: &Pipeline, opts: &RunOptions, main: Option<&shard::MainIndex>) -
         ("write", pass.write_secs),
     ]);
     Ok(summary)
+}
+
+/// Where the sources' poses come from, each with the counts and fingerprint of the poses the
+/// committed rows of its sessions carry.
+fn pose_origins(p: &Pipeline, committed: &Known) -> Vec<crate::sources::poses::PoseOrigin> {
+    let mut origins: Vec<_> = p.sources.iter().flat_map(|s| s.pose_origins()).collect();
+    for o in &mut origins {
+        let mut rows: Vec<(&String, &CommittedScan)> = committed
+            .iter()
+            .filter(|(_, c)| c.status != Status::Error && o.sessions.contains(&c.session))
+            .collect();
+        rows.sort_by(|a, b| a.0.cmp(b.0));
+        let mut hash = crate::fingerprint::Streaming::default();
+        for (id, c) in &rows {
+            hash.write(id.as_bytes());
+            hash.write(&c.utime.unwrap_or(i64::MIN).to_le_bytes());
+            if let Some(p) = c.pose {
+                [p.x, p.y, p.z, p.yaw].iter().for_each(|v| hash.write(&v.to_le_bytes()));
+            }
+        }
+        o.scans = rows.len() as u64;
+        o.with_pose = rows.iter().filter(|(_, c)| c.pose.is_some()).count() as u64;
+        o.poses_xxh3 = crate::fingerprint::hex(hash.take());
+    }
+    origins
+}
+
+/// Why a pose file joined none of its sessions' scans, with both time spans; `None` when it
+/// joined some (or there is no scan, or no file).
+fn joins_nothing(o: &crate::sources::poses::PoseOrigin, committed: &Known) -> Option<String> {
+    let file = o.file.as_ref()?;
+    if o.scans == 0 || o.with_pose > 0 {
+        return None;
+    }
+    let times = committed.values().filter(|c| o.sessions.contains(&c.session)).filter_map(|c| c.utime);
+    let (first, last) = times.fold((i64::MAX, i64::MIN), |(a, b), t| (a.min(t), b.max(t)));
+    let span = |s: Option<(i64, i64)>| match s {
+        Some((a, b)) => format!("{:.3} s to {:.3} s", a as f64 * 1e-6, b as f64 * 1e-6),
+        None => "none".into(),
+    };
+    let bad = match &o.bad_lines {
+        (0, _) => String::new(),
+        (n, first) => {
+            format!("; {n} of its lines could not be read (first: {})", first.as_deref().unwrap_or_default())
+        }
+    };
+    Some(format!(
+        "{}: the pose file joins none of the {} scans of {} (scans {}, poses {}){bad}; check its clocks and \
+         layout, or the join's tolerance",
+        file.display(),
+        o.scans,
+        o.sessions.join(", "),
+        span((first <= last).then_some((first, last))),
+        span(o.span_us)
+    ))
 }
 
 /// Why an index's settings differ from a pipeline's.
@@ -295,6 +357,9 @@ struct SourceReport {
     seen: HashSet<String>,
     /// Up-to-date scans: (status, error).
     up_to_date: Vec<(Status, Option<String>)>,
+    /// Up-to-date scans whose time or pose the source now gives otherwise (its poses changed):
+    /// written anew, nothing recomputed.
+    rejoined: Vec<(String, Joined)>,
     added: u64,
     replaced: u64,
     duplicates: u64,
@@ -369,12 +434,16 @@ fn index_scans(
     progress.finish();
     let (stages, mut write_secs) = (ordered.stages, ordered.write_secs);
     let t = ThreadTime::now();
+    for (id, joined) in &report.rejoined {
+        ordered.writer.rejoin(id, *joined);
+    }
     ordered.writer.commit()?;
     write_secs += t.elapsed().as_secs_f64();
     for (status, error) in &report.up_to_date {
         summary.count(*status, error.as_deref());
     }
     summary.up_to_date = report.up_to_date.len() as u64;
+    summary.rejoined = report.rejoined.len() as u64;
     summary.added = report.added;
     summary.replaced = report.replaced;
     summary.duplicates = report.duplicates;
@@ -430,13 +499,19 @@ fn read_sources(
                 return true;
             }
             let fingerprint = fingerprint.map(crate::fingerprint::hex);
+            let joined = item.as_ref().ok().map(|s| Joined { utime: s.utime, pose: s.pose });
             match known.get(&id) {
                 Some(c)
                     if c.settings_hash == settings
                         && c.fingerprint == fingerprint
-                        && (error.is_none() || c.error == error) =>
+                        && (error.is_none() || c.error == error)
+                        // A scan of the main index (a shard's run) is computed again instead.
+                        && (shard.is_none() || joined.is_none_or(|j| j == c.joined())) =>
                 {
                     report.up_to_date.push((c.status, c.error.clone()));
+                    if let Some(j) = joined.filter(|j| *j != c.joined()) {
+                        report.rejoined.push((id, j));
+                    }
                     return true;
                 }
                 Some(_) => report.replaced += 1,

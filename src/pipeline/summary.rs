@@ -19,10 +19,13 @@ pub struct RunSummary {
     pub skipped: BTreeMap<String, u64>,
     /// Of those, failed.
     pub errors: u64,
-    /// First error messages (at most 10).
-    pub first_errors: Vec<String>,
+    /// Every failed scan's error (naming its file and scan), in input order.
+    pub failures: Vec<String>,
     /// Scans already in the index from the same bytes and settings: not computed.
     pub up_to_date: u64,
+    /// Of those, scans whose time or pose changed (their source's poses did): written anew,
+    /// nothing recomputed.
+    pub rejoined: u64,
     /// Scans new to the index.
     pub added: u64,
     /// Scans whose bytes changed: recomputed, their old rows replaced.
@@ -55,6 +58,8 @@ pub struct RunSummary {
     pub methods: Vec<(String, usize)>,
     /// Worker threads.
     pub threads: usize,
+    /// Where the scans' poses came from, with the counts of the index's rows after the run.
+    pub poses: Vec<crate::sources::poses::PoseOrigin>,
 }
 
 impl RunSummary {
@@ -74,6 +79,7 @@ impl RunSummary {
                 "skipped": self.skipped,
                 "errors": self.errors,
                 "up_to_date": self.up_to_date,
+                "rejoined": self.rejoined,
                 "added": self.added,
                 "replaced": self.replaced,
                 "pruned": self.pruned,
@@ -84,7 +90,8 @@ impl RunSummary {
                 "computed": self.computed,
                 "descriptors_from_stored": self.descriptors_from_stored,
             },
-            "first_errors": self.first_errors,
+            "poses": self.poses,
+            "first_errors": self.failures.iter().take(10).collect::<Vec<_>>(),
             "commits": self.commits,
             "codebook_id": self.codebook_id,
             "descriptor_length": self.descriptor_len,
@@ -100,17 +107,27 @@ impl RunSummary {
         self.read += 1;
         match status {
             Status::Ok => self.indexed += 1,
-            Status::Skipped => {
-                *self.skipped.entry("too few points after preprocessing".into()).or_default() += 1
-            }
+            Status::Skipped => *self.skipped.entry(skip_reason(error.unwrap_or_default())).or_default() += 1,
             Status::Error => {
                 self.errors += 1;
-                if self.first_errors.len() < 10 {
-                    self.first_errors.push(error.unwrap_or_default().to_string());
-                }
+                self.failures.push(error.unwrap_or_default().to_string());
             }
         }
     }
+}
+
+/// The reason a scan was skipped, without its numbers (a count per reason).
+fn skip_reason(error: &str) -> String {
+    if error.contains("after preprocessing") {
+        return "too few points after preprocessing".into();
+    }
+    if error.contains("a raw-scan method needs") {
+        return format!(
+            "fewer than {} points, too few for a raw-scan method",
+            crate::methods::MIN_RAW_POINTS
+        );
+    }
+    "skipped".into()
 }
 
 impl std::fmt::Display for RunSummary {
@@ -128,8 +145,22 @@ impl std::fmt::Display for RunSummary {
         for (reason, n) in &self.skipped {
             writeln!(f, "  skipped ({reason}): {n}")?;
         }
-        for e in &self.first_errors {
+        for e in &self.failures {
             writeln!(f, "  error: {e}")?;
+        }
+        for o in &self.poses {
+            if let Some(w) = o.bad_lines_warning() {
+                writeln!(f, "warning: {w}")?;
+            }
+            writeln!(
+                f,
+                "poses of {}: {}: {} of {} scans with a pose (poses {})",
+                o.sessions.join(", "),
+                o.origin,
+                o.with_pose,
+                o.scans,
+                o.poses_xxh3
+            )?;
         }
         for (reason, n) in &self.no_pose {
             writeln!(f, "  without a pose ({reason}): {n}")?;
@@ -139,6 +170,13 @@ impl std::fmt::Display for RunSummary {
             "changes: {} up to date, {} added, {} replaced, {} pruned ({} computed, {} commits)",
             self.up_to_date, self.added, self.replaced, self.pruned, self.computed, self.commits
         )?;
+        if self.rejoined > 0 {
+            writeln!(
+                f,
+                "  {} up-to-date scans took new poses (their source's poses changed): rows written anew, nothing recomputed",
+                self.rejoined
+            )?;
+        }
         if self.not_in_sources > 0 {
             writeln!(
                 f,

@@ -301,7 +301,12 @@ pub fn loops() -> Table {
             ),
             col(X_M, Float64, true, OFFSET_X_DOC),
             col(Y_M, Float64, true, OFFSET_Y_DOC),
-            col("rank2_distance", Float64, true, "the second-best allowed match's distance"),
+            col(
+                "rank2_distance",
+                Float64,
+                true,
+                "the runner-up's distance, never below `distance` (the match's own where the method ranked a nearer one second): rank2_distance - distance is the margin",
+            ),
             col(
                 "true_distance_m",
                 Float64,

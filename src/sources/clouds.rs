@@ -4,9 +4,9 @@
 //!
 //! What a numeric file name means is the `names` setting:
 //! - `index` (default): a frame number (`0000000153.pcd`, as KITTI raw's exports); a name that
-//!   is not a number takes its place in the folder instead. The scan's time is the frame times
-//!   `frame_period_ms` (100 ms: a 10 Hz LiDAR), so time windows (`loops --exclude-seconds`)
-//!   have a scale.
+//!   is not a number takes its place in the folder instead. The scan has no time (loops keep
+//!   its neighbours out by position, `--exclude-scans`), unless `frame_period_ms` gives one:
+//!   the frame times that period.
 //! - `seconds`, `milliseconds`, `microseconds`, `nanoseconds`: a timestamp in that unit (a
 //!   decimal point allowed); a name that is not one is a failure naming the file.
 //!
@@ -49,9 +49,10 @@ pub struct CloudsSpec {
     /// What a numeric file name means.
     #[serde(default)]
     pub names: FileNames,
-    /// With `names = "index"`: the time between frames (ms).
-    #[serde(default = "default_period_ms")]
-    pub frame_period_ms: f64,
+    /// With `names = "index"`: the time between frames (ms), when it is known; without it the
+    /// scans have no time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_period_ms: Option<f64>,
     /// Poses for every folder (one session's, usually).
     #[serde(default)]
     pub poses: Option<PathBuf>,
@@ -61,10 +62,6 @@ pub struct CloudsSpec {
     /// Largest time gap for a pose join by time, milliseconds.
     #[serde(default = "default_tolerance_ms")]
     pub tolerance_ms: f64,
-}
-
-fn default_period_ms() -> f64 {
-    100.0
 }
 
 fn default_tolerance_ms() -> f64 {
@@ -120,8 +117,8 @@ impl super::Source for CloudsSpec {
     fn problems(&self, inputs: bool) -> Vec<(&'static str, String)> {
         let mut out = super::required("folders", &self.folders, inputs);
         out.extend(super::missing("poses", self.poses.as_slice(), inputs));
-        if !(self.frame_period_ms.is_finite() && self.frame_period_ms > 0.0) {
-            out.push(("frame_period_ms", format!("must be in (0, inf) ms; found {}", self.frame_period_ms)));
+        if let Some(period) = self.frame_period_ms.filter(|p| !(p.is_finite() && *p > 0.0)) {
+            out.push(("frame_period_ms", format!("must be in (0, inf) ms; found {period}")));
         }
         out.extend(super::tolerance(self.tolerance_ms));
         out
@@ -138,6 +135,17 @@ impl super::Source for CloudsSpec {
 
     fn narrowed(&self, places: Vec<PathBuf>) -> Option<Box<dyn super::Source>> {
         Some(Box::new(CloudsSpec { folders: places, ..self.clone() }))
+    }
+
+    fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
+        let Some(file) = &self.poses else { return Vec::new() };
+        let sessions = super::Source::sessions(self).unwrap_or_default().into_iter().map(|s| s.0).collect();
+        let table = self.ground_truth().ok().flatten().map(|t| (*t).clone()).unwrap_or_default();
+        let joined = match self.names {
+            FileNames::Index => format!("{} layout, row k for frame k", self.poses_format.name()),
+            _ => format!("{} layout, nearest time within {} ms", self.poses_format.name(), self.tolerance_ms),
+        };
+        vec![super::poses::PoseOrigin::of_file(sessions, file, None, &table, &joined)]
     }
 
     fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
@@ -159,7 +167,7 @@ impl CloudsSpec {
         CloudsSpec {
             folders: vec![dir.to_owned()],
             names: FileNames::default(),
-            frame_period_ms: default_period_ms(),
+            frame_period_ms: None,
             poses: None,
             poses_format: PoseFormat::default(),
             tolerance_ms: default_tolerance_ms(),
@@ -181,13 +189,15 @@ impl CloudsSpec {
         })))
     }
 
-    /// The time of a scan (µs) from its file name (`position`: its place in the folder).
-    fn utime_of(&self, path: &Path, position: usize) -> Result<(i64, Option<usize>), String> {
+    /// The time of a scan (µs) from its file name, when it has one, and its frame (`position`:
+    /// its place in the folder).
+    fn utime_of(&self, path: &Path, position: usize) -> Result<(Option<i64>, Option<usize>), String> {
         let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let scale = match self.names {
             FileNames::Index => {
                 let frame = stem.parse::<usize>().unwrap_or(position);
-                return Ok(((frame as f64 * self.frame_period_ms * 1000.0).round() as i64, Some(frame)));
+                let utime = self.frame_period_ms.map(|p| (frame as f64 * p * 1000.0).round() as i64);
+                return Ok((utime, Some(frame)));
             }
             FileNames::Seconds => 1e6,
             FileNames::Milliseconds => 1e3,
@@ -207,7 +217,7 @@ impl CloudsSpec {
                 .filter(|v| v.abs() < 9.2e18)
                 .map(|v| v as i64),
         };
-        t.map(|t| (t, None))
+        t.map(|t| (Some(t), None))
             .ok_or_else(|| format!("file name `{stem}` is not a timestamp in {:?}", self.names))
     }
 
@@ -254,7 +264,7 @@ impl CloudsSpec {
             ScanFailure::of_file(id.clone(), session, path, None, format!("{}: {e}", path.display()))
         })?;
         let (points, fingerprint) = super::read_cloud_file(path, None)
-            .map_err(|e| ScanFailure::of_file(id.clone(), session, path, Some(utime), e.to_string()))?;
+            .map_err(|e| ScanFailure::of_file(id.clone(), session, path, utime, e.to_string()))?;
         let pose = match (poses, frame) {
             (None, _) => Err(NoPose::NoGroundTruth),
             (Some(gt), Some(frame)) => match gt.rows.get(frame) {
@@ -262,7 +272,10 @@ impl CloudsSpec {
                 Some((_, None)) => Err(NoPose::NonFinite),
                 None => Err(NoPose::NoRowNear),
             },
-            (Some(gt), None) => gt.pose_at(utime, (self.tolerance_ms * 1000.0).round() as i64),
+            (Some(gt), None) => match utime {
+                Some(t) => gt.pose_at(t, (self.tolerance_ms * 1000.0).round() as i64),
+                None => Err(NoPose::NoRowNear),
+            },
         };
         let (pose, no_pose) = super::split_pose(pose);
         let raw_points = points.len();
@@ -293,17 +306,23 @@ mod tests {
     #[test]
     fn file_names_mean_frames_or_timestamps() {
         let mut spec = CloudsSpec::folder(Path::new("d"));
-        assert_eq!(spec.utime_of(Path::new("d/0000000153.pcd"), 7), Ok((15_300_000, Some(153))));
-        assert_eq!(spec.utime_of(Path::new("d/scan_a.pcd"), 7), Ok((700_000, Some(7))));
+        // Frames have no time unless a period gives one.
+        assert_eq!(spec.utime_of(Path::new("d/0000000153.pcd"), 7), Ok((None, Some(153))));
+        assert_eq!(spec.utime_of(Path::new("d/scan_a.pcd"), 7), Ok((None, Some(7))));
+        spec.frame_period_ms = Some(100.0);
+        assert_eq!(spec.utime_of(Path::new("d/0000000153.pcd"), 7), Ok((Some(15_300_000), Some(153))));
         spec.names = FileNames::Nanoseconds;
         assert_eq!(
             spec.utime_of(Path::new("d/1317000009745340952.ply"), 0),
-            Ok((1_317_000_009_745_340, None))
+            Ok((Some(1_317_000_009_745_340), None))
         );
         spec.names = FileNames::Seconds;
-        assert_eq!(spec.utime_of(Path::new("d/1317000009.745341.pcd"), 0), Ok((1_317_000_009_745_341, None)));
+        assert_eq!(
+            spec.utime_of(Path::new("d/1317000009.745341.pcd"), 0),
+            Ok((Some(1_317_000_009_745_341), None))
+        );
         spec.names = FileNames::Milliseconds;
-        assert_eq!(spec.utime_of(Path::new("d/1500.pcd"), 0), Ok((1_500_000, None)));
+        assert_eq!(spec.utime_of(Path::new("d/1500.pcd"), 0), Ok((Some(1_500_000), None)));
         assert!(spec.utime_of(Path::new("d/frame.pcd"), 0).unwrap_err().contains("not a timestamp"));
     }
 

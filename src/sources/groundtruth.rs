@@ -18,7 +18,8 @@ pub struct GroundTruth {
     pub rows: Vec<(i64, Option<Pose>)>,
     /// Rows with a NaN or infinite value.
     pub non_finite_rows: usize,
-    /// Lines that could not be parsed (each also logged as a warning).
+    /// Lines that could not be parsed (reported once, by the run that reads them: see
+    /// [`super::poses::PoseOrigin::bad_lines_warning`]).
     pub bad_lines: Vec<String>,
 }
 
@@ -47,7 +48,7 @@ impl GroundTruth {
             let record = match record {
                 Ok(r) => r,
                 Err(e) => {
-                    gt.bad(path, line, &format!("not CSV: {e}"));
+                    gt.bad(line, &format!("not CSV: {e}"));
                     continue;
                 }
             };
@@ -62,17 +63,15 @@ impl GroundTruth {
                     };
                     gt.rows.push((v[0] as i64, pose));
                 }
-                _ => gt.bad(path, line, "expected 7 numbers: utime,x,y,z,roll,pitch,heading"),
+                _ => gt.bad(line, "expected 7 numbers: utime,x,y,z,roll,pitch,heading"),
             }
         }
         gt.rows.sort_by_key(|r| r.0);
         gt
     }
 
-    fn bad(&mut self, path: &Path, line: usize, message: &str) {
-        let e = SourceError::Parse { path: path.to_owned(), line, message: message.into() };
-        tracing::warn!("{e}");
-        self.bad_lines.push(e.to_string());
+    fn bad(&mut self, line: usize, message: &str) {
+        self.bad_lines.push(format!("line {line}: {message}"));
     }
 
     /// The pose of the row nearest in time to `utime`, if within `tolerance_us` and finite.

@@ -162,6 +162,28 @@ impl super::Source for KittiSpec {
         self.sequences.iter().map(|d| count(d)).sum()
     }
 
+    fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
+        let Ok(sessions) = super::Source::sessions(self) else { return Vec::new() };
+        sessions
+            .into_iter()
+            .filter_map(|(session, dir)| {
+                let file = dir.join("poses.txt");
+                let times = dir.join("times.txt");
+                let times = times.is_file().then_some(times);
+                let table = super::groundtruth::GroundTruth::default();
+                file.is_file().then(|| {
+                    super::poses::PoseOrigin::of_file(
+                        vec![session],
+                        &file,
+                        times.as_deref(),
+                        &table,
+                        "by frame",
+                    )
+                })
+            })
+            .collect()
+    }
+
     fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
         self.sequences.iter_mut().collect()
     }
@@ -245,8 +267,8 @@ pub(crate) fn frame_scan_bytes(
         session: session.to_string(),
         path: path.to_owned(),
         message_index: None,
-        // Without times.txt, the frame number stands in (at KITTI's 10 Hz).
-        utime: utime.unwrap_or(frame as i64 * 100_000),
+        // Without times.txt, no time: the frame's place orders it.
+        utime,
         points: scan.points,
         intensity,
         ring,

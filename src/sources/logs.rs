@@ -46,7 +46,7 @@ impl LogKind {
             Some(LogKind::Mcap)
         } else if ros1bag::is_ros1_bag(path) {
             Some(LogKind::Ros1Bag)
-        } else if rosbag2::is_sqlite(path) {
+        } else if rosbag2::is_sqlite(path) && rosbag2::has_rosbag2_tables(path) == Ok(true) {
             Some(LogKind::Sqlite3)
         } else {
             None
@@ -97,8 +97,61 @@ pub(crate) fn kind_of(path: &Path) -> Result<LogKind, SourceError> {
         return Err(SourceError::Io { path: path.to_owned(), source });
     }
     LogKind::detect(path).ok_or_else(|| {
-        SourceError::invalid(path, "not an MCAP file, a ROS 1 bag, a rosbag2 folder or a rosbag2 .db3 file")
+        let why = not_a_log(path).unwrap_or_else(|| {
+            "not an MCAP file, a ROS 1 bag, a rosbag2 folder or a rosbag2 .db3 file".to_string()
+        });
+        SourceError::invalid(path, why)
     })
+}
+
+/// Why a file named as a log (`.bag`, `.db3`, `.mcap`) is not the log its name says, judged by
+/// its content: what it is not and what was found. `None` when it is a log of some kind (a
+/// valid MCAP named `.bag` is read as an MCAP), or is not named as one.
+pub fn not_a_log(path: &Path) -> Option<String> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    if !matches!(ext.as_str(), "bag" | "db3" | "mcap") || !path.is_file() || LogKind::detect(path).is_some() {
+        return None;
+    }
+    let mut head = Vec::new();
+    {
+        use std::io::Read;
+        let file = std::fs::File::open(path).ok()?;
+        file.take(64).read_to_end(&mut head).ok()?;
+    }
+    let found = found_words(&head);
+    Some(match ext.as_str() {
+        "bag" if head.starts_with(b"#ROSBAG V") => {
+            let line = head.split(|&b| b == b'\n').next().unwrap_or_default();
+            let version = String::from_utf8_lossy(&line[..line.len().min(13)]).into_owned();
+            format!(
+                "not a ROS 1 bag toporec reads: a `{version}` header (toporec reads bag format 2.0, `#ROSBAG V2.0`)"
+            )
+        }
+        "bag" => format!("not a ROS 1 bag: no `#ROSBAG V2.0` header (found {found})"),
+        "db3" if rosbag2::is_sqlite(path) => match rosbag2::has_rosbag2_tables(path) {
+            Err(e) => format!("not a rosbag2 .db3 file: a SQLite header, and no database behind it ({e})"),
+            Ok(_) => {
+                "not a rosbag2 .db3 file: a SQLite database without rosbag2's tables (`topics`, `messages`)"
+                    .into()
+            }
+        },
+        "db3" => format!("not a rosbag2 .db3 file: no SQLite header (found {found})"),
+        _ => format!("not an MCAP file: no MCAP magic (found {found})"),
+    })
+}
+
+/// The first bytes of a file, in words.
+fn found_words(head: &[u8]) -> String {
+    if head.is_empty() {
+        return "an empty file".into();
+    }
+    let text: String = head.iter().take(24).map(|&b| b as char).collect();
+    let printable = |b: u8| b == b'\n' || b == b'\r' || b == b'\t' || (0x20..0x7f).contains(&b);
+    if head.iter().take(24).all(|&b| printable(b)) {
+        return format!("text: `{}`", text.lines().next().unwrap_or_default());
+    }
+    let hex: Vec<String> = head.iter().take(8).map(|b| format!("{b:02x}")).collect();
+    format!("bytes {}", hex.join(" "))
 }
 
 /// The session a log is, by default: a file's stem, a folder's name.
@@ -279,6 +332,37 @@ impl super::Source for LogSpec {
         self.named == LogName::Mcap
     }
 
+    fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
+        use super::poses::PoseOrigin;
+        let within = format!("nearest time within {} ms", self.tolerance_ms);
+        let own = self.own_poses_words();
+        self.paths
+            .iter()
+            .filter_map(|path| {
+                let sessions = vec![self.session_of(path)];
+                if let Some(file) = &self.poses {
+                    let times = self.poses_times.as_deref();
+                    let table =
+                        super::poses::read_file(file, self.poses_format, times, None).unwrap_or_default();
+                    let layout = format!("{} layout, {within}", self.poses_format.name());
+                    return Some(PoseOrigin::of_file(sessions, file, times, &table, &layout));
+                }
+                let words = match &own {
+                    Some(w) => w.clone(),
+                    // No keys: the log's own poses as found, when it has any.
+                    None => {
+                        let channels = kind_of(path).and_then(|k| k.channels(path)).ok()?;
+                        channels.iter().any(|c| PoseKind::of_schema(&c.schema_name).is_some()).then(|| {
+                            "the log's own poses (the /tf chain to the cloud's frame, or its only pose topic)"
+                                .to_string()
+                        })?
+                    }
+                };
+                Some(PoseOrigin::of_source(sessions, format!("{words}, {within}")))
+            })
+            .collect()
+    }
+
     fn boxed(&self) -> Box<dyn super::Source> {
         Box::new(self.clone())
     }
@@ -300,6 +384,22 @@ impl LogSpec {
     /// How the logs are read.
     fn settings(&self) -> LogSettings {
         LogSettings { spec: Arc::new(self.clone()) }
+    }
+
+    /// The log's own poses as the keys choose them, in words; `None` without keys.
+    fn own_poses_words(&self) -> Option<String> {
+        let keys = self.pose_keys();
+        let tf = |t: &str| t.trim_start_matches('/') == "tf";
+        Some(match (&keys.topic, &keys.frames) {
+            (Some(t), Some((a, b))) if tf(t) => format!("/tf chain {a} → {b} in the log"),
+            (None, Some((a, b))) => format!("/tf chain {a} → {b} in the log"),
+            (Some(t), _) if tf(t) => "/tf chain to the cloud's frame in the log".into(),
+            (Some(t), Some((a, b))) => {
+                format!("{t} in the log (poses of {a}, mounted {a} → {b} by /tf_static)")
+            }
+            (Some(t), None) => format!("{t} in the log"),
+            (None, None) => return None,
+        })
     }
 
     /// The pose keys, parsed.
@@ -543,7 +643,7 @@ impl Iterator for LogScans {
                 session: self.session.clone(),
                 path,
                 message_index: Some(index),
-                utime,
+                utime: Some(utime),
                 points: cloud.points,
                 intensity: cloud.intensity,
                 ring: cloud.ring,

@@ -47,8 +47,11 @@ pub struct Scan {
     pub path: PathBuf,
     /// MCAP: 0-based index of the message among the topic's point clouds.
     pub message_index: Option<u64>,
-    /// Timestamp in microseconds.
-    pub utime: i64,
+    /// Timestamp in microseconds; `None` for a source that records no time (a folder of clouds
+    /// named by frame number, a KITTI sequence without `times.txt`): such scans are ordered by
+    /// their place in the source, and loops exclude neighbours by position, never by a made-up
+    /// time.
+    pub utime: Option<i64>,
     /// Points (metres, sensor frame, z up); non-finite and zero points already dropped.
     pub points: Vec<Point>,
     /// Per-point intensity, when the source has it.
@@ -75,7 +78,7 @@ impl Scan {
             session,
             path,
             message_index: None,
-            utime: 0,
+            utime: None,
             raw_points: points.len(),
             points,
             intensity: None,
@@ -221,6 +224,13 @@ pub trait Source: std::fmt::Debug + Send + Sync + 'static {
     /// its scans by id.
     fn shards_by_session(&self) -> bool {
         false
+    }
+
+    /// Where its scans' poses come from: one entry per pose file or log that gives some, read
+    /// now for its words and fingerprint (a run records them with its counts); empty when it
+    /// has none.
+    fn pose_origins(&self) -> Vec<poses::PoseOrigin> {
+        Vec::new()
     }
 
     /// Lines `inspect` prints about it before its scans (sessions, topics).
@@ -449,6 +459,9 @@ impl Input {
         }
         if let Some(d) = SOURCES.iter().find_map(|k| (k.detect)(path)) {
             return Ok(Input::Source(d));
+        }
+        if let Some(why) = logs::not_a_log(path) {
+            return Err(SourceError::invalid(path, why));
         }
         if path.is_dir() {
             let kinds: Vec<&str> = SOURCES.iter().map(|k| k.reads).filter(|r| !r.is_empty()).collect();

@@ -157,6 +157,22 @@ impl super::Source for NcltSpec {
             .sum()
     }
 
+    fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
+        let Ok(sessions) = super::Source::sessions(self) else { return Vec::new() };
+        let within = format!("NCLT layout, nearest time within {} ms", self.tolerance_ms);
+        sessions
+            .into_iter()
+            .filter_map(|(session, dir)| {
+                let file = self
+                    .groundtruth
+                    .clone()
+                    .or_else(|| super::groundtruth::find_for_session(&dir, &session))?;
+                let table = GroundTruth::read(&file).unwrap_or_default();
+                Some(super::poses::PoseOrigin::of_file(vec![session], &file, None, &table, &within))
+            })
+            .collect()
+    }
+
     fn paths_mut(&mut self) -> Vec<&mut PathBuf> {
         self.sessions.iter_mut().chain(self.groundtruth.iter_mut()).collect()
     }
@@ -333,7 +349,7 @@ fn to_scan(
         session: session.to_string(),
         path: path.to_owned(),
         message_index: None,
-        utime,
+        utime: Some(utime),
         raw_points: scan.points.len(),
         points: scan.points,
         intensity: Some(scan.intensity.iter().map(|&i| i as f32).collect()),

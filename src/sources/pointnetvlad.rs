@@ -246,7 +246,7 @@ fn submap_scan(run: &Run, timestamp: i64, northing: f64, easting: f64) -> Result
         session: run.name.clone(),
         path,
         message_index: None,
-        utime: timestamp,
+        utime: Some(timestamp),
         points,
         intensity,
         ring,

@@ -32,6 +32,20 @@ pub fn is_sqlite(path: &Path) -> bool {
     std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut magic)).is_ok() && &magic == SQLITE_MAGIC
 }
 
+/// Whether the SQLite database at `path` has rosbag2's tables (`topics` and `messages`); an
+/// error (sqlite3's) when it cannot be read as a database.
+pub fn has_rosbag2_tables(path: &Path) -> Result<bool, String> {
+    let conn = open_sqlite(path)?;
+    let count: i64 = conn
+        .query_row(
+            "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name IN ('topics', 'messages')",
+            [],
+            |r| r.get(0),
+        )
+        .map_err(|e| format!("sqlite3: {e}"))?;
+    Ok(count == 2)
+}
+
 /// Whether `path` is a rosbag2 folder (holds a `metadata.yaml`).
 pub fn is_rosbag2_folder(path: &Path) -> bool {
     path.is_dir() && path.join(METADATA).is_file()

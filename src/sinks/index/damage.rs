@@ -190,7 +190,11 @@ pub(crate) enum Checked {
 /// otherwise.
 pub(crate) fn checked_bytes(root: &Path, entry: &FileEntry, generation: u64) -> Result<Checked> {
     let path = resolve(root, &entry.path);
-    let bytes = match load(&path) {
+    // A commit renames its staged files into place right after its manifest: a file found
+    // staged may be in place by the time it is read, so a miss is looked up once more.
+    let bytes = match load(&path)
+        .or_else(|e| if e.is_not_found() { load(&resolve(root, &entry.path)) } else { Err(e) })
+    {
         Ok(b) => b,
         Err(e) if e.is_not_found() => {
             let now = Manifest::load(&root.join(MANIFEST_FILE)).ok().flatten().map(|m| m.generation);

@@ -118,6 +118,10 @@ pub struct Manifest {
     /// filled in), once a run has recorded it; `pipeline.toml` beside it is a copy.
     #[serde(default)]
     pub pipeline: Option<String>,
+    /// Where the scans' poses came from, as the last run joined them: one entry per pose file
+    /// or log, with the fingerprint of the poses the rows carry.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub poses: Vec<crate::sources::poses::PoseOrigin>,
     /// The committed part files, in commit order.
     pub files: Vec<FileEntry>,
 }
@@ -153,6 +157,7 @@ impl Manifest {
             codebook: None,
             methods: BTreeMap::new(),
             pipeline: None,
+            poses: Vec::new(),
             files: Vec::new(),
         }
     }

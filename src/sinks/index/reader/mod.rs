@@ -221,7 +221,28 @@ impl IndexReader {
         table: &str,
         method: Option<&str>,
     ) -> Result<(Arc<arrow::datatypes::Schema>, Vec<RecordBatch>)> {
-        let method = method.unwrap_or(crate::methods::TOPOREC);
+        let held = if table == tables::DESCRIPTORS { self.methods()? } else { Vec::new() };
+        let method = match method {
+            Some(m) => m,
+            // The index's only method, or TopoRec's among several.
+            None if held.len() == 1 => held[0].as_str(),
+            None if table != tables::DESCRIPTORS || held.iter().any(|m| m == crate::methods::TOPOREC) => {
+                crate::methods::TOPOREC
+            }
+            None => {
+                return Err(Error::index(
+                    &self.root,
+                    format!("holds descriptors of several methods ({}): name one", held.join(", ")),
+                ));
+            }
+        };
+        if table == tables::DESCRIPTORS && !held.iter().any(|m| m == method) {
+            let known = if held.is_empty() { "none".to_string() } else { held.join(", ") };
+            return Err(Error::index(
+                &self.root,
+                format!("holds no descriptors of method `{method}` (its methods: {known})"),
+            ));
+        }
         let (parts, length) = match table {
             tables::DESCRIPTORS => {
                 let length = match self.manifest.as_ref().and_then(|m| m.methods.get(method)) {

@@ -71,6 +71,11 @@ pub struct CommittedScan {
 }
 
 impl CommittedScan {
+    /// Its time and pose.
+    pub fn joined(&self) -> Joined {
+        Joined { utime: self.utime, pose: self.pose }
+    }
+
     /// A committed `scans` row as the writer keeps it, with its id (no TopoRec descriptor
     /// known yet).
     fn of_row(r: ScanRow) -> (String, CommittedScan) {
@@ -157,6 +162,9 @@ pub struct IndexWriter {
     chunk_scans: Vec<(String, CommittedScan)>,
     /// Committed scans to drop at the next commit (replaced or pruned).
     removals: HashSet<String>,
+    /// Committed scans whose time and pose are written anew at the next commit (their source's
+    /// poses changed; nothing else of them did).
+    rejoined: HashMap<String, Joined>,
     /// Sessions of removed scans that have no committed `scans` row (its part was damaged).
     removal_sessions: HashSet<String>,
     /// Whether the next commit counts the scans anew from the rows it keeps (a repair: the
@@ -166,6 +174,8 @@ pub struct IndexWriter {
     pending_codebook: Option<(Codebook, Option<String>)>,
     /// The effective pipeline to write with the next commit.
     pending_pipeline: Option<String>,
+    /// The poses' origins to record with the next commit.
+    pending_poses: Option<Vec<crate::sources::poses::PoseOrigin>>,
     /// Committed files to drop at the next commit (a new descriptors table, compaction).
     dropped: HashSet<String>,
     /// Merged files to add at the next commit (compaction).
@@ -243,10 +253,12 @@ impl IndexWriter {
             chunk_started: Instant::now(),
             chunk_scans: Vec::new(),
             removals: HashSet::new(),
+            rejoined: HashMap::new(),
             removal_sessions: HashSet::new(),
             recount: false,
             pending_codebook: None,
             pending_pipeline: None,
+            pending_poses: None,
             dropped: HashSet::new(),
             compacted: Vec::new(),
             pending_methods: None,
@@ -436,6 +448,15 @@ impl IndexWriter {
         }
     }
 
+    /// Writes a committed scan's time and pose anew at the next commit, in every table that
+    /// holds them (`scans`, `descriptors`), leaving its other columns as they are: what a run
+    /// does when a scan's poses changed and its points did not.
+    pub fn rejoin(&mut self, scan_id: &str, joined: Joined) {
+        if self.committed.contains_key(scan_id) {
+            self.rejoined.insert(scan_id.to_string(), joined);
+        }
+    }
+
     /// Commits `codebook` (and the effective pipeline `pipeline_toml`) with the next commit.
     pub fn set_codebook(&mut self, codebook: Codebook, pipeline_toml: Option<String>) {
         self.pending_codebook = Some((codebook, pipeline_toml));
@@ -457,6 +478,15 @@ impl IndexWriter {
         }
     }
 
+    /// Records where the scans' poses came from with the next commit, when it is not what the
+    /// manifest records.
+    pub fn set_pose_origins(&mut self, origins: Vec<crate::sources::poses::PoseOrigin>) {
+        let recorded: Vec<_> = origins.iter().map(|o| o.recorded()).collect();
+        if self.manifest.poses != recorded {
+            self.pending_poses = Some(recorded);
+        }
+    }
+
     /// Commits the open chunk (see the module doc). A no-op when there is nothing to commit.
     /// In a rebuild, the chunk is committed to the rebuild only: the index on disk is
     /// unchanged until [`IndexWriter::finish`].
@@ -464,9 +494,11 @@ impl IndexWriter {
         if self.chunk.is_empty()
             && self.compacted.is_empty()
             && self.removals.is_empty()
+            && self.rejoined.is_empty()
             && self.pending_codebook.is_none()
             && self.pending_methods.is_none()
             && self.pending_pipeline.is_none()
+            && self.pending_poses.is_none()
             && self.dropped.is_empty()
         {
             return Ok(());
@@ -543,12 +575,19 @@ impl IndexWriter {
                 staged.push(Staged::of(tables::DESCRIPTORS, Some(method), &session, rel, file, rows)?);
             }
         }
-        // Committed files holding rows to remove: written again without them.
+        // Committed files holding rows to remove or to rejoin: written again without them, or
+        // with their new time and pose.
         let removals = std::mem::take(&mut self.removals);
+        let mut rejoined = std::mem::take(&mut self.rejoined);
+        rejoined.retain(|id, _| !removals.contains(id));
         let mut superseded: Vec<String> = std::mem::take(&mut self.dropped).into_iter().collect();
-        if !removals.is_empty() {
-            let mut sessions: HashSet<&str> =
-                removals.iter().filter_map(|id| self.committed.get(id)).map(|c| c.session.as_str()).collect();
+        if !removals.is_empty() || !rejoined.is_empty() {
+            let mut sessions: HashSet<&str> = removals
+                .iter()
+                .chain(rejoined.keys())
+                .filter_map(|id| self.committed.get(id))
+                .map(|c| c.session.as_str())
+                .collect();
             sessions.extend(self.removal_sessions.iter().map(String::as_str));
             let affected: Vec<FileEntry> = self
                 .manifest
@@ -561,14 +600,14 @@ impl IndexWriter {
                 let bytes = self.verified_bytes(&entry)?;
                 let path = self.path_of(&entry);
                 let ids = scan_ids_in(&path, bytes.clone())?;
-                if !ids.iter().any(|id| removals.contains(id)) {
+                if !ids.iter().any(|id| removals.contains(id) || rejoined.contains_key(id)) {
                     continue;
                 }
                 superseded.push(entry.path.clone());
                 let table = tables::ALL.into_iter().find(|t| *t == entry.table).expect("a table name");
                 let method = (table == tables::DESCRIPTORS).then(|| entry.method_name().to_string());
                 let (rel, target) = self.next_part(table, method.as_deref(), &entry.session);
-                if let Some((file, rows)) = rewrite_without(&path, bytes, &target, &removals)? {
+                if let Some((file, rows)) = rewrite_rows(&path, bytes, &target, &removals, &rejoined)? {
                     staged.push(Staged::of(table, method, &entry.session, rel, file, rows)?);
                 }
             }
@@ -615,6 +654,14 @@ impl IndexWriter {
         }
         if let Some(text) = &self.pending_pipeline {
             manifest.pipeline = Some(text.clone());
+        }
+        if let Some(poses) = &self.pending_poses {
+            manifest.poses = poses.clone();
+        }
+        for (id, j) in rejoined {
+            if let Some(c) = self.committed.get_mut(&id) {
+                (c.utime, c.pose) = (j.utime, j.pose);
+            }
         }
         Ok((manifest, superseded, removals))
     }
@@ -670,6 +717,7 @@ impl IndexWriter {
         self.pending_codebook = None;
         self.pending_methods = None;
         self.pending_pipeline = None;
+        self.pending_poses = None;
         self.commits += 1;
         self.chunk_rows = 0;
         self.chunk_started = Instant::now();
@@ -735,12 +783,23 @@ pub(crate) fn committed_scans(
     Ok(out)
 }
 
-/// Writes `target` as `path` without the rows of `removed` scans; `None` when no row is left.
-fn rewrite_without(
+/// A scan's time and pose as its source joins them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Joined {
+    /// Timestamp (µs), when the source gives one.
+    pub utime: Option<i64>,
+    /// The pose, when one was joined.
+    pub pose: Option<crate::types::Pose>,
+}
+
+/// Writes `target` as `path` without the rows of `removed` scans, and with the time and pose
+/// columns (those the file has) of `rejoined` scans replaced; `None` when no row is left.
+fn rewrite_rows(
     path: &Path,
     bytes: bytes::Bytes,
     target: &Path,
     removed: &HashSet<String>,
+    rejoined: &HashMap<String, Joined>,
 ) -> Result<Option<(StagedFile, u64)>> {
     use arrow::array::{AsArray, BooleanArray};
     use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
@@ -756,6 +815,11 @@ fn rewrite_without(
             .clone();
         let keep: BooleanArray =
             ids.iter().map(|id| Some(!id.is_some_and(|id| removed.contains(id)))).collect();
+        let batch = if ids.iter().any(|id| id.is_some_and(|id| rejoined.contains_key(id))) {
+            with_joined(&batch, &ids, rejoined).at(path)?
+        } else {
+            batch
+        };
         let kept = arrow::compute::filter_record_batch(&batch, &keep).at(path)?;
         if kept.num_rows() > 0 {
             out.write_batch(&kept)?;
@@ -763,4 +827,56 @@ fn rewrite_without(
     }
     let (file, rows) = out.finish()?;
     Ok((rows > 0).then_some((file, rows)))
+}
+
+/// `batch` with the time and pose columns it has set to `rejoined`'s values on the rows of
+/// the scans it names.
+fn with_joined(
+    batch: &arrow::record_batch::RecordBatch,
+    ids: &arrow::array::StringArray,
+    rejoined: &HashMap<String, Joined>,
+) -> std::result::Result<arrow::record_batch::RecordBatch, arrow::error::ArrowError> {
+    use crate::sinks::schema::columns as C;
+    use arrow::array::{Array, ArrayRef, AsArray, Float64Array, Int64Array};
+    use arrow::datatypes::{Float64Type, Int64Type};
+    use std::sync::Arc;
+    let joined = |row: usize| ids.is_valid(row).then(|| rejoined.get(ids.value(row))).flatten();
+    let schema = batch.schema();
+    let mut columns: Vec<ArrayRef> = Vec::with_capacity(batch.num_columns());
+    for (field, column) in schema.fields().iter().zip(batch.columns()) {
+        let pose_value = |p: &crate::types::Pose| match field.name().as_str() {
+            C::POSE_X => Some(p.x),
+            C::POSE_Y => Some(p.y),
+            C::POSE_Z => Some(p.z),
+            C::POSE_YAW => Some(p.yaw),
+            _ => None,
+        };
+        let replaced: ArrayRef = match field.name().as_str() {
+            C::UTIME => {
+                let old = column.as_primitive::<Int64Type>();
+                Arc::new(
+                    (0..batch.num_rows())
+                        .map(|r| match joined(r) {
+                            Some(j) => j.utime,
+                            None => old.is_valid(r).then(|| old.value(r)),
+                        })
+                        .collect::<Int64Array>(),
+                )
+            }
+            C::POSE_X | C::POSE_Y | C::POSE_Z | C::POSE_YAW => {
+                let old = column.as_primitive::<Float64Type>();
+                Arc::new(
+                    (0..batch.num_rows())
+                        .map(|r| match joined(r) {
+                            Some(j) => j.pose.as_ref().and_then(pose_value),
+                            None => old.is_valid(r).then(|| old.value(r)),
+                        })
+                        .collect::<Float64Array>(),
+                )
+            }
+            _ => column.clone(),
+        };
+        columns.push(replaced);
+    }
+    arrow::record_batch::RecordBatch::try_new(schema, columns)
 }
