@@ -26,4 +26,5 @@ mod simulate;
 mod sources;
 mod toporec_plus;
 mod truth;
+mod unchanged;
 mod util;
