@@ -13,7 +13,7 @@
 //! poses moved 1 m: every scan's rows written anew, no descriptor computed) and against a run
 //! with nothing to do; 2 threads, medians of `REPS`.
 //!
-//! Run: `cargo bench --bench oneshot`.
+//! Run: `cargo bench --bench oneshot` (`-- forms` or `-- rejoin` for one part).
 
 mod common;
 
@@ -86,6 +86,18 @@ fn main() {
         ),
     )
     .unwrap();
+    let only: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with('-')).collect();
+    let wants = |part: &str| only.is_empty() || only.iter().any(|o| o == part);
+    if wants("forms") {
+        forms(bin, &bag, &dir, &pipeline);
+    }
+    if wants("rejoin") {
+        rejoin(bin, &bag, &dir);
+    }
+}
+
+/// The one command against the same work by hand.
+fn forms(bin: &str, bag: &Path, dir: &Path, pipeline: &Path) {
     let s = |p: &Path| p.to_str().unwrap().to_string();
     println!("1,000-scan simulated bag ({}), {REPS} runs of each form from an empty index", bag.display());
     println!("{:>8} {:>14} {:>14} {:>7}", "threads", "one command s", "by hand s", "ratio");
@@ -104,7 +116,7 @@ fn main() {
                         bin,
                         &[
                             "loops",
-                            &s(&bag),
+                            &s(bag),
                             "--index",
                             &s(&one_index),
                             "-o",
@@ -120,7 +132,7 @@ fn main() {
                 seconds(|| {
                     toporec(
                         bin,
-                        &["run", &s(&pipeline), "--index", &s(&hand_index), "--no-progress", "-t", threads],
+                        &["run", &s(pipeline), "--index", &s(&hand_index), "--no-progress", "-t", threads],
                     );
                     toporec(
                         bin,
@@ -150,7 +162,6 @@ fn main() {
         let (o, h) = (median(one), median(hand));
         println!("{threads:>8} {o:>14.2} {h:>14.2} {:>7.3}", o / h);
     }
-    rejoin(bin, &bag, &dir);
 }
 
 /// Indexing the bag, against joining other poses into its index and against a run with

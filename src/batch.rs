@@ -19,9 +19,9 @@ use crate::sinks::index::partition_dir;
 use crate::sinks::index::reader::IndexReader;
 use crate::sinks::parquet::{DescriptorsFile, DiagramRows, DiagramsFile, descriptor_batch, scan_batch};
 use crate::sinks::schema::{self, columns as C};
-use crate::sources::groundtruth::GroundTruth;
 use crate::sources::kitti::Sequence;
 use crate::sources::logs::LogSpec;
+use crate::sources::poses::PoseTable;
 use crate::sources::{CloudFormat, Pose, Scan, ScanFailure};
 use crate::types::Point;
 use arrow::array::{ArrayRef, RecordBatch, StringArray};
@@ -110,7 +110,7 @@ pub struct BatchOutput {
 
 /// What the sources read beside a file: a session's ground truth, a sequence's times and poses.
 enum Context {
-    Nclt { gt: Option<GroundTruth>, tolerance_us: i64 },
+    Nclt { gt: Option<PoseTable>, tolerance_us: i64 },
     Kitti(Result<Sequence, String>),
 }
 
@@ -359,7 +359,7 @@ impl BatchDescriber {
                 let (gt_path, tolerance_ms) = self.nclt_groundtruth(dir, session);
                 // A ground truth that cannot be read leaves the scans without a pose, as a
                 // missing one does; the sources refuse the session instead.
-                let gt = gt_path.and_then(|p| GroundTruth::read(&p).ok());
+                let gt = gt_path.and_then(|p| PoseTable::read_nclt(&p).ok());
                 Context::Nclt { gt, tolerance_us: (tolerance_ms * 1000.0).round() as i64 }
             }
             _ => Context::Kitti(Sequence::read(dir).map_err(|e| e.to_string())),
@@ -381,12 +381,12 @@ impl BatchDescriber {
                 let gt = spec
                     .groundtruth
                     .clone()
-                    .or_else(|| crate::sources::groundtruth::find_for_session(dir, session));
+                    .or_else(|| crate::sources::poses::find_for_session(dir, session));
                 return (gt, spec.tolerance_ms);
             }
         }
         let default = crate::sources::nclt::NcltSpec::sessions(Vec::new());
-        (crate::sources::groundtruth::find_for_session(dir, session), default.tolerance_ms)
+        (crate::sources::poses::find_for_session(dir, session), default.tolerance_ms)
     }
 
     /// The output batches of described scans (the diagrams and descriptors they still hold).

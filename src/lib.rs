@@ -66,7 +66,6 @@ pub mod loops;
 pub mod maintenance;
 pub mod methods;
 pub mod offline;
-pub mod oneshot;
 pub mod pipeline;
 pub mod plot;
 pub mod preprocess;

@@ -97,7 +97,7 @@ pub fn split(a: &SplitArgs) -> Result<SplitReport> {
     let session = a.session.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let groundtruth = match &a.groundtruth {
         Some(g) => g.clone(),
-        None => crate::sources::groundtruth::find_for_session(&a.session, &session).ok_or_else(|| {
+        None => crate::sources::poses::find_for_session(&a.session, &session).ok_or_else(|| {
             Error::invalid(format!(
                 "{}: no groundtruth_{session}.csv beside the session; give --groundtruth",
                 a.session.display()

@@ -103,12 +103,12 @@ fn simulated(dir: &Path, scans: usize) -> PathBuf {
 }
 
 /// The simulated drive's ground-truth file.
-fn ground_truth(dir: &Path) -> toporec::sources::groundtruth::GroundTruth {
-    toporec::sources::groundtruth::GroundTruth::read(&dir.join("mcap/groundtruth_2026-01-01.csv")).unwrap()
+fn ground_truth(dir: &Path) -> toporec::sources::poses::PoseTable {
+    toporec::sources::poses::PoseTable::read_nclt(&dir.join("mcap/groundtruth_2026-01-01.csv")).unwrap()
 }
 
 /// A ground truth scan by scan: (scan index, [x, y, z, yaw°]).
-fn truth(gt: &toporec::sources::groundtruth::GroundTruth) -> Vec<(u64, [f64; 4])> {
+fn truth(gt: &toporec::sources::poses::PoseTable) -> Vec<(u64, [f64; 4])> {
     gt.rows
         .iter()
         .enumerate()
@@ -157,7 +157,7 @@ fn pose_files_in_tum_kitti_and_nclt_layouts_are_joined_by_time() {
     use toporec::sources::poses::PoseFormat;
     let with = |poses: &Path, format: PoseFormat, times: Option<&Path>| LogSpec {
         poses: Some(poses.to_owned()),
-        poses_format: format,
+        poses_format: Some(format),
         poses_times: times.map(Path::to_owned),
         ..LogSpec::path(&bag)
     };

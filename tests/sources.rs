@@ -6,12 +6,12 @@ use proptest::prelude::*;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use toporec::sources::Source;
-use toporec::sources::groundtruth::GroundTruth;
 use toporec::sources::kitti::KittiSpec;
 use toporec::sources::logs::LogSpec;
 use toporec::sources::mcap_reader::McapMessages;
 use toporec::sources::nclt::{HITS_MAGIC, HitsScans, NcltSpec};
 use toporec::sources::pointcloud2::{self, Encoding, PointCloud2, PointField, datatype};
+use toporec::sources::poses::PoseTable;
 use toporec::sources::{Scan, ScanFailure, SourceSpec};
 
 fn collect(spec: SourceSpec) -> (Vec<Scan>, Vec<ScanFailure>) {
@@ -99,7 +99,7 @@ fn real_nclt_session_joins_ground_truth() {
     assert!(bad.is_empty());
     assert_eq!(scans.len(), 14);
     assert!(scans.windows(2).all(|w| w[0].utime < w[1].utime), "sorted by utime");
-    let gt = GroundTruth::read(&data.join("nclt_from_kitti/groundtruth_2011-10-03.csv")).unwrap();
+    let gt = PoseTable::read_nclt(&data.join("nclt_from_kitti/groundtruth_2011-10-03.csv")).unwrap();
     for s in &scans {
         let pose = s.pose.unwrap_or_else(|| panic!("{} has no pose", s.id));
         let row = gt.rows.iter().find(|r| Some(r.0) == s.utime).expect("an exact ground-truth row");
@@ -564,7 +564,7 @@ fn nclt_session_with_bad_files_and_garbage_ground_truth() {
         "1000010,1.0,2.0,3.0,0,0,0.5\ngarbage line\n2000000,NaN,NaN,NaN,NaN,NaN,NaN\n2100000,4.0,5.0,6.0,0,0,0\n3000000,7,8,9,0,0\n",
     )
     .unwrap();
-    let gt = GroundTruth::read(&dir.join("groundtruth_2020-01-01.csv")).unwrap();
+    let gt = PoseTable::read_nclt(&dir.join("groundtruth_2020-01-01.csv")).unwrap();
     assert_eq!((gt.rows.len(), gt.non_finite_rows, gt.bad_lines.len()), (3, 1, 2));
     // Named by line: the run that reads the file warns once, with the file and the count.
     assert!(gt.bad_lines[0].starts_with("line 2: "), "{}", gt.bad_lines[0]);
@@ -849,7 +849,7 @@ proptest! {
         let end = if crlf { "\r\n" } else { "\n" };
         let mut text = if bom { "\u{feff}".to_string() } else { String::new() };
         text += &lines.join(end);
-        let gt = GroundTruth::parse(&text, Path::new("groundtruth_fuzz.csv"));
+        let gt = PoseTable::parse_nclt(text.as_bytes(), Path::new("groundtruth_fuzz.csv"));
         for (_, pose) in &gt.rows {
             if let Some(p) = pose {
                 prop_assert!([p.x, p.y, p.z, p.yaw].iter().all(|v| v.is_finite()));

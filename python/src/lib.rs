@@ -117,7 +117,7 @@ fn loops(py: Python<'_>, args: Vec<String>, threads: usize) -> PyResult<String> 
     }
     let parsed = <Loops as clap::Parser>::try_parse_from(std::iter::once("loops".to_string()).chain(args))
         .map_err(|e| value_error(e.to_string().trim()))?;
-    py.detach(|| toporec::oneshot::loops(&parsed.args, threads.max(1)).map(|done| done.to_string()))
+    py.detach(|| toporec::loops::run(&parsed.args, threads.max(1)).map(|done| done.to_string()))
         .map_err(toporec_error)
 }
 

@@ -61,7 +61,7 @@ pub struct RunArgs {
     pub methods: Vec<String>,
     /// With sources: where their scans take their poses and topic.
     #[command(flatten)]
-    pub from: toporec::oneshot::SourceOptions,
+    pub from: toporec::sources::SourceOptions,
     /// Worker threads, [1, ∞) (default: all cores).
     #[arg(long, short, value_parser = ranges::count)]
     pub threads: Option<usize>,

@@ -234,10 +234,11 @@ fn run(args: RunArgs) -> Result<Done> {
             if let Some(p) = inputs.iter().find(|p| is_pipeline(p)) {
                 bail!("{}: a pipeline file is given alone (the others are sources)", p.display());
             }
-            let index = args.index.clone().unwrap_or_else(|| toporec::oneshot::default_index(inputs));
-            let made = toporec::oneshot::pipeline(inputs, &args.from, &args.methods, &index)?;
+            use toporec::pipeline::from_sources::{check_default_index, default_index, made};
+            let index = args.index.clone().unwrap_or_else(|| default_index(inputs));
+            let made = made(inputs, &args.from, &args.methods, &index)?;
             if args.index.is_none() {
-                toporec::oneshot::check_default_index(&index, &made)?;
+                check_default_index(&index, &made)?;
             }
             for p in &made.poses {
                 eprintln!("{p}");
@@ -287,22 +288,11 @@ fn validate(args: ValidateArgs) -> Result<()> {
 }
 
 fn loops(a: toporec::loops::LoopsArgs) -> Result<Done> {
-    let threads = threads(a.threads);
-    if !a.sources.is_empty() {
-        let done = toporec::oneshot::loops(&a, threads)?;
-        eprintln!("{done}");
-        print(&format!("written: {}\n", a.out.display()))?;
-        return Ok(if done.run.partial() || report_damage(&done.loops.damaged) {
-            Done::Partial
-        } else {
-            Done::All
-        });
-    }
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
-    let summary = pool.install(|| toporec::loops::run(&a))?;
-    eprint!("{summary}");
+    let done = toporec::loops::run(&a, threads(a.threads))?;
+    eprint!("{done}");
     print(&format!("written: {}\n", a.out.display()))?;
-    Ok(if report_damage(&summary.damaged) { Done::Partial } else { Done::All })
+    let damaged = report_damage(&done.loops.damaged);
+    Ok(if done.partial() || damaged { Done::Partial } else { Done::All })
 }
 
 fn import(a: toporec::import::ImportArgs) -> Result<()> {

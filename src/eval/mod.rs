@@ -16,7 +16,6 @@
 pub mod conditions;
 pub mod metrics;
 pub mod places;
-pub mod pointnetvlad;
 pub mod report;
 
 pub use places::{PlacesArgs, Protocol, places};

@@ -4,7 +4,7 @@
 //! the same order (both search the method's [`Searcher`], grown in that order, under the same
 //! rule).
 
-use super::{Exclusion, distance3};
+use super::exclusion::{Exclusion, allowed_by, distance3};
 use crate::methods::{Hit, Method, Searcher};
 use crate::types::Point;
 
@@ -20,7 +20,7 @@ pub struct Match {
     /// The query's estimated position in the match's sensor frame (x forward, y left, m), for
     /// the methods that estimate one.
     pub offset: Option<[f64; 2]>,
-    /// The second-best allowed match's distance.
+    /// The runner-up's distance, never below `distance` (see `LoopRow::rank2_distance`).
     pub rank2_distance: Option<f64>,
     /// The distance between the two scans' poses (m), when both were given one.
     pub true_distance_m: Option<f64>,
@@ -67,8 +67,8 @@ impl Detector {
                 crate::methods::computed_names().join(", ")
             ));
         }
-        if !threshold.is_finite() {
-            return Err(format!("threshold {threshold}: must be finite"));
+        if !(threshold.is_finite() && threshold > 0.0) {
+            return Err(format!("threshold {threshold}: must be in (0, inf)"));
         }
         let growing = method.searcher(Vec::new(), method.len());
         Ok(Detector {
@@ -168,7 +168,8 @@ impl Detector {
             distance,
             yaw_degrees,
             offset,
-            rank2_distance: hits.get(1).map(|h| h.distance),
+            // Never below the match's own (see `LoopRow::rank2_distance`).
+            rank2_distance: hits.get(1).map(|h| h.distance.max(distance)),
             true_distance_m: pose.zip(self.pose[row]).map(|(a, b)| distance3(a, b)),
             accepted: distance < self.threshold,
         });
@@ -189,35 +190,4 @@ pub fn method_of_index(index: &std::path::Path, name: &str) -> crate::Result<Met
     reader.manifest().and_then(|m| m.methods.get(name)).and_then(|entry| entry.method(name)).ok_or_else(
         || crate::Error::index(index, format!("holds no method `{name}` computed from raw scans")),
     )
-}
-
-/// The rate at which a window of seconds is counted in scans for scans without a time (a
-/// folder of clouds named by frame): a LiDAR's usual 10 Hz.
-pub const UNTIMED_RATE_HZ: f64 = 10.0;
-
-/// The scans a window of `seconds` spans at [`UNTIMED_RATE_HZ`]: how many neighbours of a scan
-/// without a time are left out.
-pub fn untimed_window(seconds: f64) -> usize {
-    (seconds * UNTIMED_RATE_HZ).ceil() as usize
-}
-
-/// Whether an earlier scan (session, position in its session, time) may be matched with a
-/// later one: always from another session; from the same session, when farther apart than the
-/// exclusion. Scans without a time are kept apart by position instead: the window's seconds
-/// counted at [`UNTIMED_RATE_HZ`] ([`untimed_window`]), never by a made-up time.
-pub(crate) fn allowed_by(
-    exclusion: Exclusion,
-    query: (u32, usize, Option<i64>),
-    row: (u32, usize, Option<i64>),
-) -> bool {
-    if query.0 != row.0 {
-        return true;
-    }
-    match exclusion {
-        Exclusion::Scans(n) => query.1.abs_diff(row.1) > n,
-        Exclusion::Seconds(s) => match (query.2, row.2) {
-            (Some(a), Some(b)) => (a - b).unsigned_abs() as f64 >= s * 1e6,
-            _ => query.1.abs_diff(row.1) > untimed_window(s),
-        },
-    }
 }

@@ -153,6 +153,39 @@ impl Pipeline {
         }
     }
 
+    /// The pipeline of `sources` computing the methods `names` (with the settings of `sections`,
+    /// the registry's methods) into `index`, every other setting at its default (what a pipeline
+    /// file of only those keys gives): the job `run <source>…` and `loops <source>…` make.
+    /// Checked as a file is: its sources' keys and inputs, the methods and their settings.
+    pub fn of_parts(
+        index: &Path,
+        sources: Vec<SourceSpec>,
+        names: &[String],
+        sections: &[Method],
+    ) -> Result<Self, ConfigErrors> {
+        let index = clean(&std::path::absolute(index).unwrap_or_else(|_| index.to_owned()));
+        let path = index.join(crate::sinks::index::PIPELINE_FILE);
+        let mut p = Parser { base: index.clone(), check_inputs: true, errors: Vec::new() };
+        let defaults = Table::new();
+        let mut root = Section::new(&defaults, "");
+        let preprocess = p.preprocess(&mut root);
+        let persistence = p.persistence(&mut root);
+        let vectorize = p.vectorize(&mut root, &persistence);
+        let mut sources = sources;
+        for (i, s) in sources.iter_mut().enumerate() {
+            s.clean_paths(clean);
+            check_source(s, i, true, &mut p.errors);
+        }
+        let methods = methods_named(names, sections, &mut p.errors);
+        if p.errors.is_empty() {
+            check_unique_sessions(&sources, &mut p.errors);
+        }
+        if !p.errors.is_empty() {
+            return Err(ConfigErrors { path, errors: p.errors });
+        }
+        Ok(Pipeline { path, index, sources, preprocess, persistence, vectorize, methods })
+    }
+
     /// Parses pipeline text; `path` names the file and anchors relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigErrors> {
         Self::parse_with(text, path, true)
@@ -265,6 +298,36 @@ impl Pipeline {
             toml::to_string(&doc).expect("TOML of plain data")
         )
     }
+}
+
+/// The methods `names` lists (`descriptors.methods`), each computed one with its settings in
+/// `sections`; every problem (an empty list, a name twice, an unknown name, bad settings)
+/// pushed to `errors`.
+pub(crate) fn methods_named(names: &[String], sections: &[Method], errors: &mut Vec<String>) -> Methods {
+    let known = || format!("{TOPOREC}, {}", crate::methods::computed_names().join(", "));
+    let mut methods = Methods { toporec: false, computed: Vec::new() };
+    if names.is_empty() {
+        errors.push(format!("descriptors.methods: empty ({})", known()));
+    }
+    for (i, name) in names.iter().enumerate() {
+        if names[..i].contains(name) {
+            errors.push(format!("descriptors.methods: `{name}` is listed twice"));
+            continue;
+        }
+        if name == TOPOREC {
+            methods.toporec = true;
+        } else if let Some(m) = sections.iter().find(|m| m.name == *name) {
+            errors.extend(m.as_computed().expect("a registered method").problems());
+            methods.computed.push(m.clone());
+        } else {
+            errors.push(format!(
+                "descriptors.methods: unknown method `{name}` ({}; vectors made elsewhere come in with \
+                 `toporec import`)",
+                known()
+            ));
+        }
+    }
+    methods
 }
 
 /// One pass over a pipeline file: a parser per section, every error collected.
@@ -402,34 +465,7 @@ impl Parser {
         s.finish(&mut self.errors);
         // Every method's section is read (and checked to parse) whether it is listed or not.
         let sections: Vec<Method> = REGISTRY.iter().map(|r| self.method_section(root, r)).collect();
-        let mut methods = Methods { toporec: false, computed: Vec::new() };
-        if names.is_empty() {
-            self.errors.push(format!("descriptors.methods: empty ({})", Self::method_names()));
-        }
-        for (i, name) in names.iter().enumerate() {
-            if names[..i].contains(name) {
-                self.errors.push(format!("descriptors.methods: `{name}` is listed twice"));
-                continue;
-            }
-            if name == TOPOREC {
-                methods.toporec = true;
-            } else if let Some(m) = sections.iter().find(|m| m.name == *name) {
-                self.errors.extend(m.as_computed().expect("a registered method").problems());
-                methods.computed.push(m.clone());
-            } else {
-                self.errors.push(format!(
-                    "descriptors.methods: unknown method `{name}` ({}; vectors made elsewhere come in with \
-                     `toporec import`)",
-                    Self::method_names()
-                ));
-            }
-        }
-        methods
-    }
-
-    /// The methods a pipeline can compute, for its messages.
-    fn method_names() -> String {
-        format!("{TOPOREC}, {}", crate::methods::computed_names().join(", "))
+        methods_named(&names, &sections, &mut self.errors)
     }
 
     /// A registered method with the settings of its section (`[scancontext]`, `[m2dp]`,

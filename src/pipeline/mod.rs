@@ -20,6 +20,7 @@
 //! a run across processes (`--shard I/N`).
 
 pub mod config;
+pub mod from_sources;
 mod progress;
 pub mod shard;
 mod stored;

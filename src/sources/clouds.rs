@@ -16,7 +16,7 @@
 //! nearest in time within `tolerance_ms`; with frame indices, the pose on the frame's row (the
 //! k-th pose in time order for frame k).
 
-use super::groundtruth::GroundTruth;
+use super::poses::PoseTable;
 use super::{NoPose, Scan, ScanFailure, ScanStream, SourceError};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -174,16 +174,14 @@ impl CloudsSpec {
         }
     }
 
-    fn ground_truth(&self) -> Result<Option<Arc<GroundTruth>>, SourceError> {
+    fn ground_truth(&self) -> Result<Option<Arc<PoseTable>>, SourceError> {
         let Some(path) = &self.poses else { return Ok(None) };
         Ok(Some(Arc::new(match self.poses_format {
             // KITTI rows have no times here: row k is frame k.
             PoseFormat::Kitti => {
-                let text = std::fs::read_to_string(path)
-                    .map_err(|source| SourceError::Io { path: path.to_owned(), source })?;
-                let rows = super::poses::kitti_rows(path, &text)?;
+                let rows = super::poses::kitti_rows(path, super::poses::KittiFrame::Sensor)?;
                 let rows = rows.into_iter().enumerate().map(|(k, p)| (k as i64, p)).collect();
-                GroundTruth { path: path.to_owned(), rows, ..Default::default() }
+                PoseTable { path: path.to_owned(), rows, ..Default::default() }
             }
             format => super::poses::read_file(path, format, None, None)?,
         })))
@@ -256,7 +254,7 @@ impl CloudsSpec {
         session: &str,
         path: &Path,
         position: usize,
-        poses: Option<&GroundTruth>,
+        poses: Option<&PoseTable>,
     ) -> Result<Scan, ScanFailure> {
         let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let id = format!("{session}/{stem}");

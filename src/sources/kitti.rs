@@ -55,47 +55,14 @@ pub struct Sequence {
 
 impl Sequence {
     /// Reads `times.txt` and `poses.txt` of a sequence folder (either may be absent; a bad
-    /// line is an error naming the line).
+    /// line is an error naming the line), as [`super::poses`] reads KITTI's layout.
     pub fn read(dir: &Path) -> Result<Self, SourceError> {
-        let lines = |name: &str| -> Result<Option<(PathBuf, String)>, SourceError> {
-            let p = dir.join(name);
-            if !p.is_file() {
-                return Ok(None);
-            }
-            let text =
-                std::fs::read_to_string(&p).map_err(|source| SourceError::Io { path: p.clone(), source })?;
-            // A byte-order mark, as editors on Windows write it.
-            let text = text.strip_prefix('\u{feff}').map(str::to_string).unwrap_or(text);
-            Ok(Some((p, text)))
-        };
-        let mut seq = Sequence::default();
-        if let Some((path, text)) = lines("times.txt")? {
-            for (i, l) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-                let t = l.trim().parse::<f64>().map_err(|_| SourceError::Parse {
-                    path: path.clone(),
-                    line: i + 1,
-                    message: "expected a time in seconds".into(),
-                })?;
-                seq.times.push(t.is_finite().then_some(t));
-            }
-        }
-        if let Some((path, text)) = lines("poses.txt")? {
-            for (i, l) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-                let v: Option<Vec<f64>> = l.split_whitespace().map(|x| x.parse().ok()).collect();
-                let v = v.filter(|v| v.len() == 12).ok_or_else(|| SourceError::Parse {
-                    path: path.clone(),
-                    line: i + 1,
-                    message: "expected 12 numbers (a 3x4 pose)".into(),
-                })?;
-                // Camera 0 frame (x right, y down, z forward) → z up: (z, −x, −y); yaw from
-                // the camera's forward axis (third column) in that frame.
-                let (tx, ty, tz) = (v[3], v[7], v[11]);
-                let yaw = (-v[2]).atan2(v[10]);
-                let finite = [tx, ty, tz, yaw].iter().all(|x| x.is_finite());
-                seq.poses.push(finite.then_some(Pose { x: tz, y: -tx, z: -ty, yaw }));
-            }
-        }
-        Ok(seq)
+        use super::poses::{KittiFrame, kitti_rows, read_times};
+        let (times, poses) = (dir.join("times.txt"), dir.join("poses.txt"));
+        Ok(Sequence {
+            times: if times.is_file() { read_times(&times)? } else { Vec::new() },
+            poses: if poses.is_file() { kitti_rows(&poses, KittiFrame::Camera)? } else { Vec::new() },
+        })
     }
 }
 
@@ -170,7 +137,7 @@ impl super::Source for KittiSpec {
                 let file = dir.join("poses.txt");
                 let times = dir.join("times.txt");
                 let times = times.is_file().then_some(times);
-                let table = super::groundtruth::GroundTruth::default();
+                let table = super::poses::PoseTable::default();
                 file.is_file().then(|| {
                     super::poses::PoseOrigin::of_file(
                         vec![session],

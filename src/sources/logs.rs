@@ -10,17 +10,14 @@
 //! utime = the message header's stamp (µs), or the log time when the stamp is zero (MCAP's log
 //! time, a ROS 1 bag's record time, rosbag2's `timestamp`: the time it was recorded).
 
-use super::groundtruth::GroundTruth;
-use super::mcap_reader::{ChannelInfo, McapFault, McapMessages, RawMessage, is_point_cloud};
+use super::mcap_reader::{ChannelInfo, McapMessages, Messages, is_point_cloud};
 use super::pointcloud2::{self, Encoding};
+use super::poses::PoseTable;
 use super::poses::{Choice, LogPoses, PoseFormat, PoseKeys, ScanPoses};
 use super::rosmsg::PoseKind;
 use super::{Scan, ScanFailure, ScanStream, SourceError, ros1bag, rosbag2};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-
-/// A stream of messages of one log.
-pub(crate) type Messages = Box<dyn Iterator<Item = Result<RawMessage, McapFault>> + Send>;
 
 /// What kind of log a path is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -179,9 +176,11 @@ pub struct LogSpec {
     /// poses (see [`super::poses`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub poses: Option<PathBuf>,
-    /// The layout of `poses`: `nclt` (default), `tum` or `kitti`.
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub poses_format: PoseFormat,
+    /// The layout of `poses`: `nclt`, `tum` or `kitti` (default: guessed as the command line
+    /// guesses it, [`PoseFormat::guess`]: `kitti` with `poses_times`, `nclt` for `.csv`, else
+    /// `tum`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poses_format: Option<PoseFormat>,
     /// With `poses_format = "kitti"`: the times of its rows (seconds, one per line).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub poses_times: Option<PathBuf>,
@@ -203,6 +202,21 @@ pub struct LogSpec {
     /// Read the scans without joining poses (what needs only their points: loops' checks).
     #[serde(skip)]
     pub points_only: bool,
+    /// A log's poses as settling its choice gathered them ([`super::Source::settle`]): the run
+    /// joins these instead of reading the log for its poses again.
+    #[serde(skip)]
+    pub gathered: Option<Gathered>,
+}
+
+/// A log's poses gathered once, kept with the spec for the run to join (a cache, not a setting:
+/// specs compare equal whatever they hold).
+#[derive(Clone, Debug)]
+pub struct Gathered(Arc<(PathBuf, LogPoses)>);
+
+impl PartialEq for Gathered {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// The `kind` a message-log entry is written as.
@@ -219,10 +233,6 @@ fn default_tolerance_ms() -> f64 {
     100.0
 }
 
-fn is_default<T: Default + PartialEq>(v: &T) -> bool {
-    *v == T::default()
-}
-
 impl LogSpec {
     /// A spec for one log with defaults.
     pub fn path(path: &Path) -> Self {
@@ -231,14 +241,21 @@ impl LogSpec {
             topic: None,
             session: None,
             poses: None,
-            poses_format: PoseFormat::default(),
+            poses_format: None,
             poses_times: None,
             poses_topic: None,
             pose_frames: None,
             tolerance_ms: default_tolerance_ms(),
             named: LogName::Rosbag,
             points_only: false,
+            gathered: None,
         }
+    }
+
+    /// The layout of its pose file: given, or guessed ([`PoseFormat::guess`]).
+    pub fn poses_layout(&self) -> Option<PoseFormat> {
+        let file = self.poses.as_deref()?;
+        Some(self.poses_format.unwrap_or_else(|| PoseFormat::guess(file, self.poses_times.as_deref())))
     }
 
     /// The session of `path`: the spec's `session`, else the file's stem or the folder's name.
@@ -332,6 +349,13 @@ impl super::Source for LogSpec {
         self.named == LogName::Mcap
     }
 
+    fn settle(
+        &self,
+        options: &super::SourceOptions,
+    ) -> Option<Result<(super::SourceSpec, Option<String>), SourceError>> {
+        Some(self.settled(options))
+    }
+
     fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
         use super::poses::PoseOrigin;
         let within = format!("nearest time within {} ms", self.tolerance_ms);
@@ -342,9 +366,9 @@ impl super::Source for LogSpec {
                 let sessions = vec![self.session_of(path)];
                 if let Some(file) = &self.poses {
                     let times = self.poses_times.as_deref();
-                    let table =
-                        super::poses::read_file(file, self.poses_format, times, None).unwrap_or_default();
-                    let layout = format!("{} layout, {within}", self.poses_format.name());
+                    let format = self.poses_layout().unwrap_or_default();
+                    let table = super::poses::read_file(file, format, times, None).unwrap_or_default();
+                    let layout = format!("{} layout, {within}", format.name());
                     return Some(PoseOrigin::of_file(sessions, file, times, &table, &layout));
                 }
                 let words = match &own {
@@ -384,6 +408,44 @@ impl LogSpec {
     /// How the logs are read.
     fn settings(&self) -> LogSettings {
         LogSettings { spec: Arc::new(self.clone()) }
+    }
+
+    /// This log's spec with `options` applied and its poses settled: the file given, or the log's
+    /// own as the keys choose or as found, written as explicit keys (so the pipeline says what
+    /// was chosen), the poses gathered once for the run to join. Returns the spec and, when the
+    /// log holds no pose, a note saying so. An error names the file and what to pass.
+    fn settled(&self, o: &super::SourceOptions) -> Result<(super::SourceSpec, Option<String>), SourceError> {
+        let path = self.paths.first().cloned().unwrap_or_default();
+        let mut spec = LogSpec { tolerance_ms: o.tolerance_ms, ..self.clone() };
+        if let Some(file) = &o.poses {
+            let format = o.poses_layout().expect("a pose file");
+            spec.poses = Some(std::path::absolute(file).unwrap_or_else(|_| file.clone()));
+            spec.poses_format = Some(format);
+            spec.poses_times =
+                o.poses_times.as_ref().map(|t| std::path::absolute(t).unwrap_or_else(|_| t.clone()));
+            // Read now: a file that holds no pose of its layout is an error, not a run without poses.
+            super::poses::read_nonempty(file, format, o.poses_times.as_deref(), Some(0))?;
+            return Ok((super::SourceSpec::new(spec), None));
+        }
+        spec.poses_topic = o.poses_topic.clone();
+        spec.pose_frames = o.pose_frames.as_ref().map(|(a, b)| format!("{a}:{b}"));
+        let (gathered, choice) = spec.pose_choice(&path)?;
+        let said = match &choice {
+            None => Some(format!(
+                "{}: no poses in the log (give --poses FILE for loop distances)",
+                path.display()
+            )),
+            Some(c) => {
+                let tol = (o.tolerance_ms * 1e6).round() as i64;
+                gathered.check_overlap(&path, c, tol)?;
+                let keys = c.keys();
+                spec.poses_topic = keys.topic;
+                spec.pose_frames = keys.frames.map(|(a, b)| format!("{a}:{b}"));
+                None
+            }
+        };
+        spec.gathered = Some(Gathered(Arc::new((path, gathered))));
+        Ok((super::SourceSpec::new(spec), said))
     }
 
     /// The log's own poses as the keys choose them, in words; `None` without keys.
@@ -431,15 +493,17 @@ struct LogSettings {
 
 impl LogSettings {
     /// The pose file, read (KITTI rows with relative times wait for the log's first scan).
-    fn ground_truth(&self) -> Result<Option<Arc<GroundTruth>>, SourceError> {
+    fn ground_truth(&self) -> Result<Option<Arc<PoseTable>>, SourceError> {
         let s = &self.spec;
         Ok(match &s.poses {
-            Some(p) if s.poses_format != PoseFormat::Kitti => Some(Arc::new(super::poses::read_nonempty(
-                p,
-                s.poses_format,
-                s.poses_times.as_deref(),
-                None,
-            )?)),
+            Some(p) if s.poses_layout() != Some(PoseFormat::Kitti) => {
+                Some(Arc::new(super::poses::read_nonempty(
+                    p,
+                    s.poses_layout().unwrap_or_default(),
+                    s.poses_times.as_deref(),
+                    None,
+                )?))
+            }
             _ => None,
         })
     }
@@ -452,7 +516,7 @@ impl LogSettings {
         kind: LogKind,
         channels: &[ChannelInfo],
         topic: &str,
-        file: Option<Arc<GroundTruth>>,
+        file: Option<Arc<PoseTable>>,
     ) -> Result<Option<ScanPoses>, SourceError> {
         let s = &self.spec;
         if s.points_only {
@@ -463,14 +527,18 @@ impl LogSettings {
         }
         let keys = s.pose_keys();
         let has_poses = channels.iter().any(|c| PoseKind::of_schema(&c.schema_name).is_some());
-        let kitti = s.poses.is_some() && s.poses_format == PoseFormat::Kitti;
+        let kitti = s.poses_layout() == Some(PoseFormat::Kitti);
         if !kitti && !has_poses && keys == PoseKeys::default() {
             return Ok(None);
         }
-        let gathered = LogPoses::gather(path, channels, kind.messages(path)?, topic)?;
+        // Gathered once: by settling the choice, when it did (`loops <log>`), else now.
+        let gathered = match s.gathered.as_ref().map(|g| &*g.0) {
+            Some((p, poses)) if p == path => poses.clone(),
+            _ => LogPoses::gather(path, channels, kind.messages(path)?, topic)?,
+        };
         if let Some(p) = &s.poses {
             let first_us = gathered.cloud_stamps.iter().min().map(|t| t.div_euclid(1000));
-            let gt = super::poses::read_nonempty(p, s.poses_format, s.poses_times.as_deref(), first_us)?;
+            let gt = super::poses::read_nonempty(p, PoseFormat::Kitti, s.poses_times.as_deref(), first_us)?;
             return Ok(Some(ScanPoses::File(Arc::new(gt))));
         }
         let tol = (s.tolerance_ms * 1e6).round() as i64;
@@ -510,7 +578,7 @@ impl LogSettings {
     fn scans_of(
         &self,
         path: &Path,
-        file: Option<Arc<GroundTruth>>,
+        file: Option<Arc<PoseTable>>,
         range: std::ops::Range<u64>,
     ) -> Result<LogScans, SourceError> {
         let kind = kind_of(path)?;

@@ -50,6 +50,9 @@ pub struct McapFault {
 /// Record lengths above this are treated as corruption (no LiDAR chunk is this large).
 const RECORD_LIMIT: usize = 1 << 31;
 
+/// A stream of one log's messages, in file order (a corrupt chunk or message is a fault item).
+pub(crate) type Messages = Box<dyn Iterator<Item = Result<RawMessage, McapFault>> + Send>;
+
 /// Streams the messages of an MCAP file in file order.
 pub struct McapMessages {
     path: PathBuf,

@@ -10,11 +10,11 @@
 
 pub mod clouds;
 pub mod csv;
-pub mod groundtruth;
 pub mod kitti;
 pub mod logs;
 pub mod mcap_reader;
 pub mod nclt;
+mod options;
 pub mod pcd;
 pub mod ply;
 pub mod pointcloud2;
@@ -26,6 +26,7 @@ pub mod rosmsg;
 pub mod wire;
 
 pub use crate::error::SourceError;
+pub use options::SourceOptions;
 
 use crate::types::Point;
 use std::path::{Path, PathBuf};
@@ -224,6 +225,14 @@ pub trait Source: std::fmt::Debug + Send + Sync + 'static {
     /// its scans by id.
     fn shards_by_session(&self) -> bool {
         false
+    }
+
+    /// This source with the poses and topic of the command line's `options` settled (`loops
+    /// <source>`, `run <source>`): the spec written with explicit keys, and a note when it holds
+    /// no pose; `None` for a source whose own poses are read (an error then, when the options
+    /// ask for others). An error names the file and what to pass.
+    fn settle(&self, _options: &SourceOptions) -> Option<Result<(SourceSpec, Option<String>), SourceError>> {
+        None
     }
 
     /// Where its scans' poses come from: one entry per pose file or log that gives some, read

@@ -3,7 +3,7 @@
 //! `raw · 0.005 − 100` m. Stored with z down; exposed as `(x, −y, −z)` (z up, see
 //! [`super`]).
 
-use super::groundtruth::GroundTruth;
+use super::poses::PoseTable;
 use super::{Scan, ScanFailure, ScanStream, SourceError};
 use crate::types::Point;
 use std::f64::consts::PI;
@@ -163,11 +163,9 @@ impl super::Source for NcltSpec {
         sessions
             .into_iter()
             .filter_map(|(session, dir)| {
-                let file = self
-                    .groundtruth
-                    .clone()
-                    .or_else(|| super::groundtruth::find_for_session(&dir, &session))?;
-                let table = GroundTruth::read(&file).unwrap_or_default();
+                let file =
+                    self.groundtruth.clone().or_else(|| super::poses::find_for_session(&dir, &session))?;
+                let table = PoseTable::read_nclt(&file).unwrap_or_default();
                 Some(super::poses::PoseOrigin::of_file(vec![session], &file, None, &table, &within))
             })
             .collect()
@@ -251,9 +249,9 @@ impl NcltSpec {
     #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     fn open_session(&self, dir: &Path, session: &str) -> Result<ScanStream, SourceError> {
         let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
-        let gt_path = self.groundtruth.clone().or_else(|| super::groundtruth::find_for_session(dir, session));
+        let gt_path = self.groundtruth.clone().or_else(|| super::poses::find_for_session(dir, session));
         let gt = match gt_path {
-            Some(p) => Some(Arc::new(GroundTruth::read(&p)?)),
+            Some(p) => Some(Arc::new(PoseTable::read_nclt(&p)?)),
             None => {
                 tracing::info!("{}: no groundtruth_{session}.csv found; scans have no pose", dir.display());
                 None
@@ -297,7 +295,7 @@ fn sync_scan(
     path: &Path,
     session: &str,
     utime: Option<i64>,
-    gt: Option<&GroundTruth>,
+    gt: Option<&PoseTable>,
     tolerance: i64,
 ) -> Result<Scan, ScanFailure> {
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
@@ -313,7 +311,7 @@ pub(crate) fn sync_scan_bytes(
     path: &Path,
     bytes: &[u8],
     session: &str,
-    gt: Option<&GroundTruth>,
+    gt: Option<&PoseTable>,
     tolerance: i64,
 ) -> Result<Scan, ScanFailure> {
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
@@ -368,7 +366,7 @@ pub struct HitsScans<R> {
     path: PathBuf,
     session: String,
     period: Option<i64>,
-    gt: Option<Arc<GroundTruth>>,
+    gt: Option<Arc<PoseTable>>,
     tolerance: i64,
     offset: u64,
     current: NcltScan,
@@ -389,7 +387,7 @@ impl<R: std::io::Read> HitsScans<R> {
         path: PathBuf,
         session: String,
         period: Option<i64>,
-        gt: Option<Arc<GroundTruth>>,
+        gt: Option<Arc<PoseTable>>,
         tolerance: i64,
     ) -> Self {
         HitsScans {

@@ -21,6 +21,7 @@
 //! `redescribe`.
 
 mod choose;
+mod pointnetvlad;
 mod redescribe;
 
 use super::conditions::Condition;
@@ -157,7 +158,7 @@ fn parse_conditions(asked: &[String]) -> Result<Vec<Condition>> {
 pub fn places(a: &PlacesArgs) -> Result<(String, Vec<DamagedPart>)> {
     let damage = Damage::skipping(a.skip_damaged);
     if a.protocol == Protocol::Pointnetvlad {
-        return super::pointnetvlad::places(a, &damage);
+        return pointnetvlad::places(a, &damage);
     }
     let conditions = parse_conditions(&a.conditions)?;
     let queries_index = a.queries.clone().unwrap_or_else(|| a.db.clone());

@@ -14,12 +14,12 @@
 //!   queries without a true match are skipped;
 //! * a dataset's figure is the plain mean over its run pairs.
 
-use super::metrics::{Denominator, first_hit, one_percent_k, recall};
-use super::places::PlacesArgs;
-use super::report::DatasetRecall;
-use super::report::{self as report, Report};
-use super::{chosen_methods, file_names, names};
+use super::PlacesArgs;
 use crate::error::{Error, Result, ResultExt};
+use crate::eval::metrics::{Denominator, first_hit, one_percent_k, recall};
+use crate::eval::report::DatasetRecall;
+use crate::eval::report::{self as report, Report};
+use crate::eval::{chosen_methods, file_names, names};
 use crate::search::{Engine, Loaded, load_method};
 use crate::sinks::index::IndexedScan;
 use crate::sinks::index::damage::{Damage, DamagedPart};
@@ -55,7 +55,7 @@ pub(crate) const NEIGHBOURS: usize = 25;
 /// One dataset of the benchmark: its runs (sessions) and query regions (`None`: every submap is
 /// a query).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Dataset {
+pub(super) struct Dataset {
     /// `oxford`, `business`, `residential`, `university`.
     pub name: &'static str,
     /// Its runs, in the benchmark's order.
@@ -65,7 +65,7 @@ pub struct Dataset {
 }
 
 /// The datasets an index's benchmark folder holds, and notes on those it cannot form.
-pub fn datasets(
+pub(super) fn datasets(
     spec: &crate::sources::pointnetvlad::PointNetVladSpec,
 ) -> Result<(Vec<Dataset>, Vec<String>)> {
     let runs = spec.runs()?;
@@ -196,7 +196,7 @@ pub(crate) fn evaluate_method(
 }
 
 /// Runs the protocol on every chosen method of `index`; returns the report text and JSON.
-pub fn evaluate(
+pub(super) fn evaluate(
     index: &Path,
     methods: &[String],
     budget: crate::methods::SearchBudget,

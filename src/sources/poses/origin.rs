@@ -1,0 +1,94 @@
+//! What a run records of where its scans' poses came from.
+
+use super::PoseTable;
+use std::path::Path;
+
+/// Where the poses of some sessions come from: a pose file, or a log's own messages. A run
+/// records one per file or log in the manifest (`info` shows them), with the fingerprint of
+/// the poses its rows carry.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PoseOrigin {
+    /// The sessions whose scans take them.
+    pub sessions: Vec<String>,
+    /// Where they come from, in words (the file and its layout, or the log's topic or chain),
+    /// with the join's tolerance.
+    pub origin: String,
+    /// The pose file, when they come from one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<std::path::PathBuf>,
+    /// xxh3-64 of the pose file's bytes (and of its times file's), 16 hex digits.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file_xxh3: Option<String>,
+    /// Scans of those sessions in the index, after the run.
+    #[serde(default)]
+    pub scans: u64,
+    /// Of those, scans with a pose.
+    #[serde(default)]
+    pub with_pose: u64,
+    /// xxh3-64 of every scan's id, time and pose in those sessions, in id order: equal for two
+    /// indexes exactly when their rows carry the same poses.
+    #[serde(default)]
+    pub poses_xxh3: String,
+    /// The pose file's time span (µs), for the message when it joins no scan.
+    #[serde(skip)]
+    pub span_us: Option<(i64, i64)>,
+    /// Lines of the pose file that could not be read, and the first one's message.
+    #[serde(skip)]
+    pub bad_lines: (usize, Option<String>),
+}
+
+impl PoseOrigin {
+    /// The origin of a pose file's poses (`times`: a KITTI file's times), read now for its
+    /// fingerprint, its span and its bad lines; `joined` says how scans take them.
+    pub fn of_file(
+        sessions: Vec<String>,
+        file: &Path,
+        times: Option<&Path>,
+        table: &PoseTable,
+        joined: &str,
+    ) -> Self {
+        let mut hash = crate::fingerprint::Streaming::default();
+        for p in std::iter::once(file).chain(times) {
+            if let Ok(bytes) = std::fs::read(p) {
+                hash.write(&bytes);
+            }
+        }
+        let times_said = times.map(|t| format!(", times {}", t.display())).unwrap_or_default();
+        PoseOrigin {
+            sessions,
+            origin: format!("{}{times_said} ({joined})", file.display()),
+            file: Some(file.to_owned()),
+            file_xxh3: Some(crate::fingerprint::hex(hash.take())),
+            span_us: table.rows.first().map(|f| f.0).zip(table.rows.last().map(|l| l.0)),
+            bad_lines: (table.bad_lines.len(), table.bad_lines.first().cloned()),
+            ..Default::default()
+        }
+    }
+
+    /// What a manifest records of it (the counts and fingerprints, not what reading the file
+    /// found on the way).
+    pub fn recorded(&self) -> Self {
+        PoseOrigin { span_us: None, bad_lines: (0, None), ..self.clone() }
+    }
+
+    /// The origin of poses read from a source's own data (a log's messages, a dataset's
+    /// side files).
+    pub fn of_source(sessions: Vec<String>, origin: String) -> Self {
+        PoseOrigin { sessions, origin, ..Default::default() }
+    }
+
+    /// The warning for the pose file's unreadable lines, once: how many, and the first.
+    pub fn bad_lines_warning(&self) -> Option<String> {
+        let (n, first) = &self.bad_lines;
+        let file = self.file.as_deref()?;
+        (*n > 0).then(|| {
+            format!(
+                "{}: {n} line{} could not be read as poses and {} left out (first: {})",
+                file.display(),
+                if *n == 1 { "" } else { "s" },
+                if *n == 1 { "was" } else { "were" },
+                first.as_deref().unwrap_or_default()
+            )
+        })
+    }
+}
