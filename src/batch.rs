@@ -19,33 +19,19 @@ use crate::sinks::index::partition_dir;
 use crate::sinks::index::reader::IndexReader;
 use crate::sinks::parquet::{DescriptorsFile, DiagramRows, DiagramsFile, descriptor_batch, scan_batch};
 use crate::sinks::schema::{self, columns as C};
-use crate::sources::kitti::Sequence;
-use crate::sources::logs::LogSpec;
-use crate::sources::poses::PoseTable;
 use crate::sources::{CloudFormat, Pose, Scan, ScanFailure};
 use crate::types::Point;
 use arrow::array::{ArrayRef, RecordBatch, StringArray};
 use arrow::datatypes::{DataType, Field, Schema};
 use rayon::prelude::*;
+use std::collections::BTreeMap;
 use std::collections::btree_map::Entry;
-use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 /// Inputs per rayon thread that [`BatchDescriber::describe_into`] describes before writing
 /// their diagrams: enough to keep the threads busy, few enough to keep memory flat.
 pub(crate) const STREAM_CHUNK: usize = 16;
-
-/// The format of a batch's scan file: given, else the layout's folder it is in
-/// (`velodyne_sync/`: NCLT, `velodyne/`: KITTI). A batch reads the scan files of NCLT sessions
-/// and KITTI sequences (their poses come from the session's side files).
-fn batch_format(path: &Path, given: Option<CloudFormat>) -> Option<CloudFormat> {
-    given.or_else(|| match path.parent()?.file_name()?.to_str()? {
-        "velodyne_sync" => Some(CloudFormat::Nclt),
-        "velodyne" => Some(CloudFormat::Kitti),
-        _ => None,
-    })
-}
 
 /// One scan of a batch.
 #[derive(Clone, Debug)]
@@ -108,21 +94,15 @@ pub struct BatchOutput {
     pub descriptors: Vec<(String, RecordBatch)>,
 }
 
-/// What the sources read beside a file: a session's ground truth, a sequence's times and poses.
-enum Context {
-    Nclt { gt: Option<PoseTable>, tolerance_us: i64 },
-    Kitti(Result<Sequence, String>),
-}
-
 /// Describes batches of scans for one index (see the module doc).
 pub struct BatchDescriber {
-    pipeline: Pipeline,
     describer: Describer,
     settings: String,
     dims: Vec<u8>,
     codebook_id: Option<String>,
     computed: Vec<(String, String)>,
-    contexts: Mutex<HashMap<PathBuf, Arc<Context>>>,
+    /// The index's sources, reading a batch's scan files and logs as they read them.
+    rereader: crate::sources::reread::Rereader,
 }
 
 impl BatchDescriber {
@@ -156,8 +136,7 @@ impl BatchDescriber {
             codebook_id: describer.codebook.as_ref().map(|c| c.id()),
             computed: describer.computed_ids(),
             describer,
-            pipeline,
-            contexts: Mutex::new(HashMap::new()),
+            rereader: crate::sources::reread::Rereader::new(&pipeline.sources),
         })
     }
 
@@ -201,18 +180,8 @@ impl BatchDescriber {
         count: u64,
         position: u64,
     ) -> Vec<(u64, std::result::Result<Scan, ScanFailure>)> {
-        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
-        let wanted = canonical(path);
-        let settings = self
-            .pipeline
-            .sources
-            .iter()
-            .filter_map(|s| s.get::<LogSpec>())
-            .find(|l| l.paths.iter().any(|f| canonical(f) == wanted))
-            .cloned()
-            .unwrap_or_else(|| LogSpec::path(path));
         let end = first.saturating_add(count);
-        match settings.open_range(path, first..end) {
+        match self.rereader.log_range(path, first..end) {
             Ok(stream) => stream
                 .map(|item| {
                     let index = match &item {
@@ -223,7 +192,7 @@ impl BatchDescriber {
                 })
                 .collect(),
             Err(e) => {
-                let session = settings.session_of(path);
+                let session = crate::sources::logs::default_session(path);
                 let id = format!("{session}/messages_{first}-{end}");
                 vec![(position, Err(ScanFailure::of_file(id, &session, path, None, e.to_string())))]
             }
@@ -302,15 +271,8 @@ impl BatchDescriber {
             ScanInput::Path { path, format } => match std::fs::read(&path) {
                 Ok(bytes) => (path, bytes, format),
                 Err(e) => {
-                    let (session, name) = file_names(&path);
                     let error = format!("{}: cannot read: {e}", path.display());
-                    return Err(ScanFailure::of_file(
-                        format!("{session}/{name}"),
-                        &session,
-                        &path,
-                        None,
-                        error,
-                    ));
+                    return Err(crate::sources::reread::unreadable(&path, error));
                 }
             },
             ScanInput::McapRange { path, first, .. } => {
@@ -323,70 +285,7 @@ impl BatchDescriber {
                 ));
             }
         };
-        let dir = session_dir(&path);
-        let (session, name) = file_names(&path);
-        let Some(format) =
-            batch_format(&path, format).filter(|f| matches!(f, CloudFormat::Nclt | CloudFormat::Kitti))
-        else {
-            let error = format!(
-                "{}: unknown scan file format (give `format`: nclt or kitti; or the layout's velodyne_sync/ or velodyne/ folder)",
-                path.display()
-            );
-            return Err(ScanFailure::of_file(format!("{session}/{name}"), &session, &path, None, error));
-        };
-        let context = self.context(&dir, &session, format);
-        match (&*context, format) {
-            (Context::Nclt { gt, tolerance_us }, _) => {
-                crate::sources::nclt::sync_scan_bytes(&path, &bytes, &session, gt.as_ref(), *tolerance_us)
-            }
-            (Context::Kitti(Ok(seq)), _) => {
-                crate::sources::kitti::frame_scan_bytes(&path, &bytes, &session, seq)
-            }
-            (Context::Kitti(Err(e)), _) => {
-                Err(ScanFailure::of_file(format!("{session}/{name}"), &session, &path, None, e.clone()))
-            }
-        }
-    }
-
-    /// The context of a session folder, read once.
-    fn context(&self, dir: &Path, session: &str, format: CloudFormat) -> Arc<Context> {
-        let mut contexts = self.contexts.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(c) = contexts.get(dir) {
-            return c.clone();
-        }
-        let context = match format {
-            CloudFormat::Nclt => {
-                let (gt_path, tolerance_ms) = self.nclt_groundtruth(dir, session);
-                // A ground truth that cannot be read leaves the scans without a pose, as a
-                // missing one does; the sources refuse the session instead.
-                let gt = gt_path.and_then(|p| PoseTable::read_nclt(&p).ok());
-                Context::Nclt { gt, tolerance_us: (tolerance_ms * 1000.0).round() as i64 }
-            }
-            _ => Context::Kitti(Sequence::read(dir).map_err(|e| e.to_string())),
-        };
-        let context = Arc::new(context);
-        contexts.insert(dir.to_owned(), context.clone());
-        context
-    }
-
-    /// The ground-truth file and join tolerance of an NCLT session folder: the pipeline's
-    /// NCLT source that lists it, else the file found beside it, with the default tolerance.
-    fn nclt_groundtruth(&self, dir: &Path, session: &str) -> (Option<PathBuf>, f64) {
-        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
-        let wanted = canonical(dir);
-        for source in &self.pipeline.sources {
-            let Some(spec) = source.get::<crate::sources::nclt::NcltSpec>() else { continue };
-            let lists = spec.session_dirs().is_ok_and(|dirs| dirs.iter().any(|d| canonical(d) == wanted));
-            if lists {
-                let gt = spec
-                    .groundtruth
-                    .clone()
-                    .or_else(|| crate::sources::poses::find_for_session(dir, session));
-                return (gt, spec.tolerance_ms);
-            }
-        }
-        let default = crate::sources::nclt::NcltSpec::sessions(Vec::new());
-        (crate::sources::poses::find_for_session(dir, session), default.tolerance_ms)
+        self.rereader.file(&path, &bytes, format)
     }
 
     /// The output batches of described scans (the diagrams and descriptors they still hold).
@@ -535,18 +434,6 @@ pub fn inputs_of(b: &RecordBatch, offset: u64) -> std::result::Result<Vec<(u64, 
 }
 
 /// The session folder of a scan file (`<session>/velodyne_sync/<utime>.bin`,
-/// `<sequence>/velodyne/<frame>.bin`).
-fn session_dir(path: &Path) -> PathBuf {
-    path.parent().and_then(Path::parent).unwrap_or(Path::new("")).to_owned()
-}
-
-/// A scan file's session (its session folder's name) and scan name (its stem).
-fn file_names(path: &Path) -> (String, String) {
-    let session = session_dir(path).file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    (session, name)
-}
-
 /// The open file under `key`, made by `create` at its first use.
 fn open_file<K: Ord, T>(
     files: &mut BTreeMap<K, T>,

@@ -23,8 +23,8 @@ use std::path::{Path, PathBuf};
 #[derive(clap::Args, Clone, Debug)]
 pub struct ImportArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
+    #[command(flatten)]
+    pub index: crate::flags::IndexFlag,
     /// The method's name (letters, digits, `_`, `-`; not one of toporec's own methods).
     #[arg(long)]
     pub method: String,
@@ -49,9 +49,9 @@ pub struct Imported {
 /// Reads the vectors of `args.file` and stores them as method `args.method` of the index.
 pub fn import(args: &ImportArgs) -> Result<Imported> {
     check_name(&args.method)?;
-    if !args.index.join(crate::sinks::index::MANIFEST_FILE).is_file() {
+    if !args.index.path.join(crate::sinks::index::MANIFEST_FILE).is_file() {
         return Err(Error::index(
-            &args.index,
+            &args.index.path,
             "no manifest.json: not an index toporec wrote (index its scans first)",
         ));
     }
@@ -78,9 +78,9 @@ pub fn import(args: &ImportArgs) -> Result<Imported> {
             return Err(Error::table(&args.file, format!("row {}: scan {id} comes twice", i + 1)));
         }
     }
-    let mut writer = IndexWriter::open(&args.index, "", false)?;
+    let mut writer = IndexWriter::open(&args.index.path, "", false)?;
     if writer.manifest().generation == 0 {
-        return Err(Error::index(&args.index, "empty: index its scans first (`toporec run`)"));
+        return Err(Error::index(&args.index.path, "empty: index its scans first (`toporec run`)"));
     }
     let unknown: Vec<&str> =
         rows.iter().map(|r| r.0.as_str()).filter(|id| !writer.committed().contains_key(*id)).collect();
@@ -91,7 +91,7 @@ pub fn import(args: &ImportArgs) -> Result<Imported> {
             format!(
                 "{} scan ids are not in {} (the first: {})",
                 unknown.len(),
-                args.index.display(),
+                args.index.path.display(),
                 first.join(", ")
             ),
         ));

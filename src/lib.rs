@@ -57,6 +57,7 @@ pub mod error;
 pub mod eval;
 pub(crate) mod fault;
 pub mod fingerprint;
+pub mod flags;
 pub mod fsutil;
 pub mod homology;
 pub mod import;

@@ -8,7 +8,7 @@ use crate::methods::TOPOREC;
 use crate::offline::CodebookArgs;
 use crate::pipeline::config::{Pipeline, dims_needed};
 use crate::pipeline::{RunOptions, fit_on_stored, stored_descriptors};
-use crate::ranges;
+
 use crate::sinks::index::IndexWriter;
 use crate::sinks::index::manifest::{Manifest, file_checksum};
 use crate::sinks::index::reader::{read_scans, scan_ids};
@@ -23,17 +23,17 @@ use std::path::{Path, PathBuf};
 #[derive(clap::Args, Clone, Debug)]
 pub struct RevectorizeArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
+    #[command(flatten)]
+    pub index: crate::flags::IndexFlag,
     /// Use this saved codebook (else fit one on the stored diagrams with the settings below).
     #[arg(long, conflicts_with_all = ["b", "dims", "contrast", "weighting", "kmeans", "sample_size", "seed"])]
     pub codebook: Option<PathBuf>,
     /// The settings of the codebook to fit.
     #[command(flatten)]
     pub fit: CodebookArgs,
-    /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = ranges::count)]
-    pub threads: Option<usize>,
+    /// Worker threads.
+    #[command(flatten)]
+    pub threads: crate::flags::Threads,
 }
 
 /// What `revectorize` did.
@@ -54,10 +54,10 @@ pub struct Revectorized {
 /// persistence.
 pub fn revectorize(args: &RevectorizeArgs, threads: usize) -> Result<Revectorized> {
     let start = std::time::Instant::now();
-    let pipeline = Pipeline::of_index(&args.index)?;
-    let mut writer = IndexWriter::open(&args.index, &pipeline.settings_hash(), false)?;
+    let pipeline = Pipeline::of_index(&args.index.path)?;
+    let mut writer = IndexWriter::open(&args.index.path, &pipeline.settings_hash(), false)?;
     if writer.manifest().generation == 0 {
-        return Err(Error::index(&args.index, "empty: nothing to revectorize (run a pipeline first)"));
+        return Err(Error::index(&args.index.path, "empty: nothing to revectorize (run a pipeline first)"));
     }
     let old_codebook = writer.manifest().codebook_id.clone();
     // Every diagrams file is read: each is checked against its checksum first, so damage is
@@ -72,7 +72,7 @@ pub fn revectorize(args: &RevectorizeArgs, threads: usize) -> Result<Revectorize
         None => {
             let (codebook, cached) = fit_on_stored(&writer, &args.fit.spec(squared), threads, true)?;
             let codebook = codebook
-                .map_err(|e| Error::index(&args.index, format!("no codebook could be fitted: {e}")))?;
+                .map_err(|e| Error::index(&args.index.path, format!("no codebook could be fitted: {e}")))?;
             (codebook, cached)
         }
     };

@@ -20,9 +20,9 @@ use std::path::{Path, PathBuf};
 /// Arguments of `toporec query`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct QueryArgs {
-    /// The index to search.
-    #[arg(long)]
-    pub index: PathBuf,
+    /// The index.
+    #[command(flatten)]
+    pub index: crate::flags::IndexFlag,
     /// Query inputs: cloud files (csv, bin, pcd, ply), MCAPs, ROS 1 bags, rosbag2 folders, NCLT
     /// sessions, KITTI sequences.
     #[arg(required = true)]

@@ -263,15 +263,7 @@ fn reread(
         }
         Ok(())
     };
-    for spec in &pipeline.sources {
-        let Some(spec) = spec.only_sessions(&sessions) else { continue };
-        let stream = match spec.open() {
-            Ok(s) => s,
-            Err(e) => {
-                tracing::warn!("{e}");
-                continue;
-            }
-        };
+    for stream in crate::sources::reread::Rereader::new(&pipeline.sources).sessions(&sessions) {
         for item in stream {
             let (id, session) = match &item {
                 Ok(s) => (s.id.clone(), s.session.clone()),

@@ -11,16 +11,16 @@ use toporec::ranges;
 #[derive(clap::Args, Debug)]
 pub struct IndexArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
+    #[command(flatten)]
+    pub index: toporec::flags::IndexFlag,
 }
 
 /// Arguments of `toporec info`.
 #[derive(clap::Args, Debug)]
 pub struct InfoArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
+    #[command(flatten)]
+    pub index: toporec::flags::IndexFlag,
     /// Print as JSON.
     #[arg(long, conflicts_with = "files")]
     pub json: bool,
@@ -41,8 +41,8 @@ pub struct InfoArgs {
 #[derive(clap::Args, Debug)]
 pub struct VerifyArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
+    #[command(flatten)]
+    pub index: toporec::flags::IndexFlag,
     /// Report part files no commit names (a writer at work, or killed) as notes, not problems.
     #[arg(long)]
     pub allow_orphans: bool,
@@ -62,9 +62,9 @@ pub struct RunArgs {
     /// With sources: where their scans take their poses and topic.
     #[command(flatten)]
     pub from: toporec::sources::SourceOptions,
-    /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = ranges::count)]
-    pub threads: Option<usize>,
+    /// Worker threads.
+    #[command(flatten)]
+    pub threads: toporec::flags::Threads,
     /// Write the index here instead of the file's `output.index` (with sources, instead of
     /// `out/<first source's name>`).
     #[arg(long)]
@@ -98,8 +98,8 @@ pub struct RunArgs {
 #[derive(clap::Args, Debug)]
 pub struct PlotDiagramArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
+    #[command(flatten)]
+    pub index: toporec::flags::IndexFlag,
     /// The scan id.
     #[arg(long)]
     pub scan: String,
@@ -156,9 +156,9 @@ pub struct DiagramArgs {
 #[derive(clap::Args, Debug)]
 pub struct RepairArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
-    /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = ranges::count)]
-    pub threads: Option<usize>,
+    #[command(flatten)]
+    pub index: toporec::flags::IndexFlag,
+    /// Worker threads.
+    #[command(flatten)]
+    pub threads: toporec::flags::Threads,
 }

@@ -222,10 +222,6 @@ fn one_line(e: &anyhow::Error) -> String {
     line
 }
 
-fn threads(requested: Option<usize>) -> usize {
-    requested.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
-}
-
 fn run(args: RunArgs) -> Result<Done> {
     let is_pipeline = |p: &PathBuf| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     let (pipeline, index) = match args.inputs.as_slice() {
@@ -255,7 +251,7 @@ fn run(args: RunArgs) -> Result<Done> {
         commit_every: args.commit_every,
         commit_seconds: args.commit_seconds,
         shard: args.shard,
-        ..RunOptions::new(threads(args.threads))
+        ..RunOptions::new(args.threads.count())
     };
     let summary = toporec::pipeline::run(&pipeline, &opts)?;
     eprintln!("{summary}");
@@ -288,7 +284,7 @@ fn validate(args: ValidateArgs) -> Result<()> {
 }
 
 fn loops(a: toporec::loops::LoopsArgs) -> Result<Done> {
-    let done = toporec::loops::run(&a, threads(a.threads))?;
+    let done = toporec::loops::run(&a, a.threads.count())?;
     eprint!("{done}");
     print(&format!("written: {}\n", a.out.display()))?;
     let damaged = report_damage(&done.loops.damaged);
@@ -299,7 +295,7 @@ fn import(a: toporec::import::ImportArgs) -> Result<()> {
     let r = toporec::import::import(&a)?;
     print(&format!(
         "{}: method {} stored: {} scans, length {}, id {}\n",
-        a.index.display(),
+        a.index.path.display(),
         a.method,
         r.rows,
         r.length,
@@ -321,7 +317,7 @@ fn perturbation(a: PerturbationArgs) -> Result<Done> {
 
 fn simulate(a: SimulateArgs) -> Result<()> {
     let params = a.params()?;
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads(a.threads)).build()?;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.count()).build()?;
     let start = std::time::Instant::now();
     let n = pool.install(|| toporec::simulate::simulate(&params, &a.format, &a.out))?;
     let secs = start.elapsed().as_secs_f64();
@@ -352,7 +348,7 @@ fn report_damage(damaged: &[toporec::sinks::index::damage::DamagedPart]) -> bool
 
 fn query(a: QueryArgs) -> Result<Done> {
     let damage = toporec::sinks::index::damage::Damage::skipping(a.skip_damaged);
-    let engine = toporec::search::Engine::open_with(&a.index, &a.sessions, &a.method, &damage)?;
+    let engine = toporec::search::Engine::open_with(&a.index.path, &a.sessions, &a.method, &damage)?;
     let report = match &a.out {
         Some(path) => {
             let mut file = AtomicFile::create(path)?;
@@ -379,8 +375,8 @@ fn query(a: QueryArgs) -> Result<Done> {
 }
 
 fn plot_diagram(a: PlotDiagramArgs) -> Result<()> {
-    let d = IndexReader::read_consistent(&a.index, |r| r.diagram_of(&a.scan))?
-        .with_context(|| format!("{}: no scan {} in the diagrams table", a.index.display(), a.scan))?;
+    let d = IndexReader::read_consistent(&a.index.path, |r| r.diagram_of(&a.scan))?
+        .with_context(|| format!("{}: no scan {} in the diagrams table", a.index.path.display(), a.scan))?;
     let stem =
         a.out.unwrap_or_else(|| PathBuf::from(format!("diagram_{}", a.scan.replace(['/', '\\'], "_"))));
     let files = toporec::plot::diagram(&stem, &format!("persistence diagram of {}", a.scan), &d)?;
@@ -444,8 +440,12 @@ fn fit(args: FitArgs) -> Result<()> {
     if let (Some(path), Some(fraction)) = (&args.pipeline, args.sample) {
         let pipeline = Pipeline::load(path)?;
         let index = args.index.clone().unwrap_or_else(|| pipeline.index.clone());
-        let (codebook, scans) =
-            toporec::pipeline::shard::fit_sample(&pipeline, &index, fraction, threads(None))?;
+        let (codebook, scans) = toporec::pipeline::shard::fit_sample(
+            &pipeline,
+            &index,
+            fraction,
+            toporec::flags::Threads::default().count(),
+        )?;
         eprintln!(
             "codebook {} (dims {}, length {}) fitted on {scans} scans, frozen in {}",
             codebook.id(),
@@ -476,10 +476,10 @@ fn vectorize(args: VectorizeArgs) -> Result<()> {
 }
 
 fn revectorize(args: RevectorizeArgs) -> Result<()> {
-    let r = toporec::maintenance::revectorize(&args, threads(args.threads))?;
+    let r = toporec::maintenance::revectorize(&args, args.threads.count())?;
     eprintln!(
         "{}: codebook {} -> {} (length {}), {} descriptors from stored diagrams in {:.2} s ({:.0} scans/s)",
-        args.index.display(),
+        args.index.path.display(),
         r.old_codebook.as_deref().unwrap_or("none"),
         r.codebook.id(),
         r.codebook.len(),
@@ -491,20 +491,20 @@ fn revectorize(args: RevectorizeArgs) -> Result<()> {
 }
 
 fn compact(args: IndexArgs) -> Result<()> {
-    let (merged, into) = toporec::maintenance::compact(&args.index)?;
-    eprintln!("{}: {merged} part files merged into {into}", args.index.display());
+    let (merged, into) = toporec::maintenance::compact(&args.index.path)?;
+    eprintln!("{}: {merged} part files merged into {into}", args.index.path.display());
     Ok(())
 }
 
 fn info(args: InfoArgs) -> Result<Done> {
     if let Some(table) = &args.files {
         let table = Some(table.as_str()).filter(|t| !t.is_empty());
-        let files = toporec::info::files(&args.index, table, args.method.as_deref())?;
+        let files = toporec::info::files(&args.index.path, table, args.method.as_deref())?;
         print(&files.iter().map(|p| format!("{}\n", p.display())).collect::<String>())?;
         return Ok(Done::All);
     }
     let damage = toporec::sinks::index::damage::Damage::skipping(args.skip_damaged);
-    let info = toporec::info::info_with(&args.index, &damage)?;
+    let info = toporec::info::info_with(&args.index.path, &damage)?;
     if args.json {
         print(&(serde_json::to_string_pretty(&info)? + "\n"))?;
     } else {
@@ -515,10 +515,11 @@ fn info(args: InfoArgs) -> Result<Done> {
 }
 
 fn repair(args: RepairArgs) -> Result<Done> {
-    let threads = threads(args.threads);
-    let r = toporec::repair::repair(&toporec::repair::RepairArgs { index: args.index.clone(), threads })?;
+    let threads = args.threads.count();
+    let r =
+        toporec::repair::repair(&toporec::repair::RepairArgs { index: args.index.path.clone(), threads })?;
     if r.damaged.is_empty() {
-        print(&format!("{}: every part is as committed; nothing to repair\n", args.index.display()))?;
+        print(&format!("{}: every part is as committed; nothing to repair\n", args.index.path.display()))?;
         return Ok(Done::All);
     }
     let mut text = String::new();
@@ -534,7 +535,7 @@ fn repair(args: RepairArgs) -> Result<Done> {
     }
     text.push_str(&format!(
         "{}: repaired in one commit in {:.2} s: {} scans read again from their sources, {} descriptors made from stored diagrams\n",
-        args.index.display(),
+        args.index.path.display(),
         r.seconds,
         r.from_sources,
         r.from_diagrams
@@ -550,7 +551,7 @@ fn repair(args: RepairArgs) -> Result<Done> {
 }
 
 fn verify(args: VerifyArgs) -> Result<Done> {
-    let v = toporec::maintenance::verify(&args.index, args.allow_orphans)?;
-    print(&format!("{}: {v}\n", args.index.display()))?;
+    let v = toporec::maintenance::verify(&args.index.path, args.allow_orphans)?;
+    print(&format!("{}: {v}\n", args.index.path.display()))?;
     Ok(if v.problems.is_empty() { Done::All } else { Done::Partial })
 }

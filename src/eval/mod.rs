@@ -186,8 +186,8 @@ impl Perturbation {
 #[derive(clap::Args, Clone, Debug)]
 pub struct PerturbationArgs {
     /// The index.
-    #[arg(long)]
-    pub index: PathBuf,
+    #[command(flatten)]
+    pub index: crate::flags::IndexFlag,
     /// Share of the scans used as queries: (0, 1].
     #[arg(long, default_value_t = 0.2, value_parser = ranges::fraction)]
     pub fraction: f64,
@@ -226,7 +226,7 @@ struct Reread {
 /// by the scan's normalization scale (so a 0.2 shift of the normalized cloud is 0.2 × that
 /// scale in metres) and rotations about the sensor, then their own preprocessing.
 pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
-    let mut methods = chosen_methods(&[&a.index], &a.methods)?;
+    let mut methods = chosen_methods(&[&a.index.path], &a.methods)?;
     let imported = |m: &Method| matches!(m.kind, MethodKind::Imported { .. });
     if a.methods.is_empty() {
         methods.retain(|m| !imported(m));
@@ -242,7 +242,7 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
     let methods = names(&methods);
     let engines: Vec<Engine> = methods
         .iter()
-        .map(|m| Ok(Engine::open(&a.index, &[], m)?.with_budget(a.search)))
+        .map(|m| Ok(Engine::open(&a.index.path, &[], m)?.with_budget(a.search)))
         .collect::<Result<Vec<_>>>()?;
     // The queries: a seeded share of the first method's scans.
     let first = &engines[0];
@@ -264,7 +264,7 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
         table,
         "perturbation: {} queries ({}); methods: {}",
         clouds.len(),
-        a.index.display(),
+        a.index.path.display(),
         methods.join(", ")
     );
     let kinds = Perturbation::paper();
@@ -281,7 +281,7 @@ pub fn perturbation(a: &PerturbationArgs) -> Result<String> {
     let report = report::PerturbationReport {
         protocol: report::Protocol::Perturbation,
         toporec_version: env!("CARGO_PKG_VERSION").into(),
-        index: a.index.clone(),
+        index: a.index.path.clone(),
         queries: clouds.len(),
         fraction: a.fraction,
         seed: a.seed,
@@ -300,35 +300,34 @@ fn reread(
     wanted: &std::collections::HashSet<&str>,
     toporec: bool,
 ) -> Result<Vec<Reread>> {
-    let pipeline = crate::pipeline::config::Pipeline::of_index(&a.index)?;
+    let pipeline = crate::pipeline::config::Pipeline::of_index(&a.index.path)?;
     // One preprocessing, in metres; the normalization (the last step) then gives TopoRec's
     // cloud and the scale the raw scans' perturbations are measured in.
     let mut metric = pipeline.preprocess.clone();
     metric.normalize = false;
+    let mut rows = crate::sinks::index::IndexReader::open(&a.index.path)?.scans()?;
+    rows.retain(|r| wanted.contains(r.scan_id.as_str()));
+    // In the order the sources yield them.
+    rows.sort_by_key(|r| r.seq);
+    let places: Vec<_> = rows.iter().map(|r| r.place()).collect();
     let mut clouds = Vec::new();
-    for spec in &pipeline.sources {
-        for item in spec.open()? {
-            let Ok(scan) = item else { continue };
-            if !wanted.contains(scan.id.as_str()) {
-                continue;
+    for (_, item) in crate::sources::reread::Rereader::new(&pipeline.sources).scans(&places) {
+        let Ok(scan) = item else { continue };
+        let id = scan.id.clone();
+        let (mut preprocessed, mut unit) = (None, 1.0);
+        if toporec || pipeline.preprocess.normalize {
+            let mut pts = crate::preprocess::preprocess(scan.points.clone(), scan.fingerprint, &metric)
+                .map_err(|skip| Error::invalid(format!("{id}: skipped on re-reading: {}", skip.0)))?;
+            if pipeline.preprocess.normalize {
+                unit = crate::preprocess::normalize(&mut pts);
             }
-            let id = scan.id.clone();
-            let (mut preprocessed, mut unit) = (None, 1.0);
-            if toporec || pipeline.preprocess.normalize {
-                let mut pts =
-                    crate::preprocess::preprocess(scan.points.clone(), scan.fingerprint, &metric)
-                        .map_err(|skip| Error::invalid(format!("{id}: skipped on re-reading: {}", skip.0)))?;
-                if pipeline.preprocess.normalize {
-                    unit = crate::preprocess::normalize(&mut pts);
-                }
-                preprocessed = toporec.then_some(pts);
-            }
-            clouds.push(Reread { scan_id: id, raw: scan.points, preprocessed, unit });
+            preprocessed = toporec.then_some(pts);
         }
+        clouds.push(Reread { scan_id: id, raw: scan.points, preprocessed, unit });
     }
     if clouds.len() != wanted.len() {
         return Err(Error::index(
-            &a.index,
+            &a.index.path,
             format!(
                 "{} of {} chosen scans could be re-read from the index's sources",
                 clouds.len(),

@@ -5,28 +5,9 @@
 //! rule).
 
 use super::exclusion::{Exclusion, allowed_by, distance3};
-use crate::methods::{Hit, Method, Searcher};
+pub use super::row::Match;
+use crate::methods::{Method, Searcher};
 use crate::types::Point;
-
-/// A scan's best allowed earlier match.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Match {
-    /// The matched scan: its position among the scans added (0 the first).
-    pub row: usize,
-    /// Descriptor distance.
-    pub distance: f64,
-    /// The query's yaw relative to the match (degrees), for the methods that estimate one.
-    pub yaw_degrees: Option<f64>,
-    /// The query's estimated position in the match's sensor frame (x forward, y left, m), for
-    /// the methods that estimate one.
-    pub offset: Option<[f64; 2]>,
-    /// The runner-up's distance, never below `distance` (see `LoopRow::rank2_distance`).
-    pub rank2_distance: Option<f64>,
-    /// The distance between the two scans' poses (m), when both were given one.
-    pub true_distance_m: Option<f64>,
-    /// Whether the distance is below the detector's threshold: a loop.
-    pub accepted: bool,
-}
 
 /// Seconds the last [`Detector::add`] spent in each step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -163,15 +144,10 @@ impl Detector {
             )
         };
         let (hits, _) = self.growing.search(descriptor, 2, Some(&allowed));
-        let found = hits.first().map(|&Hit { row, distance, yaw_degrees, offset }| Match {
-            row,
-            distance,
-            yaw_degrees,
-            offset,
-            // Never below the match's own (see `LoopRow::rank2_distance`).
-            rank2_distance: hits.get(1).map(|h| h.distance.max(distance)),
-            true_distance_m: pose.zip(self.pose[row]).map(|(a, b)| distance3(a, b)),
-            accepted: distance < self.threshold,
+        let found = hits.first().and_then(|best| {
+            let truth = pose.zip(self.pose[best.row]).map(|(a, b)| distance3(a, b));
+            let found = Match::of_hits(&hits, best.row, truth)?;
+            Some(Match { accepted: found.distance < self.threshold, ..found })
         });
         self.growing.push(descriptor);
         self.session.push(session_id);

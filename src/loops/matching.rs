@@ -3,7 +3,7 @@
 //! [`super::Detector`] matches them one at a time.
 
 use super::exclusion::{Exclusion, allowed_by, distance3};
-use super::row::LoopRow;
+use super::row::{LoopRow, Match};
 use crate::error::{Error, Result};
 use crate::search::Engine;
 use crate::sinks::index::damage::Damage;
@@ -147,27 +147,21 @@ pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> 
     matches
         .iter()
         .filter_map(|(query, best)| {
-            let crate::methods::Hit { row, distance, yaw_degrees: yaw, offset } = *best.first()?;
+            let row = best.first()?.row;
             let (q, m) = (&scans[*query], &scans[row]);
+            let truth = match (q.pose, m.pose) {
+                (Some(a), Some(b)) => Some(distance3(a, b)),
+                _ => None,
+            };
+            let found = Match::of_hits(best, rule.position(row), truth)?;
             Some(LoopRow {
                 method: engine.method.name.clone(),
                 query_scan: q.scan_id.clone(),
                 query_session: q.session.clone(),
                 matched_scan: m.scan_id.clone(),
                 matched_session: m.session.clone(),
-                distance,
-                yaw_degrees: yaw,
-                offset,
-                // Never below the match's own: a method that ranks by more than the distance
-                // (toporec-plus's pose) may put a candidate nearer in distance second.
-                rank2_distance: best.get(1).map(|b| b.distance.max(distance)),
-                true_distance_m: match (q.pose, m.pose) {
-                    (Some(a), Some(b)) => Some(distance3(a, b)),
-                    _ => None,
-                },
-                accepted: false,
                 query_vertex: rule.position(*query),
-                matched_vertex: rule.position(row),
+                found,
                 check: None,
             })
         })

@@ -110,9 +110,9 @@ pub struct LoopsArgs {
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
-    /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = ranges::count)]
-    pub threads: Option<usize>,
+    /// Worker threads.
+    #[command(flatten)]
+    pub threads: crate::flags::Threads,
     /// Write every scan's best match, accepted or not (an `accepted` column says which).
     #[arg(long)]
     pub all: bool,

@@ -77,7 +77,9 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             None => {
                 let judged: Vec<(f64, bool)> = rows
                     .iter()
-                    .filter_map(|r| r.true_distance_m.map(|t| (r.distance, t <= a.revisit_radius)))
+                    .filter_map(|r| {
+                        r.found.true_distance_m.map(|t| (r.found.distance, t <= a.revisit_radius))
+                    })
                     .collect();
                 // No threshold reaching the precision: 0, which accepts nothing.
                 let t = calibrate(&judged, a.target_precision).unwrap_or_else(|| {
@@ -107,17 +109,17 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             }
         };
         for r in &mut rows {
-            r.accepted = r.distance < threshold;
+            r.found.accepted = r.found.distance < threshold;
         }
-        let below_threshold = rows.iter().filter(|r| r.accepted).count();
+        let below_threshold = rows.iter().filter(|r| r.found.accepted).count();
         if verifying {
             let checks = verify::check(index, &rows, a.limits, !a.no_progress, &damage)?;
             for (r, c) in rows.iter_mut().zip(checks) {
                 r.check = c;
-                r.accepted &= c.is_some_and(|c| c.passed);
+                r.found.accepted &= c.is_some_and(|c| c.passed);
             }
         }
-        let is_true = |r: &LoopRow| r.true_distance_m.is_some_and(|d| d <= a.revisit_radius);
+        let is_true = |r: &LoopRow| r.found.true_distance_m.is_some_and(|d| d <= a.revisit_radius);
         // Between the radius and `--false-beyond`: neither true nor false.
         let in_band = |t: f64| t > a.revisit_radius && a.false_beyond.is_some_and(|band| t <= band);
         let with_revisit = rule.with_revisit(a.revisit_radius);
@@ -128,14 +130,14 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             method: method.clone(),
             threshold,
             matched: rows.len(),
-            accepted: rows.iter().filter(|r| r.accepted).count(),
+            accepted: rows.iter().filter(|r| r.found.accepted).count(),
             accepted_with_poses: rows
                 .iter()
-                .filter(|r| r.accepted && r.true_distance_m.is_some_and(|t| !in_band(t)))
+                .filter(|r| r.found.accepted && r.found.true_distance_m.is_some_and(|t| !in_band(t)))
                 .count(),
-            true_positives: rows.iter().filter(|r| r.accepted && is_true(r)).count(),
+            true_positives: rows.iter().filter(|r| r.found.accepted && is_true(r)).count(),
             revisits: with_revisit.iter().filter(|&&w| w).count(),
-            revisits_found: rows.iter().filter(|r| r.accepted && is_true(r) && has_revisit(r)).count(),
+            revisits_found: rows.iter().filter(|r| r.found.accepted && is_true(r) && has_revisit(r)).count(),
             curve,
             auc,
             verified: verifying.then_some(below_threshold),
@@ -153,8 +155,8 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             verify::write_g2o(&path, &rows)?;
             summary.g2o.push(path);
         }
-        summary.checked.extend(rows.iter().filter(|r| r.accepted || r.check.is_some()).cloned());
-        all_rows.extend(rows.into_iter().filter(|r| a.all || r.accepted));
+        summary.checked.extend(rows.iter().filter(|r| r.found.accepted || r.check.is_some()).cloned());
+        all_rows.extend(rows.into_iter().filter(|r| a.all || r.found.accepted));
     }
     write_rows(&a.out, &all_rows)?;
     if a.calibrate {

@@ -47,7 +47,7 @@ pub(super) fn draw(out: &Path, summary: &Summary, sessions: &[String]) -> Result
         .iter()
         .filter_map(|r| {
             let (from, to) = (place.get(r.query_scan.as_str())?, place.get(r.matched_scan.as_str())?);
-            Some(crate::plot::LoopEdge { from: *from, to: *to, kept: r.accepted })
+            Some(crate::plot::LoopEdge { from: *from, to: *to, kept: r.found.accepted })
         })
         .collect();
     let methods: Vec<&str> = summary.methods.iter().map(|m| m.method.as_str()).collect();

@@ -1,9 +1,21 @@
 //! A loop row (one scan's best allowed match, with its check), and the `loops` table written.
 
-use super::verify;
 use crate::error::{Result, ResultExt};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+
+/// The check of one row.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Check {
+    /// Whether the alignment passed the limits.
+    pub passed: bool,
+    /// Its fitness.
+    pub fitness: f64,
+    /// Its RMSE (m).
+    pub rmse: f64,
+    /// The query's pose in the match's sensor frame: x, y, z (m), roll, pitch, yaw (degrees).
+    pub relative: [f64; 6],
+}
 
 /// One scan's best allowed match.
 #[derive(Clone, Debug, PartialEq)]
@@ -18,6 +30,21 @@ pub struct LoopRow {
     pub matched_scan: String,
     /// Its session.
     pub matched_session: String,
+    /// The query's position in the walking order (its g2o vertex).
+    pub query_vertex: usize,
+    /// The match: the matched scan's position in the walking order (its vertex), the
+    /// distances, and whether it is a loop (below the threshold and, with `--verify`, aligned).
+    pub found: Match,
+    /// The geometric check (`--verify`), of the rows below the threshold.
+    pub check: Option<Check>,
+}
+
+/// A scan's best allowed earlier match: what the search and the online detector find.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Match {
+    /// The matched scan: its position in the walking order (among the scans added, for the
+    /// detector; 0 the first).
+    pub row: usize,
     /// Descriptor distance.
     pub distance: f64,
     /// The yaw of the query relative to the match (degrees), for methods that give one.
@@ -34,12 +61,25 @@ pub struct LoopRow {
     pub true_distance_m: Option<f64>,
     /// Whether the distance is below the threshold (and, with `--verify`, the scans align).
     pub accepted: bool,
-    /// The query's position in the walking order (its g2o vertex).
-    pub query_vertex: usize,
-    /// The matched scan's.
-    pub matched_vertex: usize,
-    /// The geometric check (`--verify`), of the rows below the threshold.
-    pub check: Option<verify::Check>,
+}
+
+impl Match {
+    /// The best of `hits` (sorted by the method's rank, up to two), with the poses' distance;
+    /// not yet judged against a threshold.
+    pub fn of_hits(hits: &[crate::methods::Hit], row: usize, true_distance_m: Option<f64>) -> Option<Match> {
+        let best = hits.first()?;
+        Some(Match {
+            row,
+            distance: best.distance,
+            yaw_degrees: best.yaw_degrees,
+            offset: best.offset,
+            // Never below the match's own: a method that ranks by more than the distance
+            // (toporec-plus's pose) may put a candidate nearer in distance second.
+            rank2_distance: hits.get(1).map(|h| h.distance.max(best.distance)),
+            true_distance_m,
+            accepted: false,
+        })
+    }
 }
 
 /// Where `--g2o PATH` writes `method`'s edges: `<stem>.<method>.g2o` beside `PATH`, one file
@@ -68,15 +108,15 @@ pub(crate) fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
             .text(query_session, Some(&r.query_session))
             .text(matched, Some(&r.matched_scan))
             .text(matched_session, Some(&r.matched_session))
-            .float(distance, Some(r.distance))
-            .float(yaw, r.yaw_degrees)
-            .float(x_m, r.offset.map(|o| o[0]))
-            .float(y_m, r.offset.map(|o| o[1]))
-            .float(rank2, r.rank2_distance)
-            .float(truth, r.true_distance_m)
-            .boolean(accepted, Some(r.accepted))
+            .float(distance, Some(r.found.distance))
+            .float(yaw, r.found.yaw_degrees)
+            .float(x_m, r.found.offset.map(|o| o[0]))
+            .float(y_m, r.found.offset.map(|o| o[1]))
+            .float(rank2, r.found.rank2_distance)
+            .float(truth, r.found.true_distance_m)
+            .boolean(accepted, Some(r.found.accepted))
             .uint(query_vertex, Some(r.query_vertex as u64))
-            .uint(matched_vertex, Some(r.matched_vertex as u64))
+            .uint(matched_vertex, Some(r.found.row as u64))
             .boolean(verified, r.check.map(|c| c.passed))
             .float(fitness, r.check.map(|c| c.fitness))
             .float(rmse, r.check.and_then(|c| finite(c.rmse)));

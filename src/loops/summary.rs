@@ -168,11 +168,11 @@ pub(super) fn protocol_scores(
 ) -> (Option<crate::eval::metrics::LoopClosure>, Option<f64>) {
     let (mut distance, mut within, mut revisit) = (Vec::new(), Vec::new(), Vec::new());
     for r in rows {
-        let Some(t) = r.true_distance_m else { continue };
+        let Some(t) = r.found.true_distance_m else { continue };
         if t > radius && false_beyond.is_some_and(|band| t <= band) {
             continue;
         }
-        distance.push(r.distance);
+        distance.push(r.found.distance);
         within.push(t <= radius);
         revisit.push(has_revisit(r));
     }

@@ -3,8 +3,9 @@
 //! the alignment's fitness and RMSE pass the limits. The relative pose goes into the rows and,
 //! on request, into g2o `EDGE_SE3:QUAT` lines for a pose-graph back end.
 
-use super::LoopRow;
 use super::icp::{self, IcpParams};
+pub use super::row::Check;
+use super::row::LoopRow;
 use crate::error::{Result, ResultExt};
 use crate::types::Point;
 use nalgebra::{Isometry3, Vector3};
@@ -29,21 +30,9 @@ impl Default for Limits {
     }
 }
 
-/// The check of one row.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Check {
-    /// Whether the alignment passed the limits.
-    pub passed: bool,
-    /// Its fitness.
-    pub fitness: f64,
-    /// Its RMSE (m).
-    pub rmse: f64,
-    /// The query's pose in the match's sensor frame: x, y, z (m), roll, pitch, yaw (degrees).
-    pub relative: [f64; 6],
-}
-
-/// The raw scans `ids` of `index`, voxelized for ICP: each read from its source file (an MCAP
-/// file once for all of its messages); a scan that cannot be read maps to the reason.
+/// The raw scans `ids` of `index`, voxelized for ICP: each read again from where the index
+/// found it ([`crate::sources::reread`]: a scan file alone, a log's messages in one pass), points
+/// only; a scan that cannot be read maps to the reason.
 fn load(
     index: &Path,
     ids: &HashSet<&str>,
@@ -51,55 +40,19 @@ fn load(
     damage: &crate::sinks::index::damage::Damage,
 ) -> Result<HashMap<String, std::result::Result<Vec<Point>, String>>> {
     let reader = crate::sinks::index::IndexReader::open_with(index, damage)?;
-    let records = reader.scans()?;
-    let mut out = HashMap::new();
-    let mut mcap: HashMap<String, HashMap<u64, String>> = HashMap::new();
-    for r in records.iter().filter(|r| ids.contains(r.scan_id.as_str())) {
-        match r.message_index {
-            Some(m) => {
-                mcap.entry(r.source_path.clone()).or_default().insert(m, r.scan_id.clone());
-            }
-            None => {
-                let points = crate::sources::read_cloud(Path::new(&r.source_path), None)
-                    .map(|p| crate::preprocess::voxel_grid(&p, voxel))
-                    .map_err(|e| e.to_string());
-                out.insert(r.scan_id.clone(), points);
-            }
-        }
-    }
-    // The index's pipeline says how each log was read (its topic).
-    let pipeline = crate::pipeline::config::Pipeline::of_index(index).ok();
-    for (path, wanted) in mcap {
-        // Any message log (MCAP, ROS 1 bag, rosbag2), read by what it is, as the index read it.
-        use crate::sources::logs::LogSpec;
-        let mut listed = pipeline.iter().flat_map(|p| &p.sources).filter_map(|s| s.get::<LogSpec>());
-        let listed = listed.find(|l| l.paths.iter().any(|p| p == Path::new(&path)));
-        let spec = LogSpec {
-            points_only: true,
-            ..listed.cloned().unwrap_or_else(|| LogSpec::path(Path::new(&path)))
-        };
-        let spec = LogSpec { paths: vec![path.clone().into()], ..spec };
-        match crate::sources::Source::open(&spec) {
-            Ok(items) => {
-                for item in items {
-                    let (index, points) = match item {
-                        Ok(scan) => {
-                            (scan.message_index, Ok(crate::preprocess::voxel_grid(&scan.points, voxel)))
-                        }
-                        Err(f) => (f.message_index, Err(f.error.to_string())),
-                    };
-                    if let Some(id) = index.and_then(|i| wanted.get(&i)) {
-                        out.insert(id.clone(), points);
-                    }
-                }
-            }
-            Err(e) => {
-                for id in wanted.values() {
-                    out.insert(id.clone(), Err(format!("{path}: {e}")));
-                }
-            }
-        }
-    }
+    let places: Vec<_> =
+        reader.scans()?.iter().filter(|r| ids.contains(r.scan_id.as_str())).map(|r| r.place()).collect();
+    // The index's pipeline says how each source was read (a log's topic).
+    let sources = crate::pipeline::config::Pipeline::of_index(index).map(|p| p.sources).unwrap_or_default();
+    let rereader = crate::sources::reread::Rereader::new(&sources).points_only();
+    let mut out: HashMap<String, std::result::Result<Vec<Point>, String>> = rereader
+        .scans(&places)
+        .into_iter()
+        .map(|(id, scan)| {
+            let points = scan.map(|s| crate::preprocess::voxel_grid(&s.points, voxel)).map_err(|f| f.error);
+            (id, points)
+        })
+        .collect();
     for id in ids {
         out.entry(id.to_string()).or_insert_with(|| Err("not in the index's scans table".into()));
     }
@@ -123,10 +76,11 @@ pub fn check(
 ) -> Result<Vec<Option<Check>>> {
     use rayon::prelude::*;
     let p = IcpParams::default();
-    let bar = super::progress_bar(progress, rows.iter().filter(|r| r.accepted).count(), "matches aligned");
+    let bar =
+        super::progress_bar(progress, rows.iter().filter(|r| r.found.accepted).count(), "matches aligned");
     let ids: HashSet<&str> = rows
         .iter()
-        .filter(|r| r.accepted)
+        .filter(|r| r.found.accepted)
         .flat_map(|r| [r.query_scan.as_str(), r.matched_scan.as_str()])
         .collect();
     let clouds = load(index, &ids, p.voxel, damage)?;
@@ -135,7 +89,7 @@ pub fn check(
     let checks = rows
         .par_iter()
         .map(|r| {
-            if !r.accepted {
+            if !r.found.accepted {
                 return None;
             }
             if let Some(b) = &bar {
@@ -145,7 +99,7 @@ pub fn check(
             let (Some(Ok(q)), Some(Ok(m))) = (clouds.get(&r.query_scan), clouds.get(&r.matched_scan)) else {
                 return Some(failure);
             };
-            match best_alignment(q, m, r.yaw_degrees, r.offset, &p) {
+            match best_alignment(q, m, r.found.yaw_degrees, r.found.offset, &p) {
                 Ok(a) => Some(Check {
                     passed: a.fitness >= limits.min_fitness && a.rmse <= limits.max_rmse,
                     fitness: a.fitness,
@@ -222,9 +176,9 @@ fn relative(pose: &Isometry3<f64>) -> [f64; 6] {
 /// (translation 1/σ² with σ the RMSE, at least 5 cm; rotation 1/σ² with σ = 0.5°).
 pub(crate) fn write_g2o(path: &Path, rows: &[LoopRow]) -> Result<()> {
     let mut text = String::new();
-    for r in rows.iter().filter(|r| r.accepted) {
+    for r in rows.iter().filter(|r| r.found.accepted) {
         let Some(c) = r.check.filter(|c| c.passed) else { continue };
-        let (from, to) = (r.matched_vertex, r.query_vertex);
+        let (from, to) = (r.found.row, r.query_vertex);
         let [x, y, z, roll, pitch, yaw] = c.relative;
         let q = nalgebra::UnitQuaternion::from_euler_angles(
             roll.to_radians(),

@@ -222,9 +222,9 @@ pub struct SimulateArgs {
     /// Sensor height above the ground (m): [-100, 100].
     #[arg(long, default_value_t = 1.9, value_parser = |s: &str| ranges::within(s, -100.0, 100.0))]
     pub height: f64,
-    /// Worker threads, [1, ∞) (default: all cores).
-    #[arg(long, short, value_parser = ranges::count)]
-    pub threads: Option<usize>,
+    /// Worker threads.
+    #[command(flatten)]
+    pub threads: crate::flags::Threads,
 }
 
 impl SimulateArgs {

@@ -78,6 +78,18 @@ pub struct ScanRow {
     pub error: Option<String>,
 }
 
+impl ScanRow {
+    /// Where the scan was found, to read it again ([`crate::sources::reread`]).
+    pub fn place(&self) -> crate::sources::reread::Place {
+        crate::sources::reread::Place {
+            scan_id: self.scan_id.clone(),
+            session: self.session.clone(),
+            path: std::path::PathBuf::from(&self.source_path),
+            message_index: self.message_index,
+        }
+    }
+}
+
 /// A row of `descriptors`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DescriptorRow {

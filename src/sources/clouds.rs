@@ -137,6 +137,26 @@ impl super::Source for CloudsSpec {
         Some(Box::new(CloudsSpec { folders: places, ..self.clone() }))
     }
 
+    fn session_folder(&self, file: &Path, _format: Option<super::CloudFormat>) -> Option<(String, PathBuf)> {
+        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
+        let wanted = canonical(file.parent()?);
+        let dir = self.folders.iter().find(|d| canonical(d) == wanted)?;
+        (is_cloud_file(file)).then(|| {
+            (dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(), dir.clone())
+        })
+    }
+
+    fn scan_files(
+        &self,
+        session: &str,
+        dir: &Path,
+        points_only: bool,
+    ) -> Result<Arc<dyn super::reread::ScanFiles>, SourceError> {
+        let poses = if points_only { None } else { self.ground_truth()? };
+        let files = cloud_files(dir)?;
+        Ok(Arc::new(FolderFiles { spec: self.clone(), session: session.to_string(), poses, files }))
+    }
+
     fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
         let Some(file) = &self.poses else { return Vec::new() };
         let sessions = super::Source::sessions(self).unwrap_or_default().into_iter().map(|s| s.0).collect();
@@ -158,6 +178,22 @@ impl super::Source for CloudsSpec {
 
     fn as_any(&self) -> &dyn std::any::Any {
         self
+    }
+}
+
+/// A folder's cloud files, with its poses read once.
+struct FolderFiles {
+    spec: CloudsSpec,
+    session: String,
+    poses: Option<Arc<PoseTable>>,
+    /// The folder's cloud files in name order (a file's place, for names that are no number).
+    files: Vec<PathBuf>,
+}
+
+impl super::reread::ScanFiles for FolderFiles {
+    fn scan(&self, path: &Path, _bytes: &[u8]) -> Result<Scan, ScanFailure> {
+        let position = self.files.iter().position(|f| f == path).unwrap_or(self.files.len());
+        self.spec.scan(&self.session, path, position, self.poses.as_deref())
     }
 }
 

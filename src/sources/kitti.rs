@@ -129,6 +129,31 @@ impl super::Source for KittiSpec {
         self.sequences.iter().map(|d| count(d)).sum()
     }
 
+    fn session_folder(&self, file: &Path, format: Option<super::CloudFormat>) -> Option<(String, PathBuf)> {
+        let in_layout = file.parent()?.file_name()? == "velodyne";
+        if !(in_layout || format == Some(super::CloudFormat::Kitti)) {
+            return None;
+        }
+        let dir = file.parent()?.parent()?;
+        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
+        let wanted = canonical(dir);
+        let dir = self.sequences.iter().find(|d| canonical(d) == wanted)?;
+        Some((dir.file_name()?.to_string_lossy().into_owned(), dir.clone()))
+    }
+
+    fn scan_files(
+        &self,
+        session: &str,
+        dir: &Path,
+        points_only: bool,
+    ) -> Result<Arc<dyn super::reread::ScanFiles>, SourceError> {
+        let mut seq = Sequence::read(dir)?;
+        if points_only {
+            seq.poses.clear();
+        }
+        Ok(Arc::new(FrameFiles { session: session.to_string(), seq }))
+    }
+
     fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
         let Ok(sessions) = super::Source::sessions(self) else { return Vec::new() };
         sessions
@@ -193,6 +218,18 @@ impl KittiSpec {
             }
         }
         Ok(Box::new(streams.into_iter().flatten()))
+    }
+}
+
+/// A sequence's frames, with its times and poses read once.
+struct FrameFiles {
+    session: String,
+    seq: Sequence,
+}
+
+impl super::reread::ScanFiles for FrameFiles {
+    fn scan(&self, path: &Path, bytes: &[u8]) -> Result<Scan, ScanFailure> {
+        frame_scan_bytes(path, bytes, &self.session, &self.seq)
     }
 }
 

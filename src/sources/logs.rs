@@ -252,6 +252,13 @@ impl LogSpec {
         }
     }
 
+    /// Whether `path` is one of its logs (compared as the files they are).
+    fn lists(&self, path: &Path) -> bool {
+        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
+        let wanted = canonical(path);
+        self.paths.iter().any(|p| canonical(p) == wanted)
+    }
+
     /// The layout of its pose file: given, or guessed ([`PoseFormat::guess`]).
     pub fn poses_layout(&self) -> Option<PoseFormat> {
         let file = self.poses.as_deref()?;
@@ -347,6 +354,31 @@ impl super::Source for LogSpec {
 
     fn shards_by_session(&self) -> bool {
         self.named == LogName::Mcap
+    }
+
+    fn reread(
+        &self,
+        path: &Path,
+        messages: &[u64],
+        points_only: bool,
+    ) -> Option<Result<ScanStream, SourceError>> {
+        if !self.lists(path) {
+            return None;
+        }
+        let spec = LogSpec { points_only, paths: vec![path.to_owned()], ..self.clone() };
+        let (Some(&first), Some(&last)) = (messages.iter().min(), messages.iter().max()) else {
+            return Some(Ok(Box::new(std::iter::empty())));
+        };
+        let wanted: std::collections::HashSet<u64> = messages.iter().copied().collect();
+        Some(spec.settings().open_wanted(path, first..last.saturating_add(1), Some(Arc::new(wanted))))
+    }
+
+    fn read_range(
+        &self,
+        path: &Path,
+        range: std::ops::Range<u64>,
+    ) -> Option<Result<ScanStream, SourceError>> {
+        self.lists(path).then(|| self.open_range(path, range))
     }
 
     fn settle(
@@ -496,7 +528,7 @@ impl LogSettings {
     fn ground_truth(&self) -> Result<Option<Arc<PoseTable>>, SourceError> {
         let s = &self.spec;
         Ok(match &s.poses {
-            Some(p) if s.poses_layout() != Some(PoseFormat::Kitti) => {
+            Some(p) if !s.points_only && s.poses_layout() != Some(PoseFormat::Kitti) => {
                 Some(Arc::new(super::poses::read_nonempty(
                     p,
                     s.poses_layout().unwrap_or_default(),
@@ -572,7 +604,19 @@ impl LogSettings {
     /// yields for them, ids, times and poses included. Messages before the range are passed
     /// over undecoded; reading stops at its end.
     fn open_range(&self, path: &Path, range: std::ops::Range<u64>) -> Result<ScanStream, SourceError> {
-        Ok(Box::new(self.scans_of(path, self.ground_truth()?, range)?))
+        self.open_wanted(path, range, None)
+    }
+
+    /// [`LogSettings::open_range`], decoding only the messages `wanted` holds (all, without).
+    fn open_wanted(
+        &self,
+        path: &Path,
+        range: std::ops::Range<u64>,
+        wanted: Option<Arc<std::collections::HashSet<u64>>>,
+    ) -> Result<ScanStream, SourceError> {
+        let mut scans = self.scans_of(path, self.ground_truth()?, range)?;
+        scans.wanted = wanted;
+        Ok(Box::new(scans))
     }
 
     fn scans_of(
@@ -588,7 +632,17 @@ impl LogSettings {
         let poses = self.scan_poses(path, kind, &channels, &topic, file)?;
         let messages = kind.messages(path)?;
         let tolerance = (self.spec.tolerance_ms * 1e6).round() as i64;
-        Ok(LogScans { messages, path: path.to_owned(), topic, session, poses, tolerance, index: 0, range })
+        Ok(LogScans {
+            messages,
+            path: path.to_owned(),
+            topic,
+            session,
+            poses,
+            tolerance,
+            index: 0,
+            range,
+            wanted: None,
+        })
     }
 }
 
@@ -644,6 +698,8 @@ struct LogScans {
     index: u64,
     /// The message indices wanted (all, for a whole file).
     range: std::ops::Range<u64>,
+    /// Within the range, the only messages decoded (all, without).
+    wanted: Option<Arc<std::collections::HashSet<u64>>>,
 }
 
 impl Iterator for LogScans {
@@ -683,7 +739,7 @@ impl Iterator for LogScans {
             }
             let index = self.index;
             self.index += 1;
-            if index < self.range.start {
+            if index < self.range.start || self.wanted.as_ref().is_some_and(|w| !w.contains(&index)) {
                 continue;
             }
             let id = format!("{}/{index:06}", self.session);

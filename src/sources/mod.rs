@@ -20,6 +20,7 @@ pub mod ply;
 pub mod pointcloud2;
 pub mod pointnetvlad;
 pub mod poses;
+pub mod reread;
 pub mod ros1bag;
 pub mod rosbag2;
 pub mod rosmsg;
@@ -242,6 +243,47 @@ pub trait Source: std::fmt::Debug + Send + Sync + 'static {
         Vec::new()
     }
 
+    /// Its log `path`'s scans at message indices `messages`, when `path` is one of its logs: one
+    /// pass over the log that decodes only those and stops after the last (`points_only`: no
+    /// pose joined, so the log's poses are not gathered). See [`reread`].
+    fn reread(
+        &self,
+        _path: &Path,
+        _messages: &[u64],
+        _points_only: bool,
+    ) -> Option<Result<ScanStream, SourceError>> {
+        None
+    }
+
+    /// The scans of its log `path` whose message index lies in `range`, when `path` is one of
+    /// its logs (a batch's message range).
+    fn read_range(
+        &self,
+        _path: &Path,
+        _range: std::ops::Range<u64>,
+    ) -> Option<Result<ScanStream, SourceError>> {
+        None
+    }
+
+    /// The session (its name and folder) whose scan file `file` is, when it lists it: an NCLT
+    /// session's `velodyne_sync/` file, a KITTI sequence's frame, a cloud file of a folder;
+    /// `format` (`nclt`, `kitti`) takes a file outside its layout's folder as one of the session
+    /// above it.
+    fn session_folder(&self, _file: &Path, _format: Option<CloudFormat>) -> Option<(String, PathBuf)> {
+        None
+    }
+
+    /// The reader of the scan files of its session `session` in `dir` (what the session gives
+    /// its scans, times and poses, read once; `points_only`: no pose).
+    fn scan_files(
+        &self,
+        _session: &str,
+        dir: &Path,
+        _points_only: bool,
+    ) -> Result<std::sync::Arc<dyn reread::ScanFiles>, SourceError> {
+        Err(SourceError::invalid(dir, "not a folder of scan files"))
+    }
+
     /// Lines `inspect` prints about it before its scans (sessions, topics).
     fn overview(&self) -> Result<Vec<String>, SourceError> {
         Ok(Vec::new())
@@ -350,8 +392,13 @@ impl SourceSpec {
     }
 
     /// The source's own type, when it is `S`.
-    pub fn get<S: Source>(&self) -> Option<&S> {
+    fn get<S: Source>(&self) -> Option<&S> {
         self.0.as_any().downcast_ref::<S>()
+    }
+
+    /// The PointNetVLAD benchmark's source, when it is one (its protocol reads the sets).
+    pub fn pointnetvlad(&self) -> Option<&pointnetvlad::PointNetVladSpec> {
+        self.get()
     }
 
     /// This source restricted to the sessions in `wanted` (the same scans of those sessions,

@@ -157,6 +157,38 @@ impl super::Source for NcltSpec {
             .sum()
     }
 
+    fn session_folder(&self, file: &Path, format: Option<super::CloudFormat>) -> Option<(String, PathBuf)> {
+        let in_layout = file.parent()?.file_name()? == "velodyne_sync";
+        if self.reader != NcltReader::Sync || !(in_layout || format == Some(super::CloudFormat::Nclt)) {
+            return None;
+        }
+        let dir = file.parent()?.parent()?;
+        let canonical = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_owned());
+        let wanted = canonical(dir);
+        let dirs = self.session_dirs().ok()?;
+        let dir = dirs.into_iter().find(|d| canonical(d) == wanted)?;
+        Some((dir.file_name()?.to_string_lossy().into_owned(), dir))
+    }
+
+    fn scan_files(
+        &self,
+        session: &str,
+        dir: &Path,
+        points_only: bool,
+    ) -> Result<Arc<dyn super::reread::ScanFiles>, SourceError> {
+        // A ground truth that cannot be read leaves the scans without a pose, as a missing one does.
+        let gt = match points_only {
+            true => None,
+            false => self
+                .groundtruth
+                .clone()
+                .or_else(|| super::poses::find_for_session(dir, session))
+                .and_then(|p| PoseTable::read_nclt(&p).ok()),
+        };
+        let tolerance = (self.tolerance_ms * 1000.0).round() as i64;
+        Ok(Arc::new(SyncFiles { session: session.to_string(), gt, tolerance }))
+    }
+
     fn pose_origins(&self) -> Vec<super::poses::PoseOrigin> {
         let Ok(sessions) = super::Source::sessions(self) else { return Vec::new() };
         let within = format!("NCLT layout, nearest time within {} ms", self.tolerance_ms);
@@ -287,6 +319,20 @@ impl NcltSpec {
                 )))
             }
         }
+    }
+}
+
+/// A session's `velodyne_sync/` files, with its ground truth read once.
+struct SyncFiles {
+    session: String,
+    gt: Option<PoseTable>,
+    /// The join's tolerance, µs.
+    tolerance: i64,
+}
+
+impl super::reread::ScanFiles for SyncFiles {
+    fn scan(&self, path: &Path, bytes: &[u8]) -> Result<Scan, ScanFailure> {
+        sync_scan_bytes(path, bytes, &self.session, self.gt.as_ref(), self.tolerance)
     }
 }
 

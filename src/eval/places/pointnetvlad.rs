@@ -203,9 +203,7 @@ pub(super) fn evaluate(
     damage: &Damage,
 ) -> Result<(String, super::report::PointNetVladReport, Vec<super::Curve>)> {
     let pipeline = crate::pipeline::config::Pipeline::of_index(index)?;
-    let Some(spec) =
-        pipeline.sources.iter().find_map(|s| s.get::<crate::sources::pointnetvlad::PointNetVladSpec>())
-    else {
+    let Some(spec) = pipeline.sources.iter().find_map(|s| s.pointnetvlad()) else {
         return Err(Error::index(
             index,
             "not an index of the PointNetVLAD benchmark (no `pointnetvlad` source)",

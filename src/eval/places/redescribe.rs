@@ -29,8 +29,13 @@ pub(super) fn redescribe(
     let mut found = 0usize;
     let mut per_scan: Vec<(String, Vec<Vec<Redescribed>>)> = Vec::new();
     let mut units: Vec<f64> = Vec::new();
-    for spec in &pipeline.sources {
-        let scans = spec.open()?.filter_map(|item| item.ok()).filter(|s| wanted.contains(s.id.as_str()));
+    let mut rows = crate::sinks::index::IndexReader::open(queries_index)?.scans()?;
+    rows.retain(|r| wanted.contains(r.scan_id.as_str()));
+    rows.sort_by_key(|r| r.seq);
+    let places: Vec<_> = rows.iter().map(|r| r.place()).collect();
+    let rereader = crate::sources::reread::Rereader::new(&pipeline.sources);
+    {
+        let scans = rereader.stream(&places).filter_map(|(_, item)| item.ok());
         let described: Vec<(String, Vec<Vec<Redescribed>>, f64)> = scans
             .par_bridge()
             .map(|scan| {
