@@ -157,7 +157,7 @@ fn main() {
     pool.install(|| {
         for method in methods {
             let args = toporec::query::QueryArgs {
-                index: sample.clone(),
+                index: toporec::flags::IndexFlag { path: sample.clone() },
                 inputs: vec![queries.clone()],
                 k: 3,
                 method: method.into(),
@@ -168,7 +168,7 @@ fn main() {
             };
             let r = interleaved(REPS, |damage| {
                 let _ = std::fs::remove_dir_all(sample.join("searchers"));
-                let engine = Engine::open_with(&args.index, &args.sessions, method, damage).unwrap();
+                let engine = Engine::open_with(&args.index.path, &args.sessions, method, damage).unwrap();
                 toporec::query::run(&engine, &args, &mut std::io::sink(), Path::new("-")).unwrap();
             });
             report(&format!("  query, {method}, no search cache"), r);

@@ -42,6 +42,28 @@ fn drawing(file: &Path) -> impl Fn(Error) -> Error + '_ {
     }
 }
 
+/// The axes of a bird's-eye view of `points`: a square (equal scales on both axes) around the
+/// finite ones, 10 % wider than their span. Only finite positions count: a non-finite one would
+/// make the span infinite, and the axis ticks endless; a span too large for the axes'
+/// arithmetic is capped.
+fn square_bounds<'a>(
+    points: impl Iterator<Item = &'a [f64; 2]>,
+) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in points.filter(|p| p.iter().all(|c| c.is_finite())) {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    if !lo[0].is_finite() {
+        (lo, hi) = ([0.0; 2], [1.0; 2]);
+    }
+    let span = ((hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) * 1.1).min(1e12);
+    let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+    (c[0] - span / 2.0..c[0] + span / 2.0, c[1] - span / 2.0..c[1] + span / 2.0)
+}
+
 /// Something that draws itself on any plotters backend.
 trait Figure {
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
@@ -245,29 +267,14 @@ impl Figure for Trajectory<'_> {
     where
         DB::ErrorType: 'static,
     {
-        // Only finite positions are drawn (and set the axes): a non-finite one would make the
-        // span infinite, and the axis ticks endless.
         let finite = |p: &&[f64; 2]| p.iter().all(|c| c.is_finite());
-        let all = self.database.iter().chain(self.queries.iter().map(|q| &q.0)).filter(finite);
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for p in all {
-            for k in 0..2 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        if !lo[0].is_finite() {
-            (lo, hi) = ([0.0; 2], [1.0; 2]);
-        }
-        // Equal scales on both axes (a span too large for the axes' arithmetic is capped).
-        let span = ((hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) * 1.1).min(1e12);
-        let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+        let (x, y) = square_bounds(self.database.iter().chain(self.queries.iter().map(|q| &q.0)));
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, ("sans-serif", 20))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d(c[0] - span / 2.0..c[0] + span / 2.0, c[1] - span / 2.0..c[1] + span / 2.0)
+            .build_cartesian_2d(x, y)
             .map_err(e)?;
         chart.configure_mesh().x_desc("x (m)").y_desc("y (m)").draw().map_err(e)?;
         let grey = RGBColor(170, 170, 170);
@@ -333,26 +340,14 @@ impl Figure for LoopsMap<'_> {
         DB::ErrorType: 'static,
     {
         let finite = |p: &[f64; 2]| p.iter().all(|c| c.is_finite());
-        let points = self.tracks.iter().flat_map(|t| t.1.iter()).filter(|p| finite(p));
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for p in points {
-            for k in 0..2 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        if !lo[0].is_finite() {
-            (lo, hi) = ([0.0; 2], [1.0; 2]);
-        }
-        let span = ((hi[0] - lo[0]).max(hi[1] - lo[1]).max(1.0) * 1.1).min(1e12);
-        let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+        let (x, y) = square_bounds(self.tracks.iter().flat_map(|t| t.1.iter()));
         let (x_desc, y_desc) = if self.ordered { ("scan (walking order)", "") } else { ("x (m)", "y (m)") };
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, ("sans-serif", 20))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d(c[0] - span / 2.0..c[0] + span / 2.0, c[1] - span / 2.0..c[1] + span / 2.0)
+            .build_cartesian_2d(x, y)
             .map_err(e)?;
         chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(e)?;
         for (i, (session, track)) in self.tracks.iter().enumerate() {

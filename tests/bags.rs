@@ -608,7 +608,7 @@ fn a_folder_of_pcd_files_is_a_session_with_frame_or_timestamp_names_and_tum_or_n
     let spec = CloudsSpec {
         names: FileNames::Seconds,
         poses: Some(tum.clone()),
-        poses_format: PoseFormat::Tum,
+        poses_format: Some(PoseFormat::Tum),
         ..CloudsSpec::folder(&dir)
     };
     let (got, bad) = collect(SourceSpec::new(spec.clone()));
@@ -627,7 +627,8 @@ fn a_folder_of_pcd_files_is_a_session_with_frame_or_timestamp_names_and_tum_or_n
     let (got, _) = collect(SourceSpec::new(CloudsSpec { tolerance_ms: 10.0, ..spec }));
     assert!(got[1].pose.is_none() && got[0].pose.is_none());
     // By line with frame indices: frame 0 takes the first pose.
-    let spec = CloudsSpec { poses: Some(tum), poses_format: PoseFormat::Tum, ..CloudsSpec::folder(&city) };
+    let spec =
+        CloudsSpec { poses: Some(tum), poses_format: Some(PoseFormat::Tum), ..CloudsSpec::folder(&city) };
     let (got, _) = collect(SourceSpec::new(spec));
     assert_eq!(got[0].pose.map(|p| p.x), Some(1.0));
     assert!(got[1].pose.is_none(), "frame 153 has no pose line");

@@ -1,5 +1,6 @@
 //! One integration-test binary (fast to link); a module per area.
 
+mod architecture;
 mod atol;
 mod bad_input;
 mod bags;
@@ -15,7 +16,9 @@ mod incremental;
 mod index;
 mod integrity;
 mod layout;
+mod logs;
 mod loops;
+mod methods;
 mod oneshot;
 mod pipeline;
 mod pointnetvlad;

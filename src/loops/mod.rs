@@ -3,18 +3,18 @@
 //!
 //! The one command runs its stages here, one way: the sources given → the pipeline made from
 //! them ([`crate::pipeline::from_sources`]) → the index, brought up to date → the loops sought
-//! ([`of_index`]: every method's rows, thresholded, checked, scored, written) → the picture
-//! ([`picture`], drawn from the search's own walk, so `loops --index` draws it too). With
+//! (`of_index`: every method's rows, thresholded, checked, scored, written) → the picture
+//! (`picture`, drawn from the search's own walk, so `loops --index` draws it too). With
 //! `--index` alone, the first two stages are left out.
 //!
 //! The index's scans are walked in time order (by timestamp, then session and scan id; scans
 //! without a timestamp last). Each scan is searched against the scans before it, leaving out
 //! those of its own session within `exclude_seconds` (or `exclude_scans` positions) of it, by
 //! the method's own search at its default budget over those allowed scans alone
-//! (the method's [`crate::methods::Searcher`], restricted to them: [`matching`]); the online
+//! (the method's [`crate::methods::Searcher`], restricted to them: `matching`); the online
 //! [`Detector`] does the same one scan at a time, so both give the same matches. The best
 //! allowed match is a loop when its descriptor distance is below the threshold
-//! ([`threshold`]). Each row ([`LoopRow`]) keeps the runner-up's distance (a margin for the
+//! (`threshold`). Each row ([`LoopRow`]) keeps the runner-up's distance (a margin for the
 //! user's own checks) and, where both scans have poses, their true distance.
 
 pub mod detector;

@@ -56,9 +56,10 @@ pub struct CloudsSpec {
     /// Poses for every folder (one session's, usually).
     #[serde(default)]
     pub poses: Option<PathBuf>,
-    /// The layout of `poses`.
-    #[serde(default)]
-    pub poses_format: PoseFormat,
+    /// The layout of `poses` (default: guessed as `--poses` guesses it, [`PoseFormat::guess`]:
+    /// `nclt` for `.csv`, else `tum`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poses_format: Option<PoseFormat>,
     /// Largest time gap for a pose join by time, milliseconds.
     #[serde(default = "default_tolerance_ms")]
     pub tolerance_ms: f64,
@@ -151,7 +152,7 @@ impl super::Source for CloudsSpec {
         session: &str,
         dir: &Path,
         points_only: bool,
-    ) -> Result<Arc<dyn super::reread::ScanFiles>, SourceError> {
+    ) -> Result<Arc<dyn super::ScanFiles>, SourceError> {
         let poses = if points_only { None } else { self.ground_truth()? };
         let files = cloud_files(dir)?;
         Ok(Arc::new(FolderFiles { spec: self.clone(), session: session.to_string(), poses, files }))
@@ -162,8 +163,14 @@ impl super::Source for CloudsSpec {
         let sessions = super::Source::sessions(self).unwrap_or_default().into_iter().map(|s| s.0).collect();
         let table = self.ground_truth().ok().flatten().map(|t| (*t).clone()).unwrap_or_default();
         let joined = match self.names {
-            FileNames::Index => format!("{} layout, row k for frame k", self.poses_format.name()),
-            _ => format!("{} layout, nearest time within {} ms", self.poses_format.name(), self.tolerance_ms),
+            FileNames::Index => {
+                format!("{} layout, row k for frame k", self.poses_layout().unwrap_or_default().name())
+            }
+            _ => format!(
+                "{} layout, nearest time within {} ms",
+                self.poses_layout().unwrap_or_default().name(),
+                self.tolerance_ms
+            ),
         };
         vec![super::poses::PoseOrigin::of_file(sessions, file, None, &table, &joined)]
     }
@@ -190,7 +197,7 @@ struct FolderFiles {
     files: Vec<PathBuf>,
 }
 
-impl super::reread::ScanFiles for FolderFiles {
+impl super::ScanFiles for FolderFiles {
     fn scan(&self, path: &Path, _bytes: &[u8]) -> Result<Scan, ScanFailure> {
         let position = self.files.iter().position(|f| f == path).unwrap_or(self.files.len());
         self.spec.scan(&self.session, path, position, self.poses.as_deref())
@@ -198,6 +205,12 @@ impl super::reread::ScanFiles for FolderFiles {
 }
 
 impl CloudsSpec {
+    /// The layout of its pose file: given, or guessed ([`PoseFormat::guess`]).
+    fn poses_layout(&self) -> Option<PoseFormat> {
+        let file = self.poses.as_deref()?;
+        Some(self.poses_format.unwrap_or_else(|| PoseFormat::guess(file, None)))
+    }
+
     /// A spec for one folder with defaults.
     pub fn folder(dir: &Path) -> Self {
         CloudsSpec {
@@ -205,14 +218,14 @@ impl CloudsSpec {
             names: FileNames::default(),
             frame_period_ms: None,
             poses: None,
-            poses_format: PoseFormat::default(),
+            poses_format: None,
             tolerance_ms: default_tolerance_ms(),
         }
     }
 
     fn ground_truth(&self) -> Result<Option<Arc<PoseTable>>, SourceError> {
         let Some(path) = &self.poses else { return Ok(None) };
-        Ok(Some(Arc::new(match self.poses_format {
+        Ok(Some(Arc::new(match self.poses_layout().unwrap_or_default() {
             // KITTI rows have no times here: row k is frame k.
             PoseFormat::Kitti => {
                 let rows = super::poses::kitti_rows(path, super::poses::KittiFrame::Sensor)?;

@@ -146,7 +146,7 @@ impl super::Source for KittiSpec {
         session: &str,
         dir: &Path,
         points_only: bool,
-    ) -> Result<Arc<dyn super::reread::ScanFiles>, SourceError> {
+    ) -> Result<Arc<dyn super::ScanFiles>, SourceError> {
         let mut seq = Sequence::read(dir)?;
         if points_only {
             seq.poses.clear();
@@ -227,7 +227,7 @@ struct FrameFiles {
     seq: Sequence,
 }
 
-impl super::reread::ScanFiles for FrameFiles {
+impl super::ScanFiles for FrameFiles {
     fn scan(&self, path: &Path, bytes: &[u8]) -> Result<Scan, ScanFailure> {
         frame_scan_bytes(path, bytes, &self.session, &self.seq)
     }

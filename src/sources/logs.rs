@@ -1,5 +1,5 @@
 //! Message logs: MCAP files, ROS 1 bags, rosbag2 folders and lone rosbag2 `.db3` files, read
-//! through one interface. Each kind's reader yields [`RawMessage`]s in file order (a corrupt
+//! through one interface. Each kind's reader yields [`RawMessage`](super::mcap_reader::RawMessage)s in file order (a corrupt
 //! chunk or message is a fault item, and reading goes on); this module picks the point-cloud
 //! topic, decodes `sensor_msgs/PointCloud2` ([`super::pointcloud2`]) and joins poses, the same
 //! way for every kind.
@@ -196,6 +196,10 @@ pub struct LogSpec {
     /// Largest time gap for a pose join, milliseconds.
     #[serde(default = "default_tolerance_ms")]
     pub tolerance_ms: f64,
+    /// How a sharded run hands out its scans: `scans` (by id; `kind = "rosbag"`'s default) or
+    /// `sessions` (each log read whole by one shard; `kind = "mcap"`'s default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shards: Option<super::Shards>,
     /// The name the entry was given (`rosbag`, or `mcap` with `files`): it is written back so.
     #[serde(skip)]
     pub named: LogName,
@@ -225,7 +229,7 @@ pub enum LogName {
     /// `kind = "rosbag"`, `paths`.
     #[default]
     Rosbag,
-    /// `kind = "mcap"`, `files` (each file read whole by one shard of a sharded run).
+    /// `kind = "mcap"`, `files` (its logs sharded by session unless `shards` says otherwise).
     Mcap,
 }
 
@@ -246,6 +250,7 @@ impl LogSpec {
             poses_topic: None,
             pose_frames: None,
             tolerance_ms: default_tolerance_ms(),
+            shards: None,
             named: LogName::Rosbag,
             points_only: false,
             gathered: None,
@@ -297,7 +302,9 @@ fn parse_mcap(keys: &toml::Table) -> Result<Box<dyn super::Source>, super::KeyEr
         path: e.path.replace("paths", "files").replace("mcap_files", "paths"),
         message: e.message.replace("`paths`", "`files`").replace("`mcap_files`", "`paths`"),
     })?;
-    Ok(Box::new(LogSpec { named: LogName::Mcap, ..spec }))
+    // Its logs are read whole by one shard each, unless said otherwise.
+    let shards = spec.shards.or(Some(super::Shards::Sessions));
+    Ok(Box::new(LogSpec { named: LogName::Mcap, shards, ..spec }))
 }
 
 impl super::Source for LogSpec {
@@ -314,6 +321,10 @@ impl super::Source for LogSpec {
             && let Some(paths) = t.remove("paths")
         {
             t.insert("files".into(), paths);
+            // Written back as read: sessions is its kind's default.
+            if self.shards == Some(super::Shards::Sessions) {
+                t.remove("shards");
+            }
         }
         t
     }
@@ -353,7 +364,7 @@ impl super::Source for LogSpec {
     }
 
     fn shards_by_session(&self) -> bool {
-        self.named == LogName::Mcap
+        self.shards == Some(super::Shards::Sessions)
     }
 
     fn reread(

@@ -185,6 +185,35 @@ impl std::fmt::Display for ScanFailure {
     }
 }
 
+/// The scans of one session's scan files, with what the session gives them (its times and
+/// poses), read once.
+pub trait ScanFiles: Send + Sync {
+    /// The scan in `bytes`, the content of `path`, one of the session's scan files.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
+    fn scan(&self, path: &Path, bytes: &[u8]) -> Result<Scan, ScanFailure>;
+}
+
+/// The source of the session folder `dir` whose scan files are of `format` (`nclt`: NCLT
+/// `velodyne_sync` records, `kitti`: KITTI frames), when a file of that format lies outside its
+/// layout's folder (a batch's file given with its format).
+pub(crate) fn of_format(dir: &Path, format: CloudFormat) -> Option<SourceSpec> {
+    match format {
+        CloudFormat::Nclt => Some(SourceSpec::new(nclt::NcltSpec::sessions(vec![dir.to_owned()]))),
+        CloudFormat::Kitti => Some(SourceSpec::new(kitti::KittiSpec { sequences: vec![dir.to_owned()] })),
+        _ => None,
+    }
+}
+
+/// How a sharded run (`run --shard I/N`) hands out a source's scans.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Shards {
+    /// By scan id: every shard reads the source and describes its own scans.
+    Scans,
+    /// By session: each session (a log) is read whole by one shard.
+    Sessions,
+}
+
 /// A stream of scans; failures are items too, so one bad scan never stops a run.
 pub type ScanStream = Box<dyn Iterator<Item = Result<Scan, ScanFailure>> + Send>;
 
@@ -280,7 +309,7 @@ pub trait Source: std::fmt::Debug + Send + Sync + 'static {
         _session: &str,
         dir: &Path,
         _points_only: bool,
-    ) -> Result<std::sync::Arc<dyn reread::ScanFiles>, SourceError> {
+    ) -> Result<std::sync::Arc<dyn ScanFiles>, SourceError> {
         Err(SourceError::invalid(dir, "not a folder of scan files"))
     }
 

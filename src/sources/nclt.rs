@@ -175,7 +175,7 @@ impl super::Source for NcltSpec {
         session: &str,
         dir: &Path,
         points_only: bool,
-    ) -> Result<Arc<dyn super::reread::ScanFiles>, SourceError> {
+    ) -> Result<Arc<dyn super::ScanFiles>, SourceError> {
         // A ground truth that cannot be read leaves the scans without a pose, as a missing one does.
         let gt = match points_only {
             true => None,
@@ -330,7 +330,7 @@ struct SyncFiles {
     tolerance: i64,
 }
 
-impl super::reread::ScanFiles for SyncFiles {
+impl super::ScanFiles for SyncFiles {
     fn scan(&self, path: &Path, bytes: &[u8]) -> Result<Scan, ScanFailure> {
         sync_scan_bytes(path, bytes, &self.session, self.gt.as_ref(), self.tolerance)
     }

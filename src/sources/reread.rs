@@ -16,7 +16,7 @@
 //! A batch's scan file that no source lists is read by the source its folder is (an NCLT session,
 //! a KITTI sequence), found as `inspect` finds it.
 
-use super::{CloudFormat, Input, Scan, ScanFailure, SourceError, SourceSpec};
+use super::{CloudFormat, Input, Scan, ScanFailure, ScanFiles, SourceError, SourceSpec};
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -37,13 +37,8 @@ pub struct Place {
 /// A scan found again (or why not), with its place's id.
 pub type Found = (String, Result<Scan, ScanFailure>);
 
-/// The scans of one session's scan files, with what the session gives them (its times and
-/// poses), read once.
-pub trait ScanFiles: Send + Sync {
-    /// The scan in `bytes`, the content of `path`, one of the session's scan files.
-    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
-    fn scan(&self, path: &Path, bytes: &[u8]) -> Result<Scan, ScanFailure>;
-}
+/// Each session folder's scan-file reader (or why there is none), by (source, folder).
+type FileReaders = HashMap<(usize, PathBuf), Result<Arc<dyn ScanFiles>, String>>;
 
 /// Reads scans again through a pipeline's sources (see the module doc).
 pub struct Rereader {
@@ -52,7 +47,7 @@ pub struct Rereader {
     points_only: bool,
     /// Each session folder's scan files, by (source, folder); `usize::MAX` for a source found
     /// from the folder itself.
-    files: Mutex<HashMap<(usize, PathBuf), Result<Arc<dyn ScanFiles>, String>>>,
+    files: Mutex<FileReaders>,
 }
 
 impl Rereader {
@@ -70,6 +65,7 @@ impl Rereader {
     /// The scans at `places`, each with its place's id, in the order of `places`: read from
     /// where it was found (see the module doc). A scan that cannot be read is a failure naming
     /// it and why; one no source yields any more, a failure saying so.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     pub fn scans(&self, places: &[Place]) -> Vec<Found> {
         let mut found: HashMap<String, Result<Scan, ScanFailure>> = self.stream(places).collect();
         places
@@ -88,6 +84,7 @@ impl Rereader {
     /// The scans of `places` that can be found, each with its place's id, read one at a time as
     /// the stream is consumed (a scan is dropped once the caller is done with it): the scan files
     /// first, then each log's messages, then the scans found by reading their sessions.
+    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     pub fn stream<'a>(&'a self, places: &'a [Place]) -> Box<dyn Iterator<Item = Found> + Send + 'a> {
         let mut by_log: BTreeMap<&Path, Vec<&Place>> = BTreeMap::new();
         let mut files: Vec<&Place> = Vec::new();
@@ -151,18 +148,14 @@ impl Rereader {
         }
         let sessions: HashSet<String> = by_session.iter().map(|p| p.session.clone()).collect();
         let wanted: HashSet<String> = by_session.iter().map(|p| p.scan_id.clone()).collect();
-        let by_sessions = (!sessions.is_empty())
-            .then(|| self.sessions(&sessions))
-            .unwrap_or_default()
-            .into_iter()
-            .flatten()
-            .filter_map(move |item| {
-                let id = match &item {
-                    Ok(s) => s.id.clone(),
-                    Err(f) => f.id.clone(),
-                };
-                wanted.contains(&id).then_some((id, item))
-            });
+        let streams = if sessions.is_empty() { Vec::new() } else { self.sessions(&sessions) };
+        let by_sessions = streams.into_iter().flatten().filter_map(move |item| {
+            let id = match &item {
+                Ok(s) => s.id.clone(),
+                Err(f) => f.id.clone(),
+            };
+            wanted.contains(&id).then_some((id, item))
+        });
         Box::new(files.chain(logs.into_iter().flatten()).chain(by_sessions))
     }
 
@@ -212,7 +205,6 @@ impl Rereader {
 
     /// The scan-file reader of `path`'s session: the listing source's, else the one of the
     /// source its folder is; `None` when no source reads it as a scan file.
-    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     fn file_reader(
         &self,
         path: &Path,
@@ -238,14 +230,9 @@ impl Rereader {
     }
 
     /// A file of `format` outside its layout's folder: read by a default source of that kind.
-    #[expect(clippy::result_large_err, reason = "a stream item: its Ok side, a whole scan, is larger still")]
     fn by_format(&self, path: &Path, format: CloudFormat) -> Option<Result<Arc<dyn ScanFiles>, ScanFailure>> {
         let dir = path.parent().and_then(Path::parent)?.to_owned();
-        let spec = match format {
-            CloudFormat::Nclt => SourceSpec::new(super::nclt::NcltSpec::sessions(vec![dir.clone()])),
-            CloudFormat::Kitti => SourceSpec::new(super::kitti::KittiSpec { sequences: vec![dir.clone()] }),
-            _ => return None,
-        };
+        let spec = super::of_format(&dir, format)?;
         let session = folder_name(Some(&dir));
         Some(self.cached(usize::MAX, &spec, &session, &dir, path))
     }

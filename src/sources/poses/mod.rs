@@ -1,6 +1,6 @@
-//! Where scans take their poses from: a log's own transforms and odometry ([`log`]), or a pose
-//! file — NCLT's ground-truth CSV ([`nclt`]), TUM ([`tum`]) or KITTI's 3 × 4 rows ([`kitti`]) —
-//! read into one [`PoseTable`] and joined by time; and what a run records of them ([`origin`]).
+//! Where scans take their poses from: a log's own transforms and odometry (`log`), or a pose
+//! file — NCLT's ground-truth CSV (`nclt`), TUM (`tum`) or KITTI's 3 × 4 rows (`kitti`) —
+//! read into one [`PoseTable`] and joined by time; and what a run records of them ([`PoseOrigin`]).
 //!
 //! **From the log.** One pass over the log gathers `/tf` and `/tf_static` (`tf2_msgs/TFMessage`)
 //! into a transform tree, and every `nav_msgs/Odometry`, `geometry_msgs/PoseStamped` and
