@@ -65,6 +65,7 @@ pub mod info;
 pub mod inspect;
 pub mod loops;
 pub mod maintenance;
+pub mod map;
 pub mod methods;
 pub mod offline;
 pub mod pipeline;

@@ -18,6 +18,7 @@ mod integrity;
 mod layout;
 mod logs;
 mod loops;
+mod map;
 mod methods;
 mod oneshot;
 mod pipeline;

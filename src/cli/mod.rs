@@ -50,6 +50,9 @@ enum Command {
     /// ICP and draws the drive with its loops beside the table (`<out stem>.png`);
     /// `loops --index DIR` does the same on an index. Parquet or CSV.
     Loops(toporec::loops::LoopsArgs),
+    /// Optimize a pose graph (g2o: SE(2) or SE(3), FIX lines), written back with its vertices
+    /// moved; --robust rejects the loops that disagree with the rest.
+    Optimize(toporec::map::OptimizeArgs),
     /// Evaluate place recognition on indexes (Recall@N, Recall@1%), with a JSON report and plots.
     #[command(subcommand)]
     Eval(EvalCommand),
@@ -160,6 +163,10 @@ pub fn main() -> ExitCode {
         Command::Info(args) => info(args),
         Command::Import(args) => import(args).map(|()| Done::All),
         Command::Loops(args) => loops(args),
+        Command::Optimize(args) => toporec::map::optimize(&args)
+            .map_err(Into::into)
+            .and_then(|r| print(&format!("{r}written: {}\n", args.out.display())))
+            .map(|()| Done::All),
         Command::Repair(args) => repair(args),
     };
     match result {
