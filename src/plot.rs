@@ -324,11 +324,15 @@ pub struct LoopEdge {
     pub to: [f64; 2],
     /// Kept (accepted, and verified when checked), or rejected by its check.
     pub kept: bool,
+    /// Rejected by the map (a kept loop the optimized map found inconsistent).
+    pub rejected_by_map: bool,
 }
 
 struct LoopsMap<'a> {
     title: &'a str,
     tracks: &'a [(String, Vec<[f64; 2]>)],
+    /// Each session's corrected trajectory (the map), when one was made.
+    corrected: &'a [(String, Vec<[f64; 2]>)],
     edges: &'a [LoopEdge],
     /// Positions are walking order, not poses: edges are drawn as arcs over the line.
     ordered: bool,
@@ -340,7 +344,7 @@ impl Figure for LoopsMap<'_> {
         DB::ErrorType: 'static,
     {
         let finite = |p: &[f64; 2]| p.iter().all(|c| c.is_finite());
-        let (x, y) = square_bounds(self.tracks.iter().flat_map(|t| t.1.iter()));
+        let (x, y) = square_bounds(self.tracks.iter().chain(self.corrected).flat_map(|t| t.1.iter()));
         let (x_desc, y_desc) = if self.ordered { ("scan (walking order)", "") } else { ("x (m)", "y (m)") };
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, ("sans-serif", 20))
@@ -359,6 +363,15 @@ impl Figure for LoopsMap<'_> {
                 .label(session.as_str())
                 .legend(legend_line(color.stroke_width(1)));
         }
+        for (i, (session, track)) in self.corrected.iter().enumerate() {
+            let color = PALETTE[0].mix(if i == 0 { 1.0 } else { 0.6 });
+            let line: Vec<(f64, f64)> = track.iter().filter(|p| finite(p)).map(|p| (p[0], p[1])).collect();
+            chart
+                .draw_series(LineSeries::new(line, color.stroke_width(2)))
+                .map_err(e)?
+                .label(format!("{session}, corrected"))
+                .legend(legend_line(color.stroke_width(2)));
+        }
         // An arc between two places on the walking-order line; a straight edge between poses.
         let path = |edge: &LoopEdge| -> Vec<(f64, f64)> {
             if !self.ordered {
@@ -371,12 +384,21 @@ impl Figure for LoopsMap<'_> {
                 .map(|t| (mid + r * t.cos(), r * t.sin()))
                 .collect()
         };
-        for (kept, color, label) in
-            [(true, PALETTE[2], "loop, kept"), (false, PALETTE[3], "match rejected by its check")]
-        {
-            let edges: Vec<&LoopEdge> =
-                self.edges.iter().filter(|l| l.kept == kept && finite(&l.from) && finite(&l.to)).collect();
+        let kinds = [
+            ((true, false), PALETTE[2], "loop, kept"),
+            ((false, false), PALETTE[3], "match rejected by its check"),
+            ((true, true), PALETTE[1], "loop rejected by the map"),
+        ];
+        for (kind, color, label) in kinds {
+            let edges: Vec<&LoopEdge> = self
+                .edges
+                .iter()
+                .filter(|l| (l.kept, l.rejected_by_map) == kind && finite(&l.from) && finite(&l.to))
+                .collect();
             let n = edges.len();
+            if n == 0 && kind.1 {
+                continue;
+            }
             chart
                 .draw_series(edges.into_iter().map(|l| PathElement::new(path(l), color.stroke_width(2))))
                 .map_err(e)?
@@ -395,8 +417,9 @@ pub fn loops_map(
     stem: &Path,
     title: &str,
     tracks: &[(String, Vec<[f64; 2]>)],
+    corrected: &[(String, Vec<[f64; 2]>)],
     edges: &[LoopEdge],
     ordered: bool,
 ) -> Result<Vec<PathBuf>> {
-    render(stem, (900, 900), &LoopsMap { title, tracks, edges, ordered })
+    render(stem, (900, 900), &LoopsMap { title, tracks, corrected, edges, ordered })
 }

@@ -301,16 +301,17 @@ fn loops_find_the_revisits_of_a_three_lap_drive() {
         lines.map(|l| l.split(',').collect::<Vec<_>>()).filter(|f| f[column("verified")] == "true").collect();
     assert!(!kept.is_empty());
     assert!(!g2o.exists(), "--g2o names a stem: one file per method beside it");
-    let edges: Vec<Vec<f64>> = std::fs::read_to_string(dir.join("loops.toporec-plus.g2o"))
-        .unwrap()
+    // The whole graph: a vertex per scan, the odometry's edges, then the loops', and FIX.
+    let graph = std::fs::read_to_string(dir.join("loops.toporec-plus.g2o")).unwrap();
+    let vertices = graph.lines().filter(|l| l.starts_with("VERTEX_SE3:QUAT ")).count();
+    assert_eq!(graph.lines().last(), Some("FIX 0"));
+    let all_edges: Vec<Vec<f64>> = graph
         .lines()
-        .map(|l| {
-            let mut words = l.split(' ');
-            assert_eq!(words.next(), Some("EDGE_SE3:QUAT"), "{l}");
-            words.map(|w| w.parse::<f64>().unwrap()).collect()
-        })
+        .filter_map(|l| l.strip_prefix("EDGE_SE3:QUAT "))
+        .map(|l| l.split(' ').map(|w| w.parse::<f64>().unwrap()).collect())
         .collect();
-    assert_eq!(edges.len(), kept.len());
+    assert_eq!(all_edges.len(), vertices - 1 + kept.len(), "one session: vertices − 1 odometry edges");
+    let edges = &all_edges[vertices - 1..];
     for (e, f) in edges.iter().zip(&kept) {
         assert_eq!(e.len(), 2 + 7 + 21);
         assert_eq!(e[0], f[column("matched_vertex")].parse::<f64>().unwrap());

@@ -200,3 +200,157 @@ fn optimize_reaches_gtsams_cost_on_the_parking_garage() {
     let cost: f64 = text(&score.stdout).trim().parse().unwrap();
     assert!(cost <= 0.634192 * 1.001, "GTSAM scores toporec's result {cost}");
 }
+
+/// A TUM file's rows: time, x, y, z, yaw.
+fn tum(path: &Path) -> Vec<[f64; 5]> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|w| w.parse().unwrap()).collect();
+            let (qx, qy, qz, qw) = (v[4], v[5], v[6], v[7]);
+            [v[0], v[1], v[2], v[3], (2.0 * (qw * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz))]
+        })
+        .collect()
+}
+
+/// The RMSE of the positions (x, y) of two trajectories of the same scans.
+fn position_rmse(a: &[[f64; 5]], b: &[[f64; 5]]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let sum: f64 = a.iter().zip(b).map(|(p, q)| (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sum();
+    (sum / a.len() as f64).sqrt()
+}
+
+/// `samples/drive.bag` driven with odometry 3 % long and turning 0.004 rad a scan too far
+/// (given as `--poses`): the map pulls the trajectory back to within a quarter of the
+/// odometry's error, keeps every loop, writes TUM and KITTI, and its `--g2o` graph is the one it
+/// optimized (`toporec optimize --robust` reaches the same cost; GTSAM reads it).
+#[test]
+fn loops_make_a_map_that_undoes_the_odometrys_drift() {
+    let dir = scratch_dir("loops_make_a_map");
+    let bag = crate::util::root().join("samples/drive.bag");
+    let run = |extra: &[&str]| {
+        let mut args = vec!["loops", bag.to_str().unwrap(), "--no-progress"];
+        args.extend_from_slice(extra);
+        let o = toporec(&args);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout) + &text(&o.stderr)
+    };
+    // The bag's own poses, optimized with its loops: the reference trajectory.
+    let (truth_index, truth_out) = (dir.join("truth-index"), dir.join("truth/loops.csv"));
+    run(&["--index", truth_index.to_str().unwrap(), "-o", truth_out.to_str().unwrap()]);
+    let truth = tum(&dir.join("truth/loops.drive.tum"));
+    assert_eq!(truth.len(), 96);
+    // The same drive from a drifting odometry.
+    let mut drifted = vec![truth[0]];
+    for k in 1..truth.len() {
+        let (a, b) = (truth[k - 1], truth[k]);
+        let (dx, dy) = (b[1] - a[1], b[2] - a[2]);
+        let (forward, left) = (a[4].cos() * dx + a[4].sin() * dy, -a[4].sin() * dx + a[4].cos() * dy);
+        let turn = (b[4] - a[4] + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)
+            - std::f64::consts::PI;
+        let (forward, left, turn) = (forward * 1.03, left * 1.03, turn + 0.004);
+        let p = drifted[k - 1];
+        drifted.push([
+            b[0],
+            p[1] + p[4].cos() * forward - p[4].sin() * left,
+            p[2] + p[4].sin() * forward + p[4].cos() * left,
+            b[3],
+            p[4] + turn,
+        ]);
+    }
+    let odometry = dir.join("odometry.tum");
+    let lines: Vec<String> = drifted
+        .iter()
+        .map(|p| {
+            format!(
+                "{:.6} {} {} {} 0 0 {} {}",
+                p[0],
+                p[1],
+                p[2],
+                p[3],
+                (p[4] / 2.0).sin(),
+                (p[4] / 2.0).cos()
+            )
+        })
+        .collect();
+    std::fs::write(&odometry, lines.join("\n") + "\n").unwrap();
+    let (index, out, g2o) = (dir.join("index"), dir.join("map/loops.csv"), dir.join("map/graph"));
+    let said = run(&[
+        "--poses",
+        odometry.to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--g2o",
+        g2o.to_str().unwrap(),
+    ]);
+    assert!(said.contains("map (toporec-plus): 96 scans, 17 loops, 17 kept, 0 rejected"), "{said}");
+    let corrected = tum(&dir.join("map/loops.drive.tum"));
+    let (before, after) = (position_rmse(&drifted, &truth), position_rmse(&corrected, &truth));
+    println!("position RMSE against the reference: odometry {before:.3} m, map {after:.3} m");
+    assert!(before > 5.0, "{before}");
+    assert!(after < 0.25 * before, "{after} against {before}");
+    // KITTI's layout: the same poses, 3 × 4 row by row.
+    let kitti = std::fs::read_to_string(dir.join("map/loops.drive.kitti")).unwrap();
+    let rows: Vec<Vec<f64>> =
+        kitti.lines().map(|l| l.split_whitespace().map(|w| w.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.len(), 96);
+    for (r, c) in rows.iter().zip(&corrected) {
+        assert_eq!(r.len(), 12);
+        assert!((r[3] - c[1]).abs() < 1e-5 && (r[7] - c[2]).abs() < 1e-5, "{r:?} {c:?}");
+    }
+    // Every kept loop is in the map.
+    let table = std::fs::read_to_string(&out).unwrap();
+    let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|c| *c == "in_map").expect("an in_map column");
+    assert!(table.lines().skip(1).all(|l| l.split(',').nth(column) == Some("true")), "{table}");
+    // The graph written is the graph solved.
+    let graph = dir.join("map/graph.toporec-plus.g2o");
+    let text_of = std::fs::read_to_string(&graph).unwrap();
+    assert_eq!(text_of.lines().filter(|l| l.starts_with("VERTEX_SE3:QUAT")).count(), 96);
+    assert_eq!(text_of.lines().filter(|l| l.starts_with("EDGE_SE3:QUAT")).count(), 95 + 17);
+    assert_eq!(text_of.lines().last(), Some("FIX 0"));
+    let cost = |s: &str| s.split(" → ").nth(1).and_then(|r| r.split(' ').next()).map(str::to_string);
+    let o = toporec(&[
+        "optimize",
+        graph.to_str().unwrap(),
+        "-o",
+        dir.join("optimized.g2o").to_str().unwrap(),
+        "--robust",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let solved = text(&o.stdout);
+    assert_eq!(
+        cost(&said).map(|c| c[..5].to_string()),
+        cost(&solved).map(|c| c[..5].to_string()),
+        "{said}\n{solved}"
+    );
+    if python_with("loops_make_a_map", &["gtsam"]) {
+        let o = std::process::Command::new("python3")
+            .args([
+                "-c",
+                "import sys, gtsam\ng, v = gtsam.readG2o(sys.argv[1], True)\nprint(g.size(), v.size())",
+                graph.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        assert_eq!(text(&o.stdout).trim(), "112 96", "{}", text(&o.stderr));
+    }
+    // --no-optimize: no map, no corrected poses, in_map null.
+    let plain = dir.join("plain/loops.csv");
+    let said = run(&[
+        "--poses",
+        odometry.to_str().unwrap(),
+        "--index",
+        index.to_str().unwrap(),
+        "-o",
+        plain.to_str().unwrap(),
+        "--no-optimize",
+    ]);
+    assert!(!said.contains("map ("), "{said}");
+    assert!(!dir.join("plain/loops.drive.tum").exists());
+    let table = std::fs::read_to_string(&plain).unwrap();
+    assert!(table.lines().skip(1).all(|l| l.split(',').nth(column) == Some("")), "{table}");
+}

@@ -163,6 +163,7 @@ pub fn rows(engine: &Engine, matches: &Matches, rule: &Allowed) -> Vec<LoopRow> 
                 query_vertex: rule.position(*query),
                 found,
                 check: None,
+                in_map: None,
             })
         })
         .collect()

@@ -20,6 +20,7 @@
 pub mod detector;
 mod exclusion;
 pub mod icp;
+pub mod map;
 mod matching;
 mod of_index;
 mod picture;
@@ -107,6 +108,15 @@ pub struct LoopsArgs {
     /// beside this path (with verification).
     #[arg(long)]
     pub g2o: Option<PathBuf>,
+    /// Make no map: leave the pose graph unoptimized (by default, where the scans have poses,
+    /// the loops and the odometry are optimized into corrected poses, `<output stem>.<session>.tum`
+    /// and `.kitti`, and each loop's `in_map` says whether the map kept it).
+    #[arg(long)]
+    pub no_optimize: bool,
+    /// Which sessions' poses share a frame: auto (a pose file's sessions share it; each log's own
+    /// poses are a frame of their own), shared or own.
+    #[arg(long, value_enum, default_value_t = map::Frames::Auto)]
+    pub frames: map::Frames,
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
@@ -290,11 +300,14 @@ impl std::fmt::Display for Outcome {
                 )?,
             }
         }
+        for m in &self.loops.maps {
+            write!(f, "{m}")?;
+        }
         for n in &self.loops.notes {
             writeln!(f, "note: {n}")?;
         }
         for g in &self.loops.g2o {
-            writeln!(f, "g2o edges written: {}", g.display())?;
+            writeln!(f, "g2o written: {}", g.display())?;
         }
         writeln!(
             f,

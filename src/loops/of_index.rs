@@ -1,6 +1,7 @@
 //! The loops of an index: every method's rows, thresholded, checked, scored and written.
 
 use super::exclusion::Exclusion;
+use super::map::{self, Frames, Vertex};
 use super::matching::{Allowed, best_matches_counted, query_descriptors, rows};
 use super::row::{LoopRow, g2o_path, write_rows};
 use super::summary::{MethodSummary, Summary, progress_bar, protocol_scores};
@@ -10,6 +11,12 @@ use crate::error::{Error, Result};
 use crate::search::Engine;
 use crate::sinks::index::damage::Damage;
 use crate::sinks::index::reader::IndexedScan;
+use std::collections::HashMap;
+
+/// The damage rule for reading the scans' stored poses: as the search's.
+fn damage_for_poses(a: &LoopsArgs) -> Damage {
+    Damage::skipping(a.skip_damaged)
+}
 
 /// Runs `toporec loops`: the rows of every method, written to `a.out`; with `calibrate`, the
 /// thresholds written beside it (`<out stem>.calibration.json`).
@@ -45,6 +52,21 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
         Some(n) => Exclusion::Scans(n),
         None => Exclusion::Seconds(a.exclude_seconds),
     };
+    let reader = crate::sinks::index::reader::IndexReader::open_with(index, &damage_for_poses(a))?;
+    let stored: HashMap<(String, String), crate::sinks::index::reader::ScanRecord> =
+        reader.scans()?.into_iter().map(|r| ((r.session.clone(), r.scan_id.clone()), r)).collect();
+    let origins = reader.manifest().map(|m| m.poses.clone()).unwrap_or_default();
+    let frame_of = |session: &str| -> usize {
+        match a.frames {
+            Frames::Shared => 0,
+            Frames::Own => 1 + a.sessions.iter().position(|s| s == session).unwrap_or(usize::MAX - 1),
+            // Pose files (and poses of unknown origin) share one frame; each log's own, its own.
+            Frames::Auto => match origins.iter().position(|o| o.sessions.iter().any(|s| s == session)) {
+                Some(i) if origins[i].file.is_none() => 1 + i,
+                _ => 0,
+            },
+        }
+    };
     let mut summary = Summary::default();
     let mut all_rows = Vec::new();
     let mut calibrations = Vec::new();
@@ -72,6 +94,12 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             b.finish_and_clear();
         }
         let mut rows = rows(&engine, &matches, &rule);
+        // Poses of two frames are not comparable: no true distance between them.
+        for r in &mut rows {
+            if frame_of(&r.query_session) != frame_of(&r.matched_session) {
+                r.found.true_distance_m = None;
+            }
+        }
         let threshold = match given_threshold(a, method, &engine)? {
             Some(t) => t,
             None => {
@@ -150,7 +178,33 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
                 summary.notes.push(n);
             }
         }
-        if let Some(path) = &a.g2o {
+        let vertices: Vec<Vertex> = rule
+            .order
+            .iter()
+            .map(|&i| {
+                let s = &engine.scans[i];
+                let pose = stored.get(&(s.session.clone(), s.scan_id.clone())).and_then(|r| r.pose);
+                Vertex { scan_id: s.scan_id.clone(), session: s.session.clone(), utime: s.utime, pose }
+            })
+            .collect();
+        if vertices.iter().any(|v| v.pose.is_some()) && (!a.no_optimize || a.g2o.is_some()) {
+            let first = a.sessions.first().cloned().unwrap_or_else(|| vertices[0].session.clone());
+            let mut made = map::make(method, &vertices, &rows, &frame_of, &first, !a.no_optimize);
+            if !a.no_optimize && made.failed.is_none() {
+                for (r, kept) in rows.iter_mut().zip(&made.in_map) {
+                    r.in_map = *kept;
+                }
+                let named = (methods.len() > 1).then_some(method.as_str());
+                made.written = map::write_poses(&made, &vertices, &a.out, named)?;
+            }
+            if let Some(path) = &a.g2o {
+                let path = g2o_path(path, method);
+                map::write_g2o(&path, &made)?;
+                summary.g2o.push(path);
+            }
+            summary.maps.push(made);
+        } else if let Some(path) = &a.g2o {
+            // No poses: no vertex to place, only the loops' edges.
             let path = g2o_path(path, method);
             verify::write_g2o(&path, &rows)?;
             summary.g2o.push(path);

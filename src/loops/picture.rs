@@ -47,7 +47,12 @@ pub(super) fn draw(out: &Path, summary: &Summary, sessions: &[String]) -> Result
         .iter()
         .filter_map(|r| {
             let (from, to) = (place.get(r.query_scan.as_str())?, place.get(r.matched_scan.as_str())?);
-            Some(crate::plot::LoopEdge { from: *from, to: *to, kept: r.found.accepted })
+            Some(crate::plot::LoopEdge {
+                from: *from,
+                to: *to,
+                kept: r.found.accepted,
+                rejected_by_map: r.in_map == Some(false),
+            })
         })
         .collect();
     let methods: Vec<&str> = summary.methods.iter().map(|m| m.method.as_str()).collect();
@@ -56,5 +61,23 @@ pub(super) fn draw(out: &Path, summary: &Summary, sessions: &[String]) -> Result
     } else {
         format!("loops ({})", methods.join(", "))
     };
-    crate::plot::loops_map(&out.with_extension(""), &title, &tracks, &edges, ordered)
+    // The first map's corrected poses, by the walk's scans (the map's walk is its method's).
+    let corrected: Vec<(String, Vec<[f64; 2]>)> = match summary.maps.iter().find(|m| !m.corrected.is_empty())
+    {
+        Some(map) if !ordered && map.corrected.len() == summary.walk.len() => sessions
+            .iter()
+            .map(|s| {
+                let track = summary
+                    .walk
+                    .iter()
+                    .zip(&map.corrected)
+                    .filter(|(w, _)| &w.session == s)
+                    .map(|(_, p)| p.map_or([f64::NAN; 2], |p| [p.translation.x, p.translation.y]))
+                    .collect();
+                (s.clone(), track)
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
+    crate::plot::loops_map(&out.with_extension(""), &title, &tracks, &corrected, &edges, ordered)
 }

@@ -37,6 +37,9 @@ pub struct LoopRow {
     pub found: Match,
     /// The geometric check (`--verify`), of the rows below the threshold.
     pub check: Option<Check>,
+    /// Whether the optimized map kept the loop (`true`) or rejected it (`false`); none when no
+    /// map was made or the row is no loop.
+    pub in_map: Option<bool>,
 }
 
 /// A scan's best allowed earlier match: what the search and the online detector find.
@@ -101,6 +104,7 @@ pub(crate) fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
         ["query_vertex", "matched_vertex", "verified", "icp_fitness", "icp_rmse"].map(|n| b.col(n));
     let relative =
         ["rel_x", "rel_y", "rel_z", "rel_roll_deg", "rel_pitch_deg", "rel_yaw_deg"].map(|n| b.col(n));
+    let in_map = b.col("in_map");
     let finite = |v: f64| v.is_finite().then_some(v);
     for r in rows {
         b.text(method, Some(&r.method))
@@ -123,6 +127,7 @@ pub(crate) fn rows_batch(rows: &[LoopRow]) -> arrow::record_batch::RecordBatch {
         for (k, col) in relative.into_iter().enumerate() {
             b.float(col, r.check.and_then(|c| finite(c.relative[k])));
         }
+        b.boolean(in_map, r.in_map);
         b.end_row();
     }
     b.finish().expect("the columns of the loops table")

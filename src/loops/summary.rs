@@ -89,6 +89,9 @@ pub struct Summary {
     pub notes: Vec<String>,
     /// The scans searched, in time order (the first method's): what the picture draws.
     pub walk: Vec<super::Walked>,
+    /// Each method's map, where the scans have poses (and `--no-optimize` was not given, or
+    /// `--g2o` asked for the graph).
+    pub maps: Vec<super::map::MethodMap>,
 }
 
 impl std::fmt::Display for Summary {
@@ -130,6 +133,9 @@ impl std::fmt::Display for Summary {
             }
             writeln!(f)?;
         }
+        for m in &self.maps {
+            write!(f, "{m}")?;
+        }
         for n in &self.notes {
             writeln!(f, "note: {n}")?;
         }
@@ -137,7 +143,7 @@ impl std::fmt::Display for Summary {
             writeln!(f, "calibration written: {}", c.display())?;
         }
         for g in &self.g2o {
-            writeln!(f, "g2o edges written: {}", g.display())?;
+            writeln!(f, "g2o written: {}", g.display())?;
         }
         Ok(())
     }

@@ -330,6 +330,12 @@ pub fn loops() -> Table {
             col("rel_roll_deg", Float64, true, "roll (degrees)"),
             col("rel_pitch_deg", Float64, true, "pitch (degrees)"),
             col("rel_yaw_deg", Float64, true, "yaw (degrees)"),
+            col(
+                "in_map",
+                Boolean,
+                true,
+                "whether the optimized map kept the loop (true) or rejected it as inconsistent with the odometry and the other loops (false); null when no map was made (no poses, --no-optimize) or the row is no loop",
+            ),
         ],
     }
 }
