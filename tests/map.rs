@@ -338,6 +338,56 @@ fn loops_make_a_map_that_undoes_the_odometrys_drift() {
             .unwrap();
         assert_eq!(text(&o.stdout).trim(), "112 96", "{}", text(&o.stderr));
     }
+    // Wrong loops: 20 % of the loops (4 of 17) replaced by random scan pairs more than 5 m
+    // apart, each given a small, plausible relative pose at ICP's information. The map rejects
+    // every one and ends as near the reference as without them.
+    let clean_error = vertex_rmse(&dir.join("optimized.g2o"), &truth);
+    let lines: Vec<String> = text_of.lines().map(str::to_string).collect();
+    let loop_lines: Vec<usize> = (0..lines.len())
+        .filter(|&i| {
+            let w: Vec<&str> = lines[i].split(' ').collect();
+            w[0] == "EDGE_SE3:QUAT" && w[2].parse::<i64>().unwrap() - w[1].parse::<i64>().unwrap() != 1
+        })
+        .collect();
+    assert_eq!(loop_lines.len(), 17);
+    let mut seed = 12345u64;
+    let mut next = |n: u64| {
+        seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (seed >> 33) % n
+    };
+    let mut wrong_lines = lines.clone();
+    let mut wrong = Vec::new();
+    for &at in loop_lines.iter().step_by(4).take(4) {
+        let (a, b) = loop {
+            let (a, b) = (next(96) as usize, next(96) as usize);
+            let apart = ((truth[a][1] - truth[b][1]).powi(2) + (truth[a][2] - truth[b][2]).powi(2)).sqrt();
+            if a + 5 < b && apart > 5.0 {
+                break (a, b);
+            }
+        };
+        let (x, y, yaw) = (
+            next(400) as f64 / 100.0 - 2.0,
+            next(200) as f64 / 100.0 - 1.0,
+            (next(100) as f64 / 10.0 - 5.0).to_radians(),
+        );
+        let info = lines[at].split(' ').skip(10).collect::<Vec<_>>().join(" ");
+        wrong_lines[at] =
+            format!("EDGE_SE3:QUAT {a} {b} {x} {y} 0 0 0 {} {} {info}", (yaw / 2.0).sin(), (yaw / 2.0).cos());
+        wrong.push(format!("{a}–{b}"));
+    }
+    let wrong_graph = dir.join("wrong.g2o");
+    std::fs::write(&wrong_graph, wrong_lines.join("\n") + "\n").unwrap();
+    let solved = dir.join("wrong-optimized.g2o");
+    let o = toporec(&["optimize", wrong_graph.to_str().unwrap(), "-o", solved.to_str().unwrap(), "--robust"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let said = text(&o.stdout);
+    for w in &wrong {
+        assert!(said.contains(w.as_str()), "{w} not rejected: {said}");
+    }
+    assert!(said.contains(&format!("loops rejected: {} (", wrong.len())), "only the wrong ones: {said}");
+    let wrong_error = vertex_rmse(&solved, &truth);
+    println!("position RMSE: clean {clean_error:.3} m, with 20 % wrong loops {wrong_error:.3} m");
+    assert!(wrong_error <= 1.1 * clean_error, "{wrong_error} against {clean_error}");
     // --no-optimize: no map, no corrected poses, in_map null.
     let plain = dir.join("plain/loops.csv");
     let said = run(&[
@@ -353,4 +403,18 @@ fn loops_make_a_map_that_undoes_the_odometrys_drift() {
     assert!(!dir.join("plain/loops.drive.tum").exists());
     let table = std::fs::read_to_string(&plain).unwrap();
     assert!(table.lines().skip(1).all(|l| l.split(',').nth(column) == Some("")), "{table}");
+}
+
+/// The RMSE of an SE(3) g2o file's vertex positions (x, y; vertex k the k-th row) against `truth`.
+fn vertex_rmse(graph: &Path, truth: &[[f64; 5]]) -> f64 {
+    let poses: Vec<[f64; 5]> = std::fs::read_to_string(graph)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.strip_prefix("VERTEX_SE3:QUAT "))
+        .map(|l| {
+            let v: Vec<f64> = l.split(' ').map(|w| w.parse().unwrap()).collect();
+            [0.0, v[1], v[2], v[3], 0.0]
+        })
+        .collect();
+    position_rmse(&poses, truth)
 }

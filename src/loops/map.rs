@@ -64,6 +64,8 @@ pub struct MethodMap {
     pub vertices: usize,
     /// Scans left out of the graph: no pose.
     pub unposed: usize,
+    /// The first few of them, by id.
+    pub unposed_named: Vec<String>,
     /// Loops put in the graph; of those, kept by the map.
     pub loops: (usize, usize),
     /// The cost before and after, and the iterations.
@@ -106,7 +108,13 @@ impl std::fmt::Display for MethodMap {
             self.iterations
         )?;
         if self.unposed > 0 {
-            write!(f, "; {} scans without a pose left out", self.unposed)?;
+            let more = if self.unposed > self.unposed_named.len() { ", …" } else { "" };
+            write!(
+                f,
+                "; {} scans without a pose left out ({}{more})",
+                self.unposed,
+                self.unposed_named.join(", ")
+            )?;
         }
         writeln!(f)?;
         if !self.apart.is_empty() {
@@ -193,6 +201,13 @@ pub(super) fn make(
         method: method.to_string(),
         vertices: initial.iter().flatten().count(),
         unposed: initial.iter().filter(|p| p.is_none()).count(),
+        unposed_named: walk
+            .iter()
+            .zip(&initial)
+            .filter(|(_, p)| p.is_none())
+            .take(5)
+            .map(|(v, _)| v.scan_id.clone())
+            .collect(),
         in_map: vec![None; rows.len()],
         ..MethodMap::default()
     };

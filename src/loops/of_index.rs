@@ -203,11 +203,21 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
                 summary.g2o.push(path);
             }
             summary.maps.push(made);
-        } else if let Some(path) = &a.g2o {
-            // No poses: no vertex to place, only the loops' edges.
-            let path = g2o_path(path, method);
-            verify::write_g2o(&path, &rows)?;
-            summary.g2o.push(path);
+        } else {
+            if !a.no_optimize {
+                let note = "no map: no scan has a pose (the map needs poses: a log with /odom or /tf, \
+                            --poses FILE, or a pipeline's pose source)"
+                    .to_string();
+                if !summary.notes.contains(&note) {
+                    summary.notes.push(note);
+                }
+            }
+            if let Some(path) = &a.g2o {
+                // No poses: no vertex to place, only the loops' edges.
+                let path = g2o_path(path, method);
+                verify::write_g2o(&path, &rows)?;
+                summary.g2o.push(path);
+            }
         }
         summary.checked.extend(rows.iter().filter(|r| r.found.accepted || r.check.is_some()).cloned());
         all_rows.extend(rows.into_iter().filter(|r| a.all || r.found.accepted));
