@@ -418,3 +418,110 @@ fn vertex_rmse(graph: &Path, truth: &[[f64; 5]]) -> f64 {
         .collect();
     position_rmse(&poses, truth)
 }
+
+/// The RMSE of `estimate`'s positions (x, y) against `truth`'s after one rigid planar
+/// alignment (the closed form of Umeyama's, without scale).
+fn aligned_rmse(estimate: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
+    let n = estimate.len() as f64;
+    let mean =
+        |p: &[[f64; 2]]| [p.iter().map(|q| q[0]).sum::<f64>() / n, p.iter().map(|q| q[1]).sum::<f64>() / n];
+    let (me, mt) = (mean(estimate), mean(truth));
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (e, t) in estimate.iter().zip(truth) {
+        let (ex, ey, tx, ty) = (e[0] - me[0], e[1] - me[1], t[0] - mt[0], t[1] - mt[1]);
+        sxx += ex * tx + ey * ty;
+        sxy += ex * ty - ey * tx;
+    }
+    let angle = sxy.atan2(sxx);
+    let (c, s) = (angle.cos(), angle.sin());
+    let sum: f64 = estimate
+        .iter()
+        .zip(truth)
+        .map(|(e, t)| {
+            let (ex, ey) = (e[0] - me[0], e[1] - me[1]);
+            let (x, y) = (c * ex - s * ey + mt[0], s * ex + c * ey + mt[1]);
+            (x - t[0]).powi(2) + (y - t[1]).powi(2)
+        })
+        .sum();
+    (sum / n).sqrt()
+}
+
+/// `simulate --drift-…` logs an odometry that drifts as asked, starting at the origin with
+/// `--own-frames`, and writes the truth beside it; from that log alone, the map of a two-lap
+/// drive (the second lap reversed, 1.5 m over) is within a quarter of the odometry's error.
+#[test]
+fn a_drifting_simulated_odometry_is_corrected_by_the_map() {
+    let dir = scratch_dir("drifting_simulated_odometry");
+    let sim = dir.join("sim");
+    let o = toporec(&[
+        "simulate",
+        "-o",
+        sim.to_str().unwrap(),
+        "--format",
+        "bag",
+        "--sessions",
+        "1",
+        "--laps",
+        "2",
+        "--lap-offset",
+        "1.5",
+        "--seed",
+        "13",
+        "--azimuth-res",
+        "1.0",
+        "--rate",
+        "2",
+        "--blocks",
+        "3",
+        "--block-size",
+        "40",
+        "--drift-scale",
+        "0.02",
+        "--drift-heading",
+        "0.05",
+        "--drift-noise",
+        "0.005",
+        "--own-frames",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let truth = tum(&sim.join("truth/2026-01-01.tum"));
+    assert_eq!(truth.len(), 64);
+    let bag = sim.join("bag/2026-01-01.bag");
+    let out = dir.join("loops.csv");
+    let o = toporec(&[
+        "loops",
+        bag.to_str().unwrap(),
+        "--index",
+        dir.join("index").to_str().unwrap(),
+        "--exclude-seconds",
+        "10",
+        "-o",
+        out.to_str().unwrap(),
+        "--g2o",
+        dir.join("graph.g2o").to_str().unwrap(),
+        "--no-progress",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    // The log's odometry (the graph's vertices): from the origin, 2 % long.
+    let odometry: Vec<[f64; 2]> = std::fs::read_to_string(dir.join("graph.toporec-plus.g2o"))
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.strip_prefix("VERTEX_SE3:QUAT "))
+        .map(|l| {
+            let v: Vec<f64> = l.split(' ').map(|w| w.parse().unwrap()).collect();
+            [v[1], v[2]]
+        })
+        .collect();
+    assert_eq!(odometry.len(), 64);
+    assert!(odometry[0][0].abs() < 1e-6 && odometry[0][1].abs() < 1e-6, "{:?}", odometry[0]);
+    let length =
+        |p: &[[f64; 2]]| p.windows(2).map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1])).sum::<f64>();
+    let truth_xy: Vec<[f64; 2]> = truth.iter().map(|t| [t[1], t[2]]).collect();
+    let ratio = length(&odometry) / length(&truth_xy);
+    assert!((ratio - 1.02).abs() < 0.01, "{ratio}");
+    let corrected: Vec<[f64; 2]> =
+        tum(&dir.join("loops.2026-01-01.tum")).iter().map(|t| [t[1], t[2]]).collect();
+    let (before, after) = (aligned_rmse(&odometry, &truth_xy), aligned_rmse(&corrected, &truth_xy));
+    println!("ATE: odometry {before:.3} m, map {after:.3} m");
+    assert!(before > 2.0 && after < 0.25 * before, "{after} against {before}");
+}

@@ -3,7 +3,8 @@
 //! (frame `velodyne`), the vehicle's odometry on `/odom` (`nav_msgs/Odometry`, frame `odom`,
 //! child `base_link`), the same transform on `/tf`, and the sensor's mounting on `/tf_static`
 //! (`base_link` → `velodyne`). The sensor's pose in `odom` is the simulated pose, so the poses
-//! joined from the log equal the drive's ground truth.
+//! joined from the log equal the drive's ground truth, unless the odometry drifts
+//! ([`super::Drift`]; the truth is then written to `truth/<session>.tum`).
 
 use super::{SessionWriter, SimScan, cloud_message, session_name};
 use crate::error::{Result, ResultExt};
@@ -32,7 +33,7 @@ fn mounting() -> Iso {
 
 /// The messages of one scan: its cloud, and the vehicle's odometry and transform at its time.
 fn messages(s: &SimScan, wire: Wire) -> [(usize, Vec<u8>); 3] {
-    let [x, y, z, yaw] = s.pose;
+    let [x, y, z, yaw] = s.odometry;
     let sensor =
         Iso::from_parts(Translation3::new(x, y, z), UnitQuaternion::from_euler_angles(0.0, 0.0, yaw));
     let base = sensor * mounting().inverse();

@@ -87,6 +87,9 @@ pub struct SimScan {
     pub utime: i64,
     /// Sensor pose in the town: x, y, z, yaw.
     pub pose: [f64; 4],
+    /// The sensor's pose as the vehicle's odometry has it (x, y, z, yaw): the true pose unless
+    /// [`SimParams::drift`] says otherwise.
+    pub odometry: [f64; 4],
     /// Points.
     pub points: Vec<[f32; 3]>,
     /// Intensity 0–255.
@@ -140,6 +143,57 @@ pub struct SimParams {
     pub lane_offset: f64,
     /// Heading noise σ (degrees).
     pub heading_noise: f64,
+    /// How the logged odometry (`/odom`, `/tf` of bags and rosbag2 folders) drifts.
+    pub drift: Drift,
+}
+
+/// An odometry that drifts as a wheel or LiDAR odometry does. Each step between two scans is
+/// measured `scale` too long (a fraction), turns `heading_deg_per_m` degrees a metre too far to
+/// the left, and has zero-mean noise of σ `noise` m on each axis and `noise` rad of heading per
+/// metre driven; the steps are chained from the session's first pose. With `own_frames`, each
+/// session's odometry starts at the origin, heading along x, as a robot's does when switched on.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Drift {
+    /// Scale error (0.02: 2 % long).
+    pub scale: f64,
+    /// Heading bias (degrees a metre, to the left).
+    pub heading_deg_per_m: f64,
+    /// Noise per metre (m on each axis; rad of heading).
+    pub noise: f64,
+    /// Each session in a frame of its own.
+    pub own_frames: bool,
+}
+
+impl Drift {
+    /// Whether the odometry differs from the truth.
+    pub fn any(&self) -> bool {
+        self.scale != 0.0 || self.heading_deg_per_m != 0.0 || self.noise != 0.0 || self.own_frames
+    }
+}
+
+/// The odometry of `session`'s scans (x, y, yaw by scan index; see [`Drift`]).
+pub fn odometry(p: &SimParams, session: usize) -> Vec<[f64; 3]> {
+    let d = p.drift;
+    let n = scans_per_session(p);
+    let truth: Vec<[f64; 4]> = (0..n).map(|i| pose(p, session, i)).collect();
+    let mut rng = SplitMix64(p.seed ^ 0x6F64_6F6D ^ (session as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let start = if d.own_frames { [0.0, 0.0, 0.0] } else { [truth[0][0], truth[0][1], truth[0][3]] };
+    let mut out = vec![start];
+    for k in 1..n {
+        let (a, b) = (truth[k - 1], truth[k]);
+        let (c, s) = (a[3].cos(), a[3].sin());
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        let (forward, left) = (c * dx + s * dy, -s * dx + c * dy);
+        let metres = forward.hypot(left);
+        let sigma = d.noise * metres;
+        let forward = forward * (1.0 + d.scale) + sigma * rng.normal();
+        let left = left * (1.0 + d.scale) + sigma * rng.normal();
+        let turn = (b[3] - a[3]) + (d.heading_deg_per_m * metres).to_radians() + sigma * rng.normal();
+        let [x, y, yaw] = out[k - 1];
+        let (c, s) = (yaw.cos(), yaw.sin());
+        out.push([x + c * forward - s * left, y + s * forward + c * left, yaw + turn]);
+    }
+    out
 }
 
 impl Default for SimParams {
@@ -157,6 +211,7 @@ impl Default for SimParams {
             lap_offset: 0.0,
             lane_offset: 1.5,
             heading_noise: 1.5,
+            drift: Drift::default(),
         }
     }
 }
@@ -222,6 +277,20 @@ pub struct SimulateArgs {
     /// Sensor height above the ground (m): [-100, 100].
     #[arg(long, default_value_t = 1.9, value_parser = |s: &str| ranges::within(s, -100.0, 100.0))]
     pub height: f64,
+    /// The logged odometry (bags' and rosbag2 folders' /odom and /tf) reads each step this
+    /// fraction too long, [-0.5, 0.5] (0.02: 2 %); the true poses go to truth/<session>.tum.
+    #[arg(long, default_value_t = 0.0, value_parser = |s: &str| ranges::within(s, -0.5, 0.5))]
+    pub drift_scale: f64,
+    /// The logged odometry turns this many degrees a metre too far to the left, [-10, 10].
+    #[arg(long, default_value_t = 0.0, value_parser = |s: &str| ranges::within(s, -10.0, 10.0))]
+    pub drift_heading: f64,
+    /// The logged odometry's noise per metre driven: σ in m on each axis and in rad of heading,
+    /// [0, 1].
+    #[arg(long, default_value_t = 0.0, value_parser = |s: &str| ranges::within(s, 0.0, 1.0))]
+    pub drift_noise: f64,
+    /// Each session's logged odometry starts at the origin, in a frame of its own.
+    #[arg(long)]
+    pub own_frames: bool,
     /// Worker threads.
     #[command(flatten)]
     pub threads: crate::flags::Threads,
@@ -264,6 +333,12 @@ impl SimulateArgs {
             reverse: a.reverse,
             laps: a.laps,
             lap_offset: a.lap_offset,
+            drift: Drift {
+                scale: a.drift_scale,
+                heading_deg_per_m: a.drift_heading,
+                noise: a.drift_noise,
+                own_frames: a.own_frames,
+            },
             ..SimParams::default()
         })
     }
@@ -380,6 +455,7 @@ pub fn scan(
         index,
         utime: session_base_utime(session) + (index as f64 * 1e6 / p.rate).round() as i64,
         pose: [x, y, z, yaw],
+        odometry: [x, y, z, yaw],
         points: Vec::with_capacity(sensor.rays() * 2 / 3),
         intensity: Vec::new(),
         ring: Vec::new(),
@@ -445,6 +521,9 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
                 })
             })
             .collect::<Result<_>>()?;
+        // The odometry as logged, and the truth beside it, when the two differ.
+        let odometry = p.drift.any().then(|| odometry(p, session));
+        let mut truth = String::new();
         let chunk = 4 * rayon::current_num_threads().max(1);
         let mut scene = (usize::MAX, None);
         let mut start = 0;
@@ -457,10 +536,20 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
                 scene = (lap, Some(Scene::town(&p.town, p.seed, scene_variant(session, lap))));
             }
             let scene = scene.1.as_ref().expect("built");
-            let scans: Vec<SimScan> = (start..end)
+            let mut scans: Vec<SimScan> = (start..end)
                 .into_par_iter()
                 .map_init(|| scene.mailbox(), |mb, i| scan(p, scene, session, i, mb))
                 .collect();
+            if let Some(odometry) = &odometry {
+                for s in &mut scans {
+                    let [x, y, yaw] = odometry[s.index];
+                    s.odometry = [x, y, s.pose[2], yaw];
+                    let [x, y, z, yaw] = s.pose;
+                    let (qz, qw) = ((yaw / 2.0).sin(), (yaw / 2.0).cos());
+                    truth +=
+                        &format!("{:.6} {x:.6} {y:.6} {z:.6} 0 0 {qz:.9} {qw:.9}\n", s.utime as f64 / 1e6);
+                }
+            }
             for s in &scans {
                 for w in &mut writers {
                     w.write(s)?;
@@ -471,6 +560,14 @@ pub fn simulate(p: &SimParams, formats: &[Format], out: &Path) -> Result<usize> 
         }
         for w in writers {
             w.finish()?;
+        }
+        if odometry.is_some() {
+            let dir = out.join("truth");
+            std::fs::create_dir_all(&dir).at(&dir)?;
+            crate::fsutil::write_atomic(
+                &dir.join(format!("{}.tum", session_name(session))),
+                truth.as_bytes(),
+            )?;
         }
     }
     Ok(total)

@@ -1,0 +1,122 @@
+"""The map of `toporec loops` on simulated drives with drifting odometry, scored against the truth.
+
+For each town (a `toporec simulate` seed) it drives, as ROS 1 bags whose /odom and /tf drift:
+* `reversed-1.5` and `reversed-3.5`: one session of two laps, the second the other way round,
+  1.5 m and 3.5 m to the side of the first;
+* `two-sessions`: two sessions of one lap each, the same way, each odometry in a frame of its own.
+
+Then `toporec loops <bags> --exclude-seconds 10` makes the map, and this script reports, from the
+truth `simulate` writes beside the bags (`truth/<session>.tum`):
+* the odometry's ATE (RMSE of position after one rigid alignment per session: the odometry alone
+  cannot know where one session lies from another) and the map's (one rigid alignment for all
+  sessions together);
+* the loops kept in the map more than 5 m off, and those the map rejected, by their true distance.
+
+    python3 scripts/map_towns.py --toporec target/release/toporec --seeds 101,102,103,104,105,106
+"""
+
+import argparse
+import csv
+import math
+import os
+import subprocess
+import tempfile
+
+import numpy as np
+
+
+def tum(path):
+    """Rows of (time, x, y, z) of a TUM file."""
+    return np.array([[float(w) for w in line.split()[:4]] for line in open(path) if line.strip()])
+
+
+def aligned_rmse(pairs):
+    """The RMSE of the estimates' positions after one rigid alignment (Umeyama, no scale) of all
+    `pairs` (estimate, truth) of equal-length position arrays together."""
+    est = np.vstack([e for e, _ in pairs])
+    ref = np.vstack([t for _, t in pairs])
+    mu_e, mu_r = est.mean(0), ref.mean(0)
+    u, _, vt = np.linalg.svd((ref - mu_r).T @ (est - mu_e))
+    d = np.eye(3)
+    d[2, 2] = np.sign(np.linalg.det(u @ vt))
+    rotation = u @ d @ vt
+    moved = (rotation @ (est - mu_e).T).T + mu_r
+    return float(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1))))
+
+
+def run(argv):
+    done = subprocess.run(argv, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} failed:\n{done.stderr}")
+    return done.stderr
+
+
+def drive(toporec, seed, kind, scratch, drift):
+    out = os.path.join(scratch, f"{seed}-{kind}")
+    args = [toporec, "simulate", "-o", out, "--format", "bag", "--seed", str(seed), "--azimuth-res", "1.0",
+            "--rate", "2", "--blocks", "3", "--block-size", "40", "--drift-scale", str(drift[0]),
+            "--drift-heading", str(drift[1]), "--drift-noise", str(drift[2])]
+    if kind == "two-sessions":
+        args += ["--sessions", "2", "--laps", "1", "--own-frames"]
+    else:
+        args += ["--sessions", "1", "--laps", "2", "--lap-offset", kind.split("-")[1]]
+    run(args)
+    sessions = sorted(f[:-4] for f in os.listdir(os.path.join(out, "bag")))
+    bags = [os.path.join(out, "bag", f"{s}.bag") for s in sessions]
+    loops = os.path.join(out, "loops.csv")
+    summary = run([toporec, "loops", *bags, "--exclude-seconds", "10", "--index", os.path.join(out, "index"),
+                   "-o", loops, "--no-progress", "--g2o", os.path.join(out, "graph.g2o")])
+    truth = {s: tum(os.path.join(out, "truth", f"{s}.tum")) for s in sessions}
+    corrected = {s: tum(os.path.join(out, f"loops.{s}.tum")) for s in sessions}
+    # The odometry: the graph's odometry edges chained from each session's first vertex.
+    odometry = {s: odometry_of(os.path.join(out, "graph.toporec-plus.g2o"), truth, sessions, s) for s in sessions}
+    odometry_ate = math.sqrt(np.mean([aligned_rmse([(odometry[s], truth[s][:, 1:])]) ** 2 for s in sessions]))
+    map_ate = aligned_rmse([(corrected[s][:, 1:], truth[s][:, 1:]) for s in sessions])
+    # Each loop's true distance: vertex v is scan v of the sessions in order.
+    places = np.vstack([truth[s][:, 1:] for s in sessions])
+    kept_far, rejected = 0, []
+    with open(loops) as f:
+        for row in csv.DictReader(f):
+            q, m = int(row["query_vertex"]), int(row["matched_vertex"])
+            apart = float(np.linalg.norm(places[q] - places[m]))
+            if row["in_map"] == "true" and apart > 5.0:
+                kept_far += 1
+            if row["in_map"] == "false":
+                rejected.append(apart)
+    kept = [line for line in summary.splitlines() if line.startswith("map (")]
+    return odometry_ate, map_ate, kept_far, rejected, kept[0] if kept else summary
+
+
+def odometry_of(graph, truth, sessions, session):
+    """The session's odometry positions: the graph's vertices (the log's poses; a session in a
+    frame of its own moved rigidly by its loops, which its own alignment undoes), vertex v being
+    scan v of the sessions in order."""
+    vertices = {}
+    for line in open(graph):
+        words = line.split()
+        if words and words[0] == "VERTEX_SE3:QUAT":
+            vertices[int(words[1])] = [float(w) for w in words[2:5]]
+    first = sum(len(truth[s]) for s in sessions[: sessions.index(session)])
+    return np.array([vertices[first + k] for k in range(len(truth[session]))])
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--toporec", default="target/release/toporec")
+    parser.add_argument("--seeds", default="101,102,103,104,105,106")
+    parser.add_argument("--drift", default="0.02,0.05,0.005",
+                        help="scale, heading (degrees a metre), noise per metre")
+    args = parser.parse_args()
+    drift = [float(v) for v in args.drift.split(",")]
+    print("| town | drive | odometry ATE m | map ATE m | ratio | kept > 5 m off | rejected (true distance m) |")
+    print("|---:|---|---:|---:|---:|---:|---|")
+    with tempfile.TemporaryDirectory() as scratch:
+        for seed in [int(s) for s in args.seeds.split(",")]:
+            for kind in ["reversed-1.5", "reversed-3.5", "two-sessions"]:
+                odo, ate, far, rejected, _ = drive(args.toporec, seed, kind, scratch, drift)
+                shown = ", ".join(f"{r:.1f}" for r in sorted(rejected)) or "none"
+                print(f"| {seed} | {kind} | {odo:.3f} | {ate:.3f} | {ate / odo:.3f} | {far} | {shown} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
