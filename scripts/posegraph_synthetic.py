@@ -5,7 +5,7 @@ A robot drives a random Manhattan walk over a town's street grid (blocks of 40 m
 2 m), with odometry that drifts (1 % long, 0.0002 rad a metre to the left, and 1 cm / 1 mrad of
 noise a step). Whenever it passes within 1 m of a place it scanned more than 100 scans before, a
 loop is added with the true relative pose plus ICP-sized noise (2 cm, 2 mrad). Vertices start at
-the odometry; the first is held.
+the odometry (`--initial truth`: at the truth); the first is held.
 
     python3 scripts/posegraph_synthetic.py --scans 100000 -o big.g2o
     /usr/bin/time -v target/release/toporec optimize big.g2o -o big.optimized.g2o --robust
@@ -30,6 +30,9 @@ def main():
     parser.add_argument("--scans", type=int, default=100000)
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("-o", "--out", required=True)
+    parser.add_argument("--initial", choices=["odometry", "truth"], default="odometry",
+                        help="where the vertices start: the chained odometry, or the truth (to time a "
+                        "graph's size apart from how far its start is from the solution)")
     args = parser.parse_args()
     rng = random.Random(args.seed)
     step, block = 2.0, 40.0
@@ -72,6 +75,8 @@ def main():
                           yaw - ayaw + rng.gauss(0, 0.002), info_loop))
             loops += 1
         seen[key] = k
+    if args.initial == "truth":
+        vertices = truth
     with open(args.out, "w") as f:
         for k, (x, y, yaw) in enumerate(vertices):
             qx, qy, qz, qw = quaternion(yaw)
