@@ -278,7 +278,7 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 1.9, value_parser = |s: &str| ranges::within(s, -100.0, 100.0))]
     pub height: f64,
     /// The logged odometry (bags' and rosbag2 folders' /odom and /tf) reads each step this
-    /// fraction too long, [-0.5, 0.5] (0.02: 2 %); the true poses go to truth/<session>.tum.
+    /// fraction too long, [-0.5, 0.5] (0.02: 2 %); the true poses go to `truth/<session>.tum`.
     #[arg(long, default_value_t = 0.0, value_parser = |s: &str| ranges::within(s, -0.5, 0.5))]
     pub drift_scale: f64,
     /// The logged odometry turns this many degrees a metre too far to the left, [-10, 10].
