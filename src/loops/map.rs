@@ -146,7 +146,7 @@ fn diagonal(translation: f64, roll_pitch: f64, yaw: f64) -> SMatrix<f64, 6, 6> {
 }
 
 /// The loop edge of a kept row: ICP's relative pose, or the descriptor's without a check.
-fn loop_edge(r: &LoopRow) -> Option<(Isometry3<f64>, SMatrix<f64, 6, 6>)> {
+pub(super) fn loop_edge(r: &LoopRow) -> Option<(Isometry3<f64>, SMatrix<f64, 6, 6>)> {
     if !r.found.accepted {
         return None;
     }
@@ -227,9 +227,9 @@ pub(super) fn make(
     let frame: Vec<usize> = walk.iter().map(|v| frame_of(&v.session)).collect();
     let anchor = frame_of(first);
     let mut placed = std::collections::BTreeSet::from([anchor]);
+    let all: std::collections::BTreeSet<usize> = frame.iter().copied().collect();
     loop {
         let mut best: Option<(usize, Isometry3<f64>, usize)> = None;
-        let all: std::collections::BTreeSet<usize> = frame.iter().copied().collect();
         for &f in all.difference(&placed) {
             // Each loop from a placed frame to f proposes where f's poses go.
             let proposals: Vec<Isometry3<f64>> = loops

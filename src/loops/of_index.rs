@@ -13,11 +13,6 @@ use crate::sinks::index::damage::Damage;
 use crate::sinks::index::reader::IndexedScan;
 use std::collections::HashMap;
 
-/// The damage rule for reading the scans' stored poses: as the search's.
-fn damage_for_poses(a: &LoopsArgs) -> Damage {
-    Damage::skipping(a.skip_damaged)
-}
-
 /// Runs `toporec loops`: the rows of every method, written to `a.out`; with `calibrate`, the
 /// thresholds written beside it (`<out stem>.calibration.json`).
 pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
@@ -52,9 +47,15 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
         Some(n) => Exclusion::Scans(n),
         None => Exclusion::Seconds(a.exclude_seconds),
     };
-    let reader = crate::sinks::index::reader::IndexReader::open_with(index, &damage_for_poses(a))?;
+    let damage = Damage::skipping(a.skip_damaged);
+    let reader = crate::sinks::index::reader::IndexReader::open_with(index, &damage)?;
+    // The stored poses (with yaw) are read only for a map or its graph.
     let stored: HashMap<(String, String), crate::sinks::index::reader::ScanRecord> =
-        reader.scans()?.into_iter().map(|r| ((r.session.clone(), r.scan_id.clone()), r)).collect();
+        if !a.no_optimize || a.g2o.is_some() {
+            reader.scans()?.into_iter().map(|r| ((r.session.clone(), r.scan_id.clone()), r)).collect()
+        } else {
+            HashMap::new()
+        };
     let origins = reader.manifest().map(|m| m.poses.clone()).unwrap_or_default();
     let frame_of = |session: &str| -> usize {
         match a.frames {
@@ -70,7 +71,6 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
     let mut summary = Summary::default();
     let mut all_rows = Vec::new();
     let mut calibrations = Vec::new();
-    let damage = Damage::skipping(a.skip_damaged);
     for method in &methods {
         let engine = Engine::open_with(index, &[], method, &damage)?.retain(&in_sessions)?;
         if engine.scans.is_empty() {

@@ -172,27 +172,24 @@ fn relative(pose: &Isometry3<f64>) -> [f64; 6] {
 
 /// Writes one g2o `EDGE_SE3:QUAT` line per kept, verified row: from the matched scan's vertex
 /// to the query's (their positions in the walking order), the query's pose in the match's
-/// frame as x y z qx qy qz qw, and the upper triangle of a diagonal information matrix
-/// (translation 1/σ² with σ the RMSE, at least 5 cm; rotation 1/σ² with σ = 0.5°).
+/// frame as x y z qx qy qz qw, and the upper triangle of the loop's information as the map
+/// weighs it ([`super::map`]: translation 1/σ² with σ the RMSE, at least 5 cm; rotation 1/σ²
+/// with σ = 0.5°).
 pub(crate) fn write_g2o(path: &Path, rows: &[LoopRow]) -> Result<()> {
     let mut text = String::new();
-    for r in rows.iter().filter(|r| r.found.accepted) {
-        let Some(c) = r.check.filter(|c| c.passed) else { continue };
+    for r in rows.iter().filter(|r| r.check.is_some_and(|c| c.passed)) {
+        let Some((pose, information)) = super::map::loop_edge(r) else { continue };
         let (from, to) = (r.found.row, r.query_vertex);
-        let [x, y, z, roll, pitch, yaw] = c.relative;
-        let q = nalgebra::UnitQuaternion::from_euler_angles(
-            roll.to_radians(),
-            pitch.to_radians(),
-            yaw.to_radians(),
-        );
-        let it = 1.0 / c.rmse.max(0.05).powi(2);
-        let ir = 1.0 / 0.5f64.to_radians().powi(2);
-        let info = [
-            it, 0.0, 0.0, 0.0, 0.0, 0.0, it, 0.0, 0.0, 0.0, 0.0, it, 0.0, 0.0, 0.0, ir, 0.0, 0.0, ir, 0.0, ir,
-        ];
-        let info: Vec<String> = info.iter().map(|v| format!("{v:?}")).collect();
+        let (t, q) = (pose.translation.vector, pose.rotation);
+        let info: Vec<String> = (0..6)
+            .flat_map(|i| (i..6).map(move |j| (i, j)))
+            .map(|(i, j)| format!("{:?}", information[(i, j)]))
+            .collect();
         text.push_str(&format!(
-            "EDGE_SE3:QUAT {from} {to} {x:?} {y:?} {z:?} {:?} {:?} {:?} {:?} {}\n",
+            "EDGE_SE3:QUAT {from} {to} {:?} {:?} {:?} {:?} {:?} {:?} {:?} {}\n",
+            t.x,
+            t.y,
+            t.z,
             q.i,
             q.j,
             q.k,
