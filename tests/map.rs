@@ -312,7 +312,9 @@ fn loops_make_a_map_that_undoes_the_odometrys_drift() {
     assert_eq!(text_of.lines().filter(|l| l.starts_with("VERTEX_SE3:QUAT")).count(), 96);
     assert_eq!(text_of.lines().filter(|l| l.starts_with("EDGE_SE3:QUAT")).count(), 95 + 17);
     assert_eq!(text_of.lines().last(), Some("FIX 0"));
-    let cost = |s: &str| s.split(" → ").nth(1).and_then(|r| r.split(' ').next()).map(str::to_string);
+    let cost = |s: &str| -> f64 {
+        s.split(" → ").nth(1).and_then(|r| r.split(' ').next()).and_then(|c| c.parse().ok()).expect("a cost")
+    };
     let o = toporec(&[
         "optimize",
         graph.to_str().unwrap(),
@@ -322,11 +324,8 @@ fn loops_make_a_map_that_undoes_the_odometrys_drift() {
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let solved = text(&o.stdout);
-    assert_eq!(
-        cost(&said).map(|c| c[..5].to_string()),
-        cost(&solved).map(|c| c[..5].to_string()),
-        "{said}\n{solved}"
-    );
+    // The same solve: the summary rounds the cost to 3 decimals.
+    assert!((cost(&said) - cost(&solved)).abs() <= 5e-4 + 1e-9, "{said}\n{solved}");
     if python_with("loops_make_a_map", &["gtsam"]) {
         let o = std::process::Command::new("python3")
             .args([

@@ -84,6 +84,22 @@ pub fn check(
         .flat_map(|r| [r.query_scan.as_str(), r.matched_scan.as_str()])
         .collect();
     let clouds = load(index, &ids, p.voxel, damage)?;
+    // Each scan made ready once, as a target where it is matched and as a source where it asks.
+    let side = |query: bool| -> HashSet<&str> {
+        rows.iter()
+            .filter(|r| r.found.accepted)
+            .map(|r| if query { r.query_scan.as_str() } else { r.matched_scan.as_str() })
+            .collect()
+    };
+    let ready = |id: &str| clouds.get(id).and_then(|c| c.as_ref().ok());
+    let sources: HashMap<&str, icp::Source> = side(true)
+        .into_par_iter()
+        .filter_map(|id| ready(id).map(|c| (id, icp::Source::new(c, &p))))
+        .collect();
+    let targets: HashMap<&str, std::result::Result<icp::Target, String>> = side(false)
+        .into_par_iter()
+        .filter_map(|id| ready(id).map(|c| (id, icp::Target::new(c, &p))))
+        .collect();
     // Alignments that failed: how many, and the first one's reason.
     let failed = std::sync::Mutex::new((0usize, String::new()));
     let checks = rows
@@ -96,10 +112,16 @@ pub fn check(
                 b.inc(1);
             }
             let failure = Check { passed: false, fitness: 0.0, rmse: f64::NAN, relative: [f64::NAN; 6] };
-            let (Some(Ok(q)), Some(Ok(m))) = (clouds.get(&r.query_scan), clouds.get(&r.matched_scan)) else {
+            let (Some(q), Some(m)) =
+                (sources.get(r.query_scan.as_str()), targets.get(r.matched_scan.as_str()))
+            else {
                 return Some(failure);
             };
-            match best_alignment(q, m, r.found.yaw_degrees, r.found.offset, &p) {
+            match m
+                .as_ref()
+                .map_err(Clone::clone)
+                .and_then(|m| best_alignment(q, m, r.found.yaw_degrees, r.found.offset, &p))
+            {
                 Ok(a) => Some(Check {
                     passed: a.fitness >= limits.min_fitness && a.rmse <= limits.max_rmse,
                     fitness: a.fitness,
@@ -127,12 +149,13 @@ pub fn check(
     Ok(checks)
 }
 
-/// The better of the alignments from the descriptor's yaw taken either way round (the methods
-/// differ in its sign; at 0° and 180° both are one), by fitness, then RMSE; each starts at the
-/// method's estimate of the query's position in the match's frame, where it gives one.
+/// The alignment from the descriptor's yaw taken either way round (the methods differ in its
+/// sign; at 0° and 180° both are one), the better after the coarse stage going on
+/// ([`icp::align_best`]); each starts at the method's estimate of the query's position in the
+/// match's frame, where it gives one.
 fn best_alignment(
-    query: &[Point],
-    matched: &[Point],
+    query: &icp::Source,
+    matched: &icp::Target,
     yaw_degrees: Option<f64>,
     offset: Option<[f64; 2]>,
     p: &IcpParams,
@@ -143,24 +166,11 @@ fn best_alignment(
     if (yaw.rem_euclid(180.0)).abs() > 1e-9 {
         guesses.push(-yaw);
     }
-    let mut best: Option<icp::Alignment> = None;
-    let mut last_error = String::new();
-    for g in guesses {
-        match icp::align(
-            query,
-            matched,
-            Isometry3::new(Vector3::new(x, y, 0.0), Vector3::z() * g.to_radians()),
-            p,
-        ) {
-            Ok(a) => {
-                if best.as_ref().is_none_or(|b| (a.fitness, -a.rmse) > (b.fitness, -b.rmse)) {
-                    best = Some(a);
-                }
-            }
-            Err(e) => last_error = e,
-        }
-    }
-    best.ok_or(last_error)
+    let initials: Vec<Isometry3<f64>> = guesses
+        .into_iter()
+        .map(|g| Isometry3::new(Vector3::new(x, y, 0.0), Vector3::z() * g.to_radians()))
+        .collect();
+    icp::align_best(query, matched, &initials, p)
 }
 
 /// x, y, z (m), roll, pitch, yaw (degrees) of a pose.
