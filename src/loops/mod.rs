@@ -17,6 +17,7 @@
 //! (`threshold`). Each row ([`LoopRow`]) keeps the runner-up's distance (a margin for the
 //! user's own checks) and, where both scans have poses, their true distance.
 
+pub mod cloud;
 pub mod detector;
 mod exclusion;
 pub mod icp;
@@ -113,6 +114,14 @@ pub struct LoopsArgs {
     /// and `.kitti`, and each loop's `in_map` says whether the map kept it).
     #[arg(long)]
     pub no_optimize: bool,
+    /// Write the scans at the map's corrected poses (with --no-optimize, at their own poses) into
+    /// one point cloud, a binary PLY for a point-cloud viewer (with several methods,
+    /// `<stem>.<method>.ply` beside this path).
+    #[arg(long, value_name = "FILE.ply")]
+    pub cloud: Option<PathBuf>,
+    /// The cloud's cell size (m, > 0): one point, the mean of those in it, per occupied cell.
+    #[arg(long, default_value_t = 0.2, value_parser = ranges::positive, requires = "cloud")]
+    pub cloud_voxel: f64,
     /// Which sessions' poses share a frame: auto (a pose file's sessions share it; each log's own
     /// poses are a frame of their own), shared or own.
     #[arg(long, value_enum, default_value_t = map::Frames::Auto)]
@@ -306,9 +315,7 @@ impl std::fmt::Display for Outcome {
         for n in &self.loops.notes {
             writeln!(f, "note: {n}")?;
         }
-        for g in &self.loops.g2o {
-            writeln!(f, "g2o written: {}", g.display())?;
-        }
+        self.loops.fmt_written(f)?;
         writeln!(
             f,
             "picture: {}",

@@ -51,7 +51,7 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
     let reader = crate::sinks::index::reader::IndexReader::open_with(index, &damage)?;
     // The stored poses (with yaw) are read only for a map or its graph.
     let stored: HashMap<(String, String), crate::sinks::index::reader::ScanRecord> =
-        if !a.no_optimize || a.g2o.is_some() {
+        if !a.no_optimize || a.g2o.is_some() || a.cloud.is_some() {
             reader.scans()?.into_iter().map(|r| ((r.session.clone(), r.scan_id.clone()), r)).collect()
         } else {
             HashMap::new()
@@ -187,7 +187,9 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
                 Vertex { scan_id: s.scan_id.clone(), session: s.session.clone(), utime: s.utime, pose }
             })
             .collect();
-        if vertices.iter().any(|v| v.pose.is_some()) && (!a.no_optimize || a.g2o.is_some()) {
+        if vertices.iter().any(|v| v.pose.is_some())
+            && (!a.no_optimize || a.g2o.is_some() || a.cloud.is_some())
+        {
             let first = a.sessions.first().cloned().unwrap_or_else(|| vertices[0].session.clone());
             let mut made = map::make(method, &vertices, &rows, &frame_of, &first, !a.no_optimize);
             if !a.no_optimize && made.failed.is_none() {
@@ -202,9 +204,26 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
                 map::write_g2o(&path, &made)?;
                 summary.g2o.push(path);
             }
+            if let Some(path) = &a.cloud {
+                let path = if methods.len() > 1 {
+                    g2o_path(path, method).with_extension("ply")
+                } else {
+                    path.clone()
+                };
+                // The corrected poses; without a map (--no-optimize, or a solve that failed), the stored.
+                let poses = if made.corrected.is_empty() { &made.initial } else { &made.corrected };
+                summary.clouds.push(super::cloud::write(
+                    index,
+                    &vertices,
+                    poses,
+                    &path,
+                    a.cloud_voxel,
+                    &damage,
+                )?);
+            }
             summary.maps.push(made);
         } else {
-            if !a.no_optimize {
+            if !a.no_optimize || a.cloud.is_some() {
                 let note = "no map: no scan has a pose (the map needs poses: a log with /odom or /tf, \
                             --poses FILE, or a pipeline's pose source)"
                     .to_string();

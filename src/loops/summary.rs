@@ -92,6 +92,8 @@ pub struct Summary {
     /// Each method's map, where the scans have poses (and `--no-optimize` was not given, or
     /// `--g2o` asked for the graph).
     pub maps: Vec<super::map::MethodMap>,
+    /// The point clouds written (`--cloud`), one per method.
+    pub clouds: Vec<super::cloud::Written>,
 }
 
 impl std::fmt::Display for Summary {
@@ -142,8 +144,25 @@ impl std::fmt::Display for Summary {
         for c in &self.calibrations {
             writeln!(f, "calibration written: {}", c.display())?;
         }
+        self.fmt_written(f)
+    }
+}
+
+impl Summary {
+    /// The g2o files and clouds written, a line each.
+    pub(super) fn fmt_written(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         for g in &self.g2o {
             writeln!(f, "g2o written: {}", g.display())?;
+        }
+        for c in &self.clouds {
+            writeln!(f, "cloud: {} ({} points from {} scans)", c.path.display(), c.points, c.scans)?;
+            if let (n @ 1.., first) = &c.unread {
+                let first = first.as_deref().unwrap_or("no longer where the index found it");
+                writeln!(
+                    f,
+                    "note: {n} scans with a pose could not be read again for the cloud (the first: {first})"
+                )?;
+            }
         }
         Ok(())
     }
