@@ -274,6 +274,75 @@ fn the_search_structure_is_cached_in_the_index_and_rebuilt_after_a_commit() {
     assert_eq!(toporec::sinks::index::searchers::header(&cache).unwrap().rows, 63);
 }
 
+/// The cache at its edges: entries spanning several of its 8 MB checksum blocks, a count that
+/// is not a multiple of the first-values block (4), and entries as long as the method's
+/// descriptor (its sector rows and its image). Written and mapped through the index's own
+/// functions, it answers exactly as the searcher in memory.
+#[test]
+fn a_cache_of_several_blocks_answers_as_the_searcher_in_memory() {
+    use toporec::methods::Computed;
+    use toporec::rng::SplitMix64;
+    use toporec::simulate::{self, SimParams, scene::Scene};
+    use toporec::sinks::index::searchers;
+    let p = PlusParams::default();
+    let sim = SimParams::default();
+    let scene = Scene::town(&sim.town, sim.seed, 0);
+    let described: Vec<Vec<f32>> = (0..8)
+        .map(|i| {
+            let s = simulate::scan(&sim, &scene, 0, i * 5, &mut scene.mailbox());
+            let points: Vec<Point> = s.points.iter().map(|q| q.map(|c| c as f64)).collect();
+            toporec_plus::describe(&points, &p).unwrap()
+        })
+        .collect();
+    // Copies noised by ±10 % (the byte codes stay in 1..=255, empty cells empty).
+    let n = 3_503;
+    let mut rng = SplitMix64(11);
+    let mut db = Vec::with_capacity(n * p.len());
+    for i in 0..n {
+        for &v in &described[i % described.len()] {
+            let w = v as f64 * (0.9 + 0.2 * rng.next_f64());
+            db.push(if v > 0.0 { w.round().clamp(1.0, 255.0) as f32 } else { 0.0 });
+        }
+    }
+    let queries: Vec<Vec<f32>> =
+        (0..12).map(|i| db[i * 281 * p.len()..(i * 281 + 1) * p.len()].to_vec()).collect();
+    let in_memory = Searcher::new(db, p.clone());
+    let dir = scratch_dir("plus_cache_blocks");
+    let path = dir.join("toporec-plus.searcher");
+    let rows: Vec<toporec::sinks::index::IndexedScan> = (0..n)
+        .map(|i| toporec::sinks::index::IndexedScan {
+            scan_id: format!("s/{i:05}"),
+            session: "s".into(),
+            utime: Some(i as i64),
+            pose: None,
+            descriptor: Vec::new(),
+            codebook_id: "test".into(),
+        })
+        .collect();
+    let header = searchers::Header::new(
+        1,
+        "toporec-plus",
+        "test",
+        serde_json::json!({}),
+        toporec_plus::SEARCHER_LAYOUT,
+        n,
+    );
+    searchers::write(&path, &header, &rows, &in_memory.bytes()).unwrap();
+    let searchers::Opened::Current(cached) = searchers::open(&path, 1, "test", toporec_plus::SEARCHER_LAYOUT)
+    else {
+        panic!("a current cache")
+    };
+    assert!(cached.header.checksums.body.len() >= 2, "several checksum blocks");
+    let mapped = Searcher::mapped(cached.map, cached.header.body.0, cached.header.rows, p.clone()).unwrap();
+    for q in &queries {
+        assert_eq!(mapped.search(q, 10).0, in_memory.search(q, 10).0);
+    }
+    // Values that are not whole entries are refused at once, not read shifted.
+    let short = vec![0.0f32; 2 * p.len() - 1];
+    let refused = std::panic::catch_unwind(|| Searcher::new(short, p.clone()));
+    assert!(refused.is_err());
+}
+
 #[test]
 fn a_damaged_search_cache_never_answers() {
     // Every way a cache file can be wrong: the answers are a fresh build's, the query warns

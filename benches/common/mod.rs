@@ -58,7 +58,8 @@ pub fn simulated_scans(n: usize) -> Vec<Vec<toporec::homology::Point>> {
         .collect()
 }
 
-/// A synthetic database entry: `descriptor` (rows of `sectors` values) with its sectors turned
+/// A synthetic database entry: `descriptor` (rows of `sectors` values, then any tail, which
+/// stays in place) with its sectors turned
 /// by a random shift, its values scaled by a random factor in [0.8, 1.2] and noised by ±5 %
 /// (with `codes`, rounded into toporec-plus's byte codes 1..=255; empty cells stay empty).
 pub fn turned_copy(
@@ -70,17 +71,27 @@ pub fn turned_copy(
     let shift = rng.below(sectors);
     let scale = 0.8 + 0.4 * rng.next_f64();
     let mut out = Vec::with_capacity(descriptor.len());
-    for row in descriptor.chunks_exact(sectors) {
+    let noised = |v: f32, rng: &mut toporec::rng::SplitMix64| {
+        let v = v as f64;
+        let w = v * scale * (1.0 + 0.1 * (rng.next_f64() - 0.5));
+        match (v > 0.0, codes) {
+            (false, _) => 0.0,
+            (true, true) => w.round().clamp(1.0, 255.0) as f32,
+            (true, false) => w as f32,
+        }
+    };
+    let rows = descriptor.chunks_exact(sectors);
+    // What follows the sector rows (toporec-plus's image), noised but not turned: a copy is as
+    // long as its descriptor.
+    let tail = rows.remainder();
+    for row in rows {
         for s in 0..sectors {
-            let v = row[(s + shift) % sectors] as f64;
-            let noise = 1.0 + 0.1 * (rng.next_f64() - 0.5);
-            let w = v * scale * noise;
-            out.push(match (v > 0.0, codes) {
-                (false, _) => 0.0,
-                (true, true) => w.round().clamp(1.0, 255.0) as f32,
-                (true, false) => w as f32,
-            });
+            out.push(noised(row[(s + shift) % sectors], rng));
         }
     }
+    for &v in tail {
+        out.push(noised(v, rng));
+    }
+    debug_assert_eq!(out.len(), descriptor.len());
     out
 }

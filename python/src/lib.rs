@@ -107,9 +107,10 @@ fn mcap_scan_count(py: Python<'_>, path: PathBuf, topic: Option<String>) -> PyRe
 }
 
 /// `toporec loops <source>…` with these command-line arguments (after `loops`); returns its
-/// summary, the written table's path left to the caller to read.
+/// summary and the maps' corrected poses (the `corrected_poses` table), the written loops
+/// table's path left to the caller to read.
 #[pyfunction]
-fn loops(py: Python<'_>, args: Vec<String>, threads: usize) -> PyResult<String> {
+fn loops(py: Python<'_>, args: Vec<String>, threads: usize) -> PyResult<(String, ArrowStream)> {
     #[derive(clap::Parser)]
     struct Loops {
         #[command(flatten)]
@@ -117,8 +118,38 @@ fn loops(py: Python<'_>, args: Vec<String>, threads: usize) -> PyResult<String> 
     }
     let parsed = <Loops as clap::Parser>::try_parse_from(std::iter::once("loops".to_string()).chain(args))
         .map_err(|e| value_error(e.to_string().trim()))?;
-    py.detach(|| toporec::loops::run(&parsed.args, threads.max(1)).map(|done| done.to_string()))
-        .map_err(toporec_error)
+    let done = py.detach(|| toporec::loops::run(&parsed.args, threads.max(1))).map_err(toporec_error)?;
+    let poses = toporec::loops::map::corrected_batch(&done.loops.maps);
+    Ok((done.to_string(), ArrowStream::new(poses.schema(), vec![poses])))
+}
+
+/// `toporec optimize GRAPH.g2o [-o OUT]`: the graph optimized (written to `out` when given);
+/// returns the summary as JSON and each vertex's id and optimized values.
+#[pyfunction]
+#[pyo3(signature = (graph, out, robust, max_iterations))]
+fn optimize(
+    py: Python<'_>,
+    graph: PathBuf,
+    out: Option<PathBuf>,
+    robust: bool,
+    max_iterations: usize,
+) -> PyResult<(String, Vec<i64>, Vec<Vec<f64>>)> {
+    let done = py
+        .detach(|| toporec::map::optimize_graph(&graph, out.as_deref(), robust, max_iterations.max(1)))
+        .map_err(toporec_error)?;
+    let summary = serde_json::json!({
+        "kind": done.kind,
+        "vertices": done.size.0,
+        "edges": done.size.1,
+        "held": done.size.2,
+        "cost_before": done.costs.0,
+        "cost_after": done.costs.1,
+        "iterations": done.iterations,
+        "rejected": done.rejected,
+        "seconds": done.seconds,
+    });
+    let (ids, values) = done.vertices.into_iter().unzip();
+    Ok((summary.to_string(), ids, values))
 }
 
 /// Merges table files written by another tool in the index's layout under `folder` (a Spark
@@ -392,6 +423,7 @@ fn _toporec(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fit_sample, m)?)?;
     m.add_function(wrap_pyfunction!(merge_written, m)?)?;
     m.add_function(wrap_pyfunction!(loops, m)?)?;
+    m.add_function(wrap_pyfunction!(optimize, m)?)?;
     m.add_function(wrap_pyfunction!(mcap_scan_count, m)?)?;
     m.add_function(wrap_pyfunction!(index_table, m)?)?;
     m.add_function(wrap_pyfunction!(index_methods, m)?)?;

@@ -134,6 +134,63 @@ def test_loops_of_a_bag_equal_the_command(repo, binary, tmp_path):
     assert toporec.loops(bag, index=index, threads=1).to_pylist() == table.to_pylist()
 
 
+def test_loops_give_the_maps_corrected_poses_as_the_command_writes_them(repo, binary, tmp_path):
+    """toporec.loops(with_poses=True): the corrected_poses table, one row per scan of the map,
+    equal to the command's TUM file; with no_optimize=True, no rows."""
+    bag = repo / "samples" / "drive.bag"
+    index = tmp_path / "index"
+    loops, poses = toporec.loops(bag, index=index, threads=2, with_poses=True)
+    assert poses.schema.names == ["method", "session", "scan_id", "time", "x", "y", "z", "qx", "qy", "qz", "qw"]
+    declared = toporec._table(toporec._toporec.table_schema("corrected_poses")).schema
+    assert poses.schema.remove_metadata() == declared
+    assert poses.num_rows == 96 and set(poses["session"].to_pylist()) == {"drive"}
+    assert all(r["in_map"] for r in loops.to_pylist() if r["accepted"])
+    out = tmp_path / "loops.csv"
+    subprocess.run(
+        [binary, "loops", bag, "--index", index, "-o", out, "--no-progress", "-t", "2"],
+        check=True,
+        capture_output=True,
+    )
+    tum = np.loadtxt(tmp_path / "loops.drive.tum")
+    columns = ["time", "x", "y", "z", "qx", "qy", "qz", "qw"]
+    got = np.column_stack([poses[c].to_numpy() for c in columns])
+    # The TUM file's 6 (positions, times) and 9 (quaternions) decimals.
+    np.testing.assert_allclose(got[:, :4], tum[:, :4], atol=1e-6)
+    np.testing.assert_allclose(got[:, 4:], tum[:, 4:], atol=1e-9)
+    _, none = toporec.loops(bag, index=index, threads=2, with_poses=True, no_optimize=True)
+    assert none.num_rows == 0 and none.schema == poses.schema
+
+
+def test_optimize_a_graph_as_the_command_does(repo, binary, tmp_path):
+    """toporec.optimize: the optimized vertices and cost of `toporec optimize`, written when asked;
+    a malformed line raises naming the file and the line's number."""
+    bag = repo / "samples" / "drive.bag"
+    graph = tmp_path / "graph.g2o"
+    toporec.loops(bag, index=tmp_path / "index", threads=2, g2o=graph, no_optimize=True)
+    graph = tmp_path / "graph.toporec-plus.g2o"
+    out = tmp_path / "python.g2o"
+    done = toporec.optimize(graph, out=out, robust=True)
+    assert done.kind == "SE(3)" and done.rejected == []
+    assert done.cost_after < done.cost_before
+    assert done.poses.schema.names == ["id", "x", "y", "z", "qx", "qy", "qz", "qw"]
+    assert done.poses.num_rows == 96 and done.poses["id"].to_pylist() == list(range(96))
+    command = tmp_path / "command.g2o"
+    said = subprocess.run(
+        [binary, "optimize", graph, "-o", command, "--robust"], check=True, capture_output=True, text=True
+    ).stdout
+    assert out.read_text() == command.read_text()
+    assert f"→ {done.cost_after:.6f} in {done.iterations} iterations" in said
+    vertices = [line.split() for line in out.read_text().splitlines() if line.startswith("VERTEX_SE3:QUAT")]
+    np.testing.assert_allclose(
+        done.poses.drop_columns(["id"]).to_pandas().to_numpy(), [[float(w) for w in v[2:]] for v in vertices]
+    )
+    assert toporec.optimize(graph, robust=True).poses == done.poses  # out=None: nothing written
+    bad = tmp_path / "bad.g2o"
+    bad.write_text(graph.read_text() + "EDGE_SE3:QUAT 0 1 oops\n")
+    with pytest.raises(ValueError, match=rf"bad\.g2o:{len(graph.read_text().splitlines()) + 1}: expected 28 numbers"):
+        toporec.optimize(bad)
+
+
 def test_loops_of_a_missing_log_raise_naming_it(tmp_path):
     missing = tmp_path / "nowhere.bag"
     with pytest.raises(Exception, match="nowhere.bag"):

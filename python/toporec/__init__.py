@@ -21,7 +21,7 @@ import hashlib
 import json
 import os
 import warnings
-from typing import TYPE_CHECKING, Any, Dict, Iterable, Iterator, List, Optional, Sequence, Tuple, Union
+from typing import TYPE_CHECKING, Any, Dict, Iterable, Iterator, List, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import pyarrow as pa
@@ -53,6 +53,7 @@ __all__ = [
     "Atol",
     "Index",
     "LoopDetector",
+    "OptimizedGraph",
     "PaperDescriptor",
     "alpha_persistence",
     "alpha_persistence_batch",
@@ -61,6 +62,7 @@ __all__ = [
     "describe_batch",
     "fit",
     "loops",
+    "optimize",
     "paper_diagram",
     "read_points",
     "read_scans",
@@ -372,12 +374,14 @@ def loops(
     verify: bool = True,
     index: Optional[PathLike] = None,
     threads: Optional[int] = None,
+    with_poses: bool = False,
     **options: Any,
-) -> pa.Table:
+) -> Union[pa.Table, Tuple[pa.Table, pa.Table]]:
     """Loop closures of a log (or several sources), as ``toporec loops <source>…`` finds them:
     the sources indexed (into ``index``, default ``out/<first source's name>``, brought up to
     date on the next call), each scan's best earlier match below the method's threshold,
-    verified by ICP unless ``verify=False``.
+    verified by ICP unless ``verify=False``; where the scans have poses, the map made of the
+    odometry and the loops (docs/loops.md), unless ``no_optimize=True``.
 
     Args:
         path: a ROS 1 bag, a rosbag2 folder, an MCAP file, an NCLT session, a KITTI sequence, a
@@ -387,11 +391,19 @@ def loops(
         verify: check each match by aligning the two scans.
         index: the index folder.
         threads: worker threads (default: all cores).
+        with_poses: also return the map's corrected poses.
         options: other options of the command, by name (``topic="/points"``,
-            ``poses_topic="/odom"``, ``pose_frames="odom:velodyne"``, ``exclude_seconds=10``).
+            ``poses_topic="/odom"``, ``pose_frames="odom:velodyne"``, ``exclude_seconds=10``,
+            ``no_optimize=True``, ``cloud="map.ply"``); ``True`` gives a flag, ``False`` leaves
+            it out.
 
     Returns:
         The loops table (``schemas/loops.json``): the same columns and rows as the command.
+        With ``with_poses=True``, ``(loops, poses)``: ``poses`` is the ``corrected_poses`` table
+        (``schemas/corrected_poses.json``: method, session, scan_id, time, x, y, z, qx, qy, qz,
+        qw), each method's scans in the map at their corrected sensor poses, the same as the
+        command's ``.tum`` files; it has no rows where no map was made (no poses,
+        ``no_optimize=True``, or a solve that did not converge: the summary says which).
     """
     import tempfile
 
@@ -411,9 +423,66 @@ def loops(
         if index is not None:
             args += ["--index", os.fspath(index)]
         for name, value in options.items():
-            args += [f"--{name.replace('_', '-')}", os.fspath(value) if isinstance(value, os.PathLike) else str(value)]
-        _toporec.loops(args, (os.cpu_count() or 1) if threads is None else int(threads))
-        return pq.read_table(out)
+            flag = f"--{name.replace('_', '-')}"
+            if value is True:
+                args.append(flag)
+            elif value is not False:
+                args += [flag, os.fspath(value) if isinstance(value, os.PathLike) else str(value)]
+        _, corrected = _toporec.loops(args, (os.cpu_count() or 1) if threads is None else int(threads))
+        table = pq.read_table(out)
+        return (table, _table(corrected)) if with_poses else table
+
+
+class OptimizedGraph(NamedTuple):
+    """A pose graph optimized by :func:`optimize`."""
+
+    poses: pa.Table
+    """Each vertex's id and optimized pose: ``id, x, y, theta`` (SE(2)) or ``id, x, y, z, qx,
+    qy, qz, qw`` (SE(3)), in the file's order."""
+    kind: str
+    """``"SE(2)"`` or ``"SE(3)"``."""
+    cost_before: float
+    """½ Σ eᵀ Ω e at the file's poses (GTSAM's ``graph.error``)."""
+    cost_after: float
+    """The same at the optimized poses."""
+    iterations: int
+    """Levenberg–Marquardt iterations."""
+    rejected: List[Tuple[int, int]]
+    """With ``robust=True``: the loops rejected, as (from id, to id)."""
+
+
+def optimize(
+    graph: PathLike, out: Optional[PathLike] = None, robust: bool = False, max_iterations: int = 1000
+) -> OptimizedGraph:
+    """Optimizes a pose graph in g2o's format, as ``toporec optimize`` does (docs/map.md).
+
+    Args:
+        graph: the g2o file: ``VERTEX_SE2``/``EDGE_SE2`` or ``VERTEX_SE3:QUAT``/``EDGE_SE3:QUAT``
+            lines, ``FIX`` lines for the held vertices (default: the first one).
+        out: also write the optimized graph here (the same lines, the vertices moved).
+        robust: reject the loops that disagree with the rest (graduated non-convexity).
+        max_iterations: Levenberg–Marquardt iterations at most.
+
+    Raises:
+        ValueError: a malformed line (named by number), a graph in disconnected parts, or a
+            solve that does not converge (nothing is written).
+    """
+    text, ids, values = _toporec.optimize(
+        os.fspath(graph), None if out is None else os.fspath(out), bool(robust), int(max_iterations)
+    )
+    summary = json.loads(text)
+    names = ["x", "y", "theta"] if summary["kind"] == "SE(2)" else ["x", "y", "z", "qx", "qy", "qz", "qw"]
+    columns = {"id": pa.array(ids, pa.int64())}
+    for k, name in enumerate(names):
+        columns[name] = pa.array([v[k] for v in values], pa.float64())
+    return OptimizedGraph(
+        poses=pa.table(columns),
+        kind=summary["kind"],
+        cost_before=summary["cost_before"],
+        cost_after=summary["cost_after"],
+        iterations=summary["iterations"],
+        rejected=[tuple(r) for r in summary["rejected"]],
+    )
 
 
 def fit(

@@ -86,6 +86,8 @@ pub struct MethodMap {
     pub graph: Option<(Vec<i64>, Graph<Se3, 6>)>,
     /// The corrected poses written: TUM and KITTI, per session.
     pub written: Vec<PathBuf>,
+    /// Each walk position's session, scan and time (µs), as `corrected` is ordered.
+    pub scans: Vec<(String, String, Option<i64>)>,
 }
 
 impl std::fmt::Display for MethodMap {
@@ -209,6 +211,7 @@ pub(super) fn make(
             .map(|(v, _)| v.scan_id.clone())
             .collect(),
         in_map: vec![None; rows.len()],
+        scans: walk.iter().map(|v| (v.session.clone(), v.scan_id.clone(), v.utime)).collect(),
         ..MethodMap::default()
     };
     let loops: Vec<LoopEdge> = rows
@@ -402,6 +405,30 @@ pub(super) fn write_poses(
         }
     }
     Ok(written)
+}
+
+/// The corrected poses of `maps` as a record batch of the `corrected_poses` table
+/// ([`crate::sinks::schema::corrected_poses`]): each map's scans in walking order, those out of
+/// the graph (no pose) left out; none for a map not made.
+pub fn corrected_batch(maps: &[MethodMap]) -> arrow::record_batch::RecordBatch {
+    let mut b = crate::sinks::rows::RowBuilder::plain(&crate::sinks::schema::corrected_poses());
+    let [method, session, scan, time] = ["method", "session", "scan_id", "time"].map(|n| b.col(n));
+    let values = ["x", "y", "z", "qx", "qy", "qz", "qw"].map(|n| b.col(n));
+    for m in maps {
+        for ((s, id, utime), pose) in m.scans.iter().zip(&m.corrected) {
+            let Some(p) = pose else { continue };
+            let (t, q) = (p.translation.vector, p.rotation);
+            b.text(method, Some(&m.method))
+                .text(session, Some(s))
+                .text(scan, Some(id))
+                .float(time, utime.map(|u| u as f64 / 1e6));
+            for (c, v) in values.into_iter().zip([t.x, t.y, t.z, q.i, q.j, q.k, q.w]) {
+                b.float(c, Some(v));
+            }
+            b.end_row();
+        }
+    }
+    b.finish().expect("the columns of the corrected_poses table")
 }
 
 /// Writes the map's graph, as it was before the solve, in g2o's format: a `VERTEX_SE3:QUAT` per

@@ -40,6 +40,9 @@ pub struct Optimized {
     pub iterations: usize,
     /// With `--robust`: the loops rejected, as (from id, to id).
     pub rejected: Vec<(i64, i64)>,
+    /// Each vertex's id and optimized pose as g2o writes it (x y θ, or x y z qx qy qz qw), in
+    /// the file's order.
+    pub vertices: Vec<(i64, Vec<f64>)>,
     /// Wall seconds (reading, solving, writing).
     pub seconds: f64,
 }
@@ -65,20 +68,31 @@ impl std::fmt::Display for Optimized {
 /// atomically; a solve that does not converge is an error with its last cost, and nothing is
 /// written.
 pub fn optimize(a: &OptimizeArgs) -> Result<Optimized> {
+    optimize_graph(&a.graph, Some(&a.out), a.robust, a.max_iterations)
+}
+
+/// [`optimize`] of the graph at `path`, written to `out` when given (the optimized poses are
+/// in [`Optimized::vertices`] either way).
+pub fn optimize_graph(
+    path: &Path,
+    out: Option<&Path>,
+    robust: bool,
+    max_iterations: usize,
+) -> Result<Optimized> {
     let start = std::time::Instant::now();
-    let options = Options { robust: a.robust, max_iterations: a.max_iterations, ..Options::default() };
-    let mut out = match g2o::read(&a.graph)? {
-        G2o::Plane(read) => run(read, &a.graph, &a.out, &options, "SE(2)")?,
-        G2o::Space(read) => run(read, &a.graph, &a.out, &options, "SE(3)")?,
+    let options = Options { robust, max_iterations, ..Options::default() };
+    let mut done = match g2o::read(path)? {
+        G2o::Plane(read) => run(read, path, out, &options, "SE(2)")?,
+        G2o::Space(read) => run(read, path, out, &options, "SE(3)")?,
     };
-    out.seconds = start.elapsed().as_secs_f64();
-    Ok(out)
+    done.seconds = start.elapsed().as_secs_f64();
+    Ok(done)
 }
 
 fn run<P: Pose<D> + g2o::FromG2o, const D: usize>(
     mut read: Read<P, D>,
     path: &Path,
-    out: &Path,
+    out: Option<&Path>,
     options: &Options,
     kind: &'static str,
 ) -> Result<Optimized> {
@@ -115,13 +129,17 @@ fn run<P: Pose<D> + g2o::FromG2o, const D: usize>(
         .filter(|&e| read.graph.edges[e].robust && !solution.kept(e))
         .map(|e| (read.ids[read.graph.edges[e].from], read.ids[read.graph.edges[e].to]))
         .collect();
-    read.write(out)?;
+    if let Some(out) = out {
+        read.write(out)?;
+    }
+    let vertices = read.ids.iter().zip(&read.graph.poses).map(|(&id, p)| (id, p.to_values())).collect();
     Ok(Optimized {
         kind,
         size: (read.graph.poses.len(), read.graph.edges.len(), held),
         costs: (solution.initial_cost, solution.cost),
         iterations: solution.iterations,
         rejected,
+        vertices,
         seconds: 0.0,
     })
 }

@@ -11,4 +11,4 @@ pub mod lie;
 pub mod solve;
 pub mod sparse;
 
-pub use command::{OptimizeArgs, Optimized, optimize};
+pub use command::{OptimizeArgs, Optimized, optimize, optimize_graph};

@@ -340,6 +340,31 @@ pub fn loops() -> Table {
     }
 }
 
+/// `corrected_poses`: one row per scan in a map, at its corrected pose.
+pub fn corrected_poses() -> Table {
+    use DataType::*;
+    Table {
+        name: "corrected_poses",
+        doc: "One row per scan of a method's map (`toporec loops` where the scans have poses), at its corrected sensor pose in the map's frame (the first session's).",
+        layout: Layout::Other(
+            "the poses table of the Python package's `toporec.loops(..., with_poses=True)`; the same poses as the command's `<output stem>.<session>.tum` files",
+        ),
+        columns: vec![
+            col("method", Utf8, false, "the descriptor method whose loops made the map"),
+            col(columns::SESSION, Utf8, false, "the scan's session"),
+            col(columns::SCAN_ID, Utf8, false, "the scan"),
+            col("time", Float64, true, "its timestamp (s); null for a scan without one"),
+            col("x", Float64, false, "position (m)"),
+            col("y", Float64, false, "position (m)"),
+            col("z", Float64, false, "position (m)"),
+            col("qx", Float64, false, "orientation, a unit quaternion"),
+            col("qy", Float64, false, "orientation"),
+            col("qz", Float64, false, "orientation"),
+            col("qw", Float64, false, "orientation"),
+        ],
+    }
+}
+
 /// The input batches of [`crate::batch`]: one row per scan (or MCAP message range). Only
 /// `path` is required; a row carries the file's bytes (`content`), its points (`points`), or
 /// neither (the file is read from `path`).
@@ -442,5 +467,5 @@ pub fn render_json(t: &Table) -> String {
 
 /// All tables (descriptors with a placeholder length).
 pub fn all() -> Vec<Table> {
-    vec![scans(), diagrams(), descriptors(1), query_hits(), loops(), batch_inputs()]
+    vec![scans(), diagrams(), descriptors(1), query_hits(), loops(), corrected_poses(), batch_inputs()]
 }

@@ -327,9 +327,20 @@ impl<'a> Nearest<'a> {
 
 impl Searcher {
     /// A searcher over `descriptors` (`n × len`, row-major), made ready in place of them.
+    ///
+    /// # Panics
+    /// When `descriptors` is not a whole number of entries: a caller's bug (the index holds
+    /// descriptors of the method's length), which would shift every entry after the first short
+    /// one.
     pub fn new(descriptors: Vec<f32>, params: PlusParams) -> Self {
         use rayon::prelude::*;
         let p = &params;
+        assert!(
+            descriptors.len().is_multiple_of(p.len()),
+            "{} values are not whole toporec-plus entries of {}",
+            descriptors.len(),
+            p.len()
+        );
         let parts: Vec<[Vec<u8>; SECTIONS]> =
             descriptors.par_chunks_exact(p.len()).map(|d| entry(d, p)).collect();
         drop(descriptors);
