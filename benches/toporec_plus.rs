@@ -10,8 +10,13 @@
 //! 1,000,000) holds the descriptors of 10,000 distinct simulated scans (one drive of 5,000
 //! scans a session, two sessions), each repeated with its sectors turned by a random shift and
 //! its codes scaled by a random factor in [0.8, 1.2] and noised, so keys and columns look like
-//! real ones. The queries are timed without and with the lateral views of
-//! `toporec loops <source>` (`PlusParams::for_loops`), interleaved, over the same searcher.
+//! real ones; a copy keeps what follows the sector rows (the image), noised. The entries are
+//! made as the copies come, 10,000 at a time (`toporec_plus::Builder`), so the descriptors are
+//! never all held. The queries are timed without and with the lateral views of
+//! `toporec loops <source>` (`PlusParams::for_loops`), interleaved, over the same searcher. It
+//! reports the peak resident memory once built and the resident memory while answering, and
+//! how well the default budget agrees with an exhaustive search (every entry re-ranked) on
+//! `TOPOREC_BENCH_EXHAUSTIVE` fresh copies (default 4).
 //!
 //! Run: `cargo bench --bench toporec_plus`.
 
@@ -26,6 +31,19 @@ use toporec::methods::toporec_plus::{self, PlusParams, Searcher};
 use toporec::preprocess::{Preprocess, preprocess};
 use toporec::rng::SplitMix64;
 use toporec::vectorize::atol::{Atol, Contrast, Weighting};
+
+/// A line of /proc/self/status in kB (`VmHWM`: the peak resident memory; `VmRSS`: now); 0
+/// where there is none.
+fn memory_kb(field: &str) -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines().find_map(|l| {
+                l.strip_prefix(field)?.strip_prefix(':')?.trim().strip_suffix("kB")?.trim().parse().ok()
+            })
+        })
+        .unwrap_or(0)
+}
 
 fn kitti_scans() -> Option<Vec<Vec<Point>>> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -127,7 +145,7 @@ fn main() {
     // Simulated on both cores (not timed), described on one.
     let simulated = simulated_scans(distinct);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-    pool.install(|| {
+    pool.install(move || {
         if let Some(kitti) = kitti_scans() {
             report_costs("KITTI (whole scans of the shared data)", &kitti, &p);
         } else {
@@ -140,21 +158,31 @@ fn main() {
             std::env::var("TOPOREC_BENCH_ENTRIES").ok().and_then(|v| v.parse().ok()).unwrap_or(1_000_000);
         let t = Instant::now();
         let described: Vec<Vec<f32>> = simulated.iter().map(|c| toporec_plus::describe(c, &p).unwrap()).collect();
+        drop(simulated);
+        // The entries made as their descriptors come, a batch at a time: the descriptors are
+        // never all held (at 1,000,000 they would take 16 GB as float32).
         let mut rng = SplitMix64(7);
-        let mut db = Vec::with_capacity(n * p.len());
+        let mut builder = toporec_plus::Builder::new(p.clone(), n);
+        let batch_entries = 10_000;
+        let mut batch = Vec::with_capacity(batch_entries * p.len());
         for i in 0..n {
             let d = &described[i % described.len()];
             if i < described.len() {
-                db.extend_from_slice(d);
-                continue;
+                batch.extend_from_slice(d);
+            } else {
+                batch.extend(turned_copy(d, p.sectors, true, &mut rng));
             }
-            db.extend(turned_copy(d, p.sectors, true, &mut rng));
+            if batch.len() == batch_entries * p.len() {
+                builder.extend(&batch);
+                batch.clear();
+            }
         }
-        let made = t.elapsed().as_secs_f64();
-        let queries: Vec<Vec<f32>> = described.iter().step_by(described.len() / 24).take(24).cloned().collect();
-        let t = Instant::now();
-        let searcher = Searcher::new(db, p.clone());
+        builder.extend(&batch);
+        drop(batch);
+        let searcher = builder.finish();
         let build = t.elapsed().as_secs_f64();
+        let peak_built = memory_kb("VmHWM");
+        let queries: Vec<Vec<f32>> = described.iter().step_by(described.len() / 24).take(24).cloned().collect();
         let (mut cand, mut rerank, mut total) = (Vec::new(), Vec::new(), Vec::new());
         for _ in 0..5 {
             for q in &queries {
@@ -167,13 +195,40 @@ fn main() {
             }
         }
         println!(
-            "\ntoporec-plus search, {n} entries ({distinct} distinct scans; described and copied in {made:.1} s, searcher built in {build:.1} s; {} bytes an entry), k = 25 ({} candidates): {:.3} ms per query (key candidates {:.3} ms, re-rank {:.3} ms), mean of {} queries",
+            "\ntoporec-plus search, {n} entries ({distinct} distinct scans; described, copied and made into entries in {build:.1} s; {} bytes an entry), k = 25 ({} candidates): {:.3} ms per query (key candidates {:.3} ms, re-rank {:.3} ms), mean of {} queries",
             toporec_plus::entry_bytes(&p),
             p.candidates.max(25),
             mean(&total),
             mean(&cand),
             mean(&rerank),
             total.len()
+        );
+        println!(
+            "memory: peak resident {:.2} GB once built; resident while answering {:.2} GB (the searcher's entries {:.2} GB)",
+            peak_built as f64 / 1e6,
+            memory_kb("VmRSS") as f64 / 1e6,
+            (toporec_plus::entry_bytes(&p) * n) as f64 / 1e9
+        );
+        // Agreement with an exhaustive search (every entry re-ranked) on fresh copies, not in
+        // the database, of a few distinct scans.
+        let sample: usize =
+            std::env::var("TOPOREC_BENCH_EXHAUSTIVE").ok().and_then(|v| v.parse().ok()).unwrap_or(4);
+        let mut searcher = searcher;
+        let (mut same_first, mut shared) = (0, 0.0);
+        let t = Instant::now();
+        for q in described.iter().step_by((described.len() / sample.max(1)).max(1)).take(sample) {
+            let q = turned_copy(q, p.sectors, true, &mut rng);
+            let budget: Vec<usize> = searcher.search(&q, 25).0.iter().map(|h| h.row).collect();
+            searcher.set_search(n, p.search_ratio);
+            let all: Vec<usize> = searcher.search(&q, 25).0.iter().map(|h| h.row).collect();
+            searcher.set_search(p.candidates, p.search_ratio);
+            same_first += (budget.first() == all.first()) as usize;
+            shared += budget.iter().filter(|r| all.contains(r)).count() as f64 / all.len().max(1) as f64;
+        }
+        println!(
+            "against an exhaustive search ({sample} fresh copies as queries, {:.0} s): the same best entry for {same_first}, {:.1} % of the 25 best shared",
+            t.elapsed().as_secs_f64(),
+            100.0 * shared / sample.max(1) as f64
         );
 
         // Lateral views (`PlusParams::for_loops`, what `toporec loops <source>` indexes with): a

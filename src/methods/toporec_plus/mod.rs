@@ -176,7 +176,7 @@ mod tests;
 
 pub use distance::distance;
 pub use field::describe;
-pub use searcher::{SEARCHER_LAYOUT, Searcher, body_sections, entry_bytes};
+pub use searcher::{Builder, SEARCHER_LAYOUT, Searcher, body_sections, entry_bytes};
 
 impl super::Named for PlusParams {
     const NAME: &'static str = NAME;

@@ -325,6 +325,68 @@ impl<'a> Nearest<'a> {
     }
 }
 
+/// A searcher built entry by entry: each descriptor is made into its entry's bytes as it comes
+/// (in parallel within a batch), so the descriptors need never be held all at once.
+pub struct Builder {
+    params: PlusParams,
+    sections: [Vec<u8>; SECTIONS],
+    n: usize,
+}
+
+impl Builder {
+    /// An empty builder, room made for `capacity` entries.
+    pub fn new(params: PlusParams, capacity: usize) -> Self {
+        let sections = ALL_SECTIONS.map(|section| Vec::with_capacity(section.bytes_for(capacity, &params)));
+        Builder { params, sections, n: 0 }
+    }
+
+    /// Appends the entries of `descriptors` (`k × len`, row-major).
+    ///
+    /// # Panics
+    /// When `descriptors` is not a whole number of entries: a caller's bug (the index holds
+    /// descriptors of the method's length), which would shift every entry after it.
+    pub fn extend(&mut self, descriptors: &[f32]) {
+        use rayon::prelude::*;
+        let p = &self.params;
+        let len = p.len();
+        assert!(
+            descriptors.len().is_multiple_of(len),
+            "{} values are not whole toporec-plus entries of {len}",
+            descriptors.len()
+        );
+        // Batches bound the entries' bytes held beside the sections.
+        for batch in descriptors.chunks(len * 4096) {
+            let parts: Vec<[Vec<u8>; SECTIONS]> = batch.par_chunks_exact(len).map(|d| entry(d, p)).collect();
+            for part in &parts {
+                for ((to, from), section) in self.sections.iter_mut().zip(part).zip(ALL_SECTIONS) {
+                    section.append(to, self.n, from, p);
+                }
+                self.n += 1;
+            }
+        }
+    }
+
+    /// Entries so far.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// Whether it holds no entry.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// The searcher over the entries appended.
+    pub fn finish(self) -> Searcher {
+        Searcher {
+            n: self.n,
+            aligner: Arc::new(Aligner::new(&self.params)),
+            params: self.params,
+            store: Store::Owned(self.sections),
+        }
+    }
+}
+
 impl Searcher {
     /// A searcher over `descriptors` (`n × len`, row-major), made ready in place of them.
     ///
@@ -333,32 +395,12 @@ impl Searcher {
     /// descriptors of the method's length), which would shift every entry after the first short
     /// one.
     pub fn new(descriptors: Vec<f32>, params: PlusParams) -> Self {
-        use rayon::prelude::*;
-        let p = &params;
-        assert!(
-            descriptors.len().is_multiple_of(p.len()),
-            "{} values are not whole toporec-plus entries of {}",
-            descriptors.len(),
-            p.len()
-        );
-        let parts: Vec<[Vec<u8>; SECTIONS]> =
-            descriptors.par_chunks_exact(p.len()).map(|d| entry(d, p)).collect();
+        let n = descriptors.len() / params.len().max(1);
+        let mut builder = Builder::new(params, n);
+        builder.extend(&descriptors);
         drop(descriptors);
-        let mut sections: [Vec<u8>; SECTIONS] =
-            ALL_SECTIONS.map(|section| Vec::with_capacity(section.bytes_for(parts.len(), p)));
-        for (row, part) in parts.iter().enumerate() {
-            for ((to, from), section) in sections.iter_mut().zip(part).zip(ALL_SECTIONS) {
-                section.append(to, row, from, p);
-            }
-        }
-        Searcher {
-            n: parts.len(),
-            aligner: Arc::new(Aligner::new(&params)),
-            params,
-            store: Store::Owned(sections),
-        }
+        builder.finish()
     }
-
     /// The searcher's bytes, its sections laid out as a cache file's body holds them
     /// (`layout`).
     pub fn bytes(&self) -> std::borrow::Cow<'_, [u8]> {
@@ -416,9 +458,14 @@ impl Searcher {
     /// The same entries searched with other search settings (candidates, shift range); the
     /// descriptor settings must be this searcher's.
     pub fn with_search(mut self, candidates: usize, search_ratio: f64) -> Self {
+        self.set_search(candidates, search_ratio);
+        self
+    }
+
+    /// [`Searcher::with_search`] in place.
+    pub fn set_search(&mut self, candidates: usize, search_ratio: f64) {
         self.params.candidates = candidates;
         self.params.search_ratio = search_ratio;
-        self
     }
 
     /// One section of every entry.
