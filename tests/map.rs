@@ -308,18 +308,23 @@ fn loops_make_a_map_that_undoes_the_odometrys_drift() {
         .collect();
     std::fs::write(&odometry, lines.join("\n") + "\n").unwrap();
     let (index, out, g2o) = (dir.join("index"), dir.join("map/loops.csv"), dir.join("map/graph"));
-    let said = run(&[
-        "--poses",
-        odometry.to_str().unwrap(),
-        "--index",
-        index.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--g2o",
-        g2o.to_str().unwrap(),
-        "--cloud",
-        dir.join("map/cloud.ply").to_str().unwrap(),
-    ]);
+    // The drive from the drifting odometry, into `index`, its rows to `table`.
+    let from_odometry = |table: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "--poses",
+            odometry.to_str().unwrap(),
+            "--index",
+            index.to_str().unwrap(),
+            "-o",
+            table.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        run(&args)
+    };
+    let said = from_odometry(
+        &out,
+        &["--g2o", g2o.to_str().unwrap(), "--cloud", dir.join("map/cloud.ply").to_str().unwrap()],
+    );
     assert!(said.contains("map (toporec-plus): 96 scans, 17 loops, 17 kept, 0 rejected"), "{said}");
     // The cloud: the scans at the corrected poses fill the reference's 1 m cells far better
     // than at the odometry's, and are the same bytes on one thread.
@@ -329,28 +334,8 @@ fn loops_make_a_map_that_undoes_the_odometrys_drift() {
     assert!(said.contains(&cloud_line), "{said}");
     let odometry_cloud = dir.join("map/odometry.ply");
     let (o1, c1) = (dir.join("one/loops.csv"), dir.join("one/cloud.ply"));
-    run(&[
-        "--poses",
-        odometry.to_str().unwrap(),
-        "--index",
-        index.to_str().unwrap(),
-        "-o",
-        o1.to_str().unwrap(),
-    ]
-    .into_iter()
-    .chain(["--no-optimize", "--cloud", odometry_cloud.to_str().unwrap()])
-    .collect::<Vec<_>>());
-    run(&[
-        "--poses",
-        odometry.to_str().unwrap(),
-        "--index",
-        index.to_str().unwrap(),
-        "-o",
-        o1.to_str().unwrap(),
-    ]
-    .into_iter()
-    .chain(["--threads", "1", "--cloud", c1.to_str().unwrap()])
-    .collect::<Vec<_>>());
+    from_odometry(&o1, &["--no-optimize", "--cloud", odometry_cloud.to_str().unwrap()]);
+    from_odometry(&o1, &["--threads", "1", "--cloud", c1.to_str().unwrap()]);
     let shared = |cloud: &std::path::Path| {
         let (cells, reference) = (ply_cells(cloud, 1.0), ply_cells(&truth_cloud, 1.0));
         cells.intersection(&reference).count() as f64 / cells.union(&reference).count() as f64

@@ -9,7 +9,7 @@
 
 use super::map::Vertex;
 use crate::error::{Result, ResultExt};
-use crate::sinks::index::damage::Damage;
+use crate::sinks::index::reader::ScanRecord;
 use nalgebra::{Isometry3, Point3};
 use std::collections::HashMap;
 use std::io::Write;
@@ -28,22 +28,23 @@ pub struct Written {
     pub unread: (usize, Option<String>),
 }
 
-/// Writes the scans of `walk` that have a pose in `poses` (by walking position) into `path`.
+/// Writes the scans of `walk` that have a pose in `poses` (by walking position) into `path`,
+/// each found again by its `scans` row in `stored` (by session and scan id).
 pub(super) fn write(
     index: &Path,
     walk: &[Vertex],
     poses: &[Option<Isometry3<f64>>],
+    stored: &HashMap<(String, String), ScanRecord>,
     path: &Path,
     voxel: f64,
-    damage: &Damage,
 ) -> Result<Written> {
     let placed: HashMap<&str, Isometry3<f64>> =
         walk.iter().zip(poses).filter_map(|(v, p)| Some((v.scan_id.as_str(), (*p)?))).collect();
-    let reader = crate::sinks::index::IndexReader::open_with(index, damage)?;
-    let places: Vec<_> = reader
-        .scans()?
+    let places: Vec<_> = walk
         .iter()
-        .filter(|r| placed.contains_key(r.scan_id.as_str()))
+        .zip(poses)
+        .filter(|(_, p)| p.is_some())
+        .filter_map(|(v, _)| stored.get(&(v.session.clone(), v.scan_id.clone())))
         .map(|r| r.place())
         .collect();
     let sources = crate::pipeline::config::Pipeline::of_index(index).map(|p| p.sources).unwrap_or_default();

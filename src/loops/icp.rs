@@ -79,7 +79,11 @@ pub struct Target {
 impl Target {
     /// `points`, a raw scan in its sensor frame, voxelized at `p.voxel`, with each voxel's normal.
     pub fn new(points: &[Point], p: &IcpParams) -> Result<Target, String> {
-        let voxels = crate::preprocess::voxel_grid(points, p.voxel);
+        Target::of_voxels(crate::preprocess::voxel_grid(points, p.voxel), p)
+    }
+
+    /// A scan already voxelized at `p.voxel`, with each voxel's normal.
+    pub fn of_voxels(voxels: Vec<Point>, p: &IcpParams) -> Result<Target, String> {
         let k = p.normal_neighbours.max(3);
         if voxels.len() < k {
             return Err(format!("too few points to align ({} target voxels)", voxels.len()));
@@ -126,24 +130,34 @@ impl Target {
     }
 }
 
-/// A source scan made ready to align: its voxels at the score's size and at each stage's.
+/// A source scan made ready to align: its voxels at the score's size and, for each stage
+/// paired coarser, at that stage's.
 pub struct Source {
     fine: Vec<Point>,
-    stages: Vec<Vec<Point>>,
+    coarser: Vec<Option<Vec<Point>>>,
 }
 
 impl Source {
     /// `points`, a raw scan in its sensor frame, voxelized at `p.voxel` and at each stage's
     /// size.
     pub fn new(points: &[Point], p: &IcpParams) -> Source {
-        let fine = crate::preprocess::voxel_grid(points, p.voxel);
-        let stages = (0..p.stages.len())
+        Source::of_voxels(crate::preprocess::voxel_grid(points, p.voxel), p)
+    }
+
+    /// A scan already voxelized at `p.voxel`, voxelized again at each coarser stage's size.
+    pub fn of_voxels(fine: Vec<Point>, p: &IcpParams) -> Source {
+        let coarser = (0..p.stages.len())
             .map(|i| {
                 let size = p.source_voxels.get(i).copied().unwrap_or(p.voxel);
-                if size > p.voxel { crate::preprocess::voxel_grid(&fine, size) } else { fine.clone() }
+                (size > p.voxel).then(|| crate::preprocess::voxel_grid(&fine, size))
             })
             .collect();
-        Source { fine, stages }
+        Source { fine, coarser }
+    }
+
+    /// The voxels stage `i` pairs.
+    fn stage(&self, i: usize) -> &[Point] {
+        self.coarser.get(i).and_then(Option::as_deref).unwrap_or(&self.fine)
     }
 }
 
@@ -186,7 +200,7 @@ pub fn align_best(
     let mut last_error = String::from("no initial guess");
     let trial = if initials.len() > 1 { p.trial_iterations.min(p.iterations) } else { p.iterations };
     for &initial in initials {
-        match run_stage(&source.stages[0], target, initial, first, trial, p) {
+        match run_stage(source.stage(0), target, initial, first, trial, p) {
             Ok((pose, paired)) if best.is_none_or(|b| paired > b.1) => best = Some((pose, paired)),
             Ok(_) => {}
             Err(e) => last_error = e,
@@ -194,10 +208,10 @@ pub fn align_best(
     }
     let Some((mut pose, _)) = best else { return Err(last_error) };
     if trial < p.iterations {
-        pose = run_stage(&source.stages[0], target, pose, first, p.iterations - trial, p)?.0;
+        pose = run_stage(source.stage(0), target, pose, first, p.iterations - trial, p)?.0;
     }
     for (i, &reach) in finer.iter().enumerate() {
-        pose = run_stage(&source.stages[i + 1], target, pose, reach, p.iterations, p)?.0;
+        pose = run_stage(source.stage(i + 1), target, pose, reach, p.iterations, p)?.0;
     }
     // The score, at the final pose, of the source's voxels at the target's size.
     let reach = p.stages.last().copied().unwrap_or(p.voxel);

@@ -49,13 +49,13 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
     };
     let damage = Damage::skipping(a.skip_damaged);
     let reader = crate::sinks::index::reader::IndexReader::open_with(index, &damage)?;
-    // The stored poses (with yaw) are read only for a map or its graph.
-    let stored: HashMap<(String, String), crate::sinks::index::reader::ScanRecord> =
-        if !a.no_optimize || a.g2o.is_some() || a.cloud.is_some() {
-            reader.scans()?.into_iter().map(|r| ((r.session.clone(), r.scan_id.clone()), r)).collect()
-        } else {
-            HashMap::new()
-        };
+    // The stored poses (with yaw) are read only for a map, its graph or its cloud.
+    let wants_map = !a.no_optimize || a.g2o.is_some() || a.cloud.is_some();
+    let stored: HashMap<(String, String), crate::sinks::index::reader::ScanRecord> = if wants_map {
+        reader.scans()?.into_iter().map(|r| ((r.session.clone(), r.scan_id.clone()), r)).collect()
+    } else {
+        HashMap::new()
+    };
     let origins = reader.manifest().map(|m| m.poses.clone()).unwrap_or_default();
     let frame_of = |session: &str| -> usize {
         match a.frames {
@@ -187,9 +187,7 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
                 Vertex { scan_id: s.scan_id.clone(), session: s.session.clone(), utime: s.utime, pose }
             })
             .collect();
-        if vertices.iter().any(|v| v.pose.is_some())
-            && (!a.no_optimize || a.g2o.is_some() || a.cloud.is_some())
-        {
+        if wants_map && vertices.iter().any(|v| v.pose.is_some()) {
             let first = a.sessions.first().cloned().unwrap_or_else(|| vertices[0].session.clone());
             let mut made = map::make(method, &vertices, &rows, &frame_of, &first, !a.no_optimize);
             if !a.no_optimize && made.failed.is_none() {
@@ -216,9 +214,9 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
                     index,
                     &vertices,
                     poses,
+                    &stored,
                     &path,
                     a.cloud_voxel,
-                    &damage,
                 )?);
             }
             summary.maps.push(made);

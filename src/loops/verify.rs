@@ -92,13 +92,14 @@ pub fn check(
             .collect()
     };
     let ready = |id: &str| clouds.get(id).and_then(|c| c.as_ref().ok());
+    // (`load` voxelized them at `p.voxel` already.)
     let sources: HashMap<&str, icp::Source> = side(true)
         .into_par_iter()
-        .filter_map(|id| ready(id).map(|c| (id, icp::Source::new(c, &p))))
+        .filter_map(|id| ready(id).map(|c| (id, icp::Source::of_voxels(c.clone(), &p))))
         .collect();
     let targets: HashMap<&str, std::result::Result<icp::Target, String>> = side(false)
         .into_par_iter()
-        .filter_map(|id| ready(id).map(|c| (id, icp::Target::new(c, &p))))
+        .filter_map(|id| ready(id).map(|c| (id, icp::Target::of_voxels(c.clone(), &p))))
         .collect();
     // Alignments that failed: how many, and the first one's reason.
     let failed = std::sync::Mutex::new((0usize, String::new()));

@@ -366,16 +366,6 @@ impl Builder {
         }
     }
 
-    /// Entries so far.
-    pub fn len(&self) -> usize {
-        self.n
-    }
-
-    /// Whether it holds no entry.
-    pub fn is_empty(&self) -> bool {
-        self.n == 0
-    }
-
     /// The searcher over the entries appended.
     pub fn finish(self) -> Searcher {
         Searcher {
