@@ -12,8 +12,9 @@
 //! its codes scaled by a random factor in [0.8, 1.2] and noised, so keys and columns look like
 //! real ones; a copy keeps what follows the sector rows (the image), noised. The entries are
 //! made as the copies come, 10,000 at a time (`toporec_plus::Builder`), so the descriptors are
-//! never all held. The queries are timed without and with the lateral views of
-//! `toporec loops <source>` (`PlusParams::for_loops`), interleaved, over the same searcher. It
+//! never all held. The searcher is at toporec-plus's defaults (lateral views 3 m to either
+//! side); the queries are also timed with and without the views, interleaved, over the same
+//! searcher. It
 //! reports the peak resident memory once built and the resident memory while answering, and
 //! how well the default budget agrees with an exhaustive search (every entry re-ranked) on
 //! `TOPOREC_BENCH_EXHAUSTIVE` fresh copies (default 4).
@@ -231,10 +232,10 @@ fn main() {
             100.0 * shared / sample.max(1) as f64
         );
 
-        // Lateral views (`PlusParams::for_loops`, what `toporec loops <source>` indexes with): a
-        // search-time setting over the same entries, switched query by query.
+        // The lateral views of the defaults against none (`PlusParams::plain`): a search-time
+        // setting over the same entries, switched query by query.
         let mut searcher = searcher;
-        let views = PlusParams::for_loops().lateral;
+        let views = PlusParams::default().lateral;
         let (mut plain_ms, mut views_ms, mut plain_rerank, mut views_rerank) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for round in 0..4 {
@@ -252,7 +253,7 @@ fn main() {
                 }
             }
         }
-        searcher.set_lateral(Vec::new());
+        searcher.set_lateral(views.clone());
         let (queries_timed, plain_q, views_q) = (views_ms.len(), median(plain_ms), median(views_ms));
         println!(
             "with lateral views {views:?} m: a query {views_q:.3} ms (re-rank {:.3} ms) against {plain_q:.3} ms (re-rank {:.3} ms) without (medians of {} interleaved queries each): {:.3}x",

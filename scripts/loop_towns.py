@@ -162,7 +162,7 @@ def main():
             run([a.toporec, "run", toml, "--no-progress"])
             for method in a.only.split(",") if a.only else methods:
                 csv_out = os.path.join(out, f"loops-{town}-{offset}{a.tag}-{method}.csv")
-                thr = [] if method in WITH_DEFAULT else ["--threshold", "0"]
+                thr = [] if method in WITH_DEFAULT else ["--threshold", "1e-12"]  # --all: every match, none accepted
                 if method in given:
                     thr = ["--threshold", given[method]]
                 run([a.toporec, "loops", "--index", index, "--method", method, "--exclude-seconds",

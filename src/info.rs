@@ -53,6 +53,23 @@ pub struct MethodInfo {
     pub settings: serde_json::Value,
     /// Descriptor rows.
     pub rows: u64,
+    /// The loop threshold `loops` uses when none is given: the one calibrated for these
+    /// settings, if any.
+    pub loop_threshold: Option<f64>,
+}
+
+/// A method's settings as it reads them, with the keys it leaves out when written (an empty
+/// `lateral`) taken from `stored`.
+fn with_every_key(settings: serde_json::Value, stored: &serde_json::Value) -> serde_json::Value {
+    match (settings, stored.as_object()) {
+        (serde_json::Value::Object(mut s), Some(stored)) => {
+            for (k, v) in stored {
+                s.entry(k.clone()).or_insert_with(|| v.clone());
+            }
+            serde_json::Value::Object(s)
+        }
+        (settings, _) => settings,
+    }
 }
 
 /// Reads what the index at `index` holds.
@@ -90,16 +107,30 @@ pub fn info_with(index: &Path, damage: &Damage) -> Result<IndexInfo> {
             let kind = method.to_string();
             methods.insert(
                 method.to_string(),
-                MethodInfo { kind, length, id: id.clone(), settings, rows: rows(method) },
+                MethodInfo {
+                    kind,
+                    length,
+                    id: id.clone(),
+                    settings,
+                    rows: rows(method),
+                    loop_threshold: None,
+                },
             );
         }
         for (name, e) in &manifest.methods {
+            // Every setting as the index holds it, those it stored by leaving them out too.
+            let method = e.method(name);
+            let settings = match method.as_ref().and_then(|m| m.as_computed()) {
+                Some(c) => with_every_key(c.settings(), &crate::methods::stored_settings(&e.kind, &e.params)),
+                None => e.params.clone(),
+            };
             let m = MethodInfo {
                 kind: e.kind.clone(),
                 length: e.length,
                 id: e.id.clone(),
-                settings: e.params.clone(),
+                settings,
                 rows: rows(name),
+                loop_threshold: method.as_ref().and_then(crate::loops::default_threshold),
             };
             methods.insert(name.clone(), m);
         }
@@ -188,7 +219,12 @@ impl std::fmt::Display for IndexInfo {
         for (name, m) in &self.methods {
             let id = if m.kind == crate::methods::TOPOREC { "codebook" } else { "id" };
             let settings = serde_json::to_string(&m.settings).unwrap_or_default();
-            writeln!(f, "  {name}: length {}, {id} {}, {} rows, {settings}", m.length, m.id, m.rows)?;
+            let threshold = m.loop_threshold.map(|t| format!(", loop threshold {t}")).unwrap_or_default();
+            writeln!(
+                f,
+                "  {name}: length {}, {id} {}, {} rows{threshold}, {settings}",
+                m.length, m.id, m.rows
+            )?;
         }
         if !self.poses.is_empty() {
             writeln!(f, "poses:")?;

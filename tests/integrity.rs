@@ -527,7 +527,7 @@ fn toporec_plus_scans_it_cannot_describe_are_error_rows() {
     // A radius inside the ego vehicle's shadow: no scan has a return within it.
     let body = format!(
         "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n\
-         [descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\nmax_radius = 0.5\n",
+         [descriptors]\nmethods = [\"toporec-plus\"]\n[toporec-plus]\nmax_radius = 0.5\nlateral = []\n",
         data.join("velodyne_data").display().to_string()
     );
     let p = dir.join("plus.toml");

@@ -427,3 +427,57 @@ fn a_damaged_search_cache_never_answers() {
         assert!(o.status.success(), "{what}, rebuilt: {}", text(&o.stdout));
     }
 }
+
+#[test]
+fn an_index_made_before_the_lateral_views_were_the_default_keeps_its_settings() {
+    // What an index of the defaults without views holds is what every index of toporec-plus
+    // held before the views were the default: its settings without `lateral`, the id
+    // d3e7c12ff2bdef57 (measured on such an index). It keeps them, and their threshold; its
+    // pipeline file, run again, names the two ways on; `run --full` moves it to the default.
+    let dir = scratch_dir("plus_old_default");
+    let data = sample_copy(&dir, &["2026-01-01", "2026-01-02"]);
+    let pipeline = dir.join("plus.toml");
+    let body = |section: &str| {
+        format!(
+            "[output]\nindex = \"idx\"\n[[sources]]\nkind = \"nclt\"\nsessions = [{:?}]\n[descriptors]\nmethods = [\"toporec-plus\"]\n{section}",
+            data.join("velodyne_data").display().to_string()
+        )
+    };
+    std::fs::write(&pipeline, body("[toporec-plus]\nlateral = []\n")).unwrap();
+    let index = dir.join("idx");
+    assert!(run_pipeline(&pipeline, &index, 2).status.success());
+    let entry = &read_json(&index.join("manifest.json"))["methods"]["toporec-plus"];
+    assert_eq!(entry["id"], "d3e7c12ff2bdef57", "{entry}");
+    assert!(entry["params"].get("lateral").is_none(), "{entry}");
+    let method = toporec::loops::detector::method_of_index(&index, "toporec-plus").unwrap();
+    assert_eq!(method, toporec::Method::of(PlusParams::plain()));
+    assert_eq!(toporec::loops::default_threshold(&method), Some(0.3619));
+    let info = |index: &Path| {
+        let o = toporec(&["info", "--index", index.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout)
+    };
+    let shown = info(&index);
+    assert!(shown.contains("loop threshold 0.3619") && shown.contains("\"lateral\":[]"), "{shown}");
+
+    // The pipeline file without the section: the default now looks sideways. Refused, exit 2,
+    // naming both ways on; the index unchanged.
+    std::fs::write(&pipeline, body("")).unwrap();
+    let before = std::fs::read(index.join("manifest.json")).unwrap();
+    let o = run_pipeline(&pipeline, &index, 2);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("`lateral = []`") && err.contains("`lateral = [3.0]`") && err.contains("run --full"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(index.join("manifest.json")).unwrap(), before);
+
+    // Moved to the default with one command.
+    let o = toporec(&["run", "--full", pipeline.to_str().unwrap(), "--no-progress"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let shown = info(&index);
+    assert!(shown.contains("loop threshold 0.3534") && shown.contains("\"lateral\":[3.0]"), "{shown}");
+    let method = toporec::loops::detector::method_of_index(&index, "toporec-plus").unwrap();
+    assert_eq!(method, toporec::Method::of(PlusParams::default()));
+}

@@ -406,5 +406,8 @@ fn loops_help_says_what_the_one_command_does() {
     let top = text(&toporec(&["--help"]).stdout);
     assert!(top.contains("loops <log>") && top.contains("out/<log name>") && top.contains(".png"), "{top}");
     let help = text(&toporec(&["loops", "--help"]).stdout);
-    assert!(help.contains("default: the method's calibrated one") && help.contains("> 0"), "{help}");
+    assert!(
+        help.contains("default: the one calibrated for the method's settings") && help.contains("> 0"),
+        "{help}"
+    );
 }

@@ -60,7 +60,7 @@ pub struct LoopsArgs {
     #[command(flatten)]
     pub from: crate::sources::SourceOptions,
     /// The descriptor methods (repeatable; default: every method of the index; with sources,
-    /// toporec-plus, with lateral views of 3 m).
+    /// toporec-plus).
     #[arg(long = "method")]
     pub methods: Vec<String>,
     /// Only these sessions' scans, as queries and as matches (repeatable; default: all; with
@@ -75,7 +75,8 @@ pub struct LoopsArgs {
     #[arg(long, conflicts_with = "exclude_seconds")]
     pub exclude_scans: Option<usize>,
     /// Matches with a descriptor distance below this are loops (a distance in the method's own
-    /// units, > 0; default: the method's calibrated one, 0.3534 for toporec-plus with sources).
+    /// units, > 0; default: the one calibrated for the method's settings, `info` shows it: 0.3534 for
+    /// toporec-plus).
     #[arg(long, value_parser = ranges::positive)]
     pub threshold: Option<f64>,
     /// The thresholds of a calibration file (`--calibrate` writes it).

@@ -184,6 +184,24 @@ impl Registered {
     pub(crate) fn method_from_toml(&self, section: toml::Value) -> Result<Method, String> {
         (self.from_toml)(section).map(Method::computed)
     }
+
+    /// The method with the settings an index stored (its manifest, its effective pipeline),
+    /// unchecked: a key they lack means what it meant when they were written
+    /// ([`stored_settings`]), not today's default.
+    pub(crate) fn stored_method(&self, settings: &serde_json::Value) -> Result<Method, String> {
+        (self.from_json)(&stored_settings(self.name, settings)).map(Method::computed)
+    }
+}
+
+/// The settings of the method `kind` an index stored, with what a missing key meant when they
+/// were written filled in: toporec-plus's `lateral` was empty by default before the views were
+/// the default ([`toporec_plus::PlusParams::from_stored`]).
+pub fn stored_settings(kind: &str, settings: &serde_json::Value) -> serde_json::Value {
+    let mut settings = if settings.is_null() { serde_json::json!({}) } else { settings.clone() };
+    if kind == toporec_plus::NAME {
+        toporec_plus::PlusParams::from_stored(&mut settings);
+    }
+    settings
 }
 
 /// The names of the methods computed from raw scans, in the registry's order.

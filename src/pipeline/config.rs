@@ -165,7 +165,7 @@ impl Pipeline {
     ) -> Result<Self, ConfigErrors> {
         let index = clean(&std::path::absolute(index).unwrap_or_else(|_| index.to_owned()));
         let path = index.join(crate::sinks::index::PIPELINE_FILE);
-        let mut p = Parser { base: index.clone(), check_inputs: true, errors: Vec::new() };
+        let mut p = Parser { base: index.clone(), check_inputs: true, stored: false, errors: Vec::new() };
         let defaults = Table::new();
         let mut root = Section::new(&defaults, "");
         let preprocess = p.preprocess(&mut root);
@@ -198,7 +198,7 @@ impl Pipeline {
         // Absolute, so the effective pipeline written into an index stays valid anywhere.
         let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         let base = std::path::absolute(base).unwrap_or_else(|_| base.to_owned());
-        let mut p = Parser { base, check_inputs, errors: Vec::new() };
+        let mut p = Parser { base, check_inputs, stored: !check_inputs, errors: Vec::new() };
         let mut root = Section::new(&doc, "");
         let index = p.output(&mut root);
         let sources = p.sources(&mut root, &doc);
@@ -336,6 +336,9 @@ struct Parser {
     base: PathBuf,
     /// Whether input paths must exist (not for an index's own effective pipeline).
     check_inputs: bool,
+    /// Whether the text is an index's own effective pipeline: a method setting it lacks means
+    /// what it meant when it was written ([`crate::methods::stored_settings`]).
+    stored: bool,
     errors: Vec<String>,
 }
 
@@ -472,8 +475,13 @@ impl Parser {
     /// `[toporec-plus]`, …), defaults filled in; its defaults when the section does not parse.
     fn method_section(&mut self, root: &mut Section, entry: &crate::methods::Registered) -> Method {
         root.seen.push(entry.name);
+        let stored = |v: &Value| serde_json::to_value(v).map_err(|e| e.to_string());
         match root.table.get(entry.name) {
             None => entry.default_method(),
+            Some(v) if self.stored => stored(v).and_then(|v| entry.stored_method(&v)).unwrap_or_else(|e| {
+                self.errors.push(format!("{}: {e}", entry.name));
+                entry.default_method()
+            }),
             Some(v) => entry.method_from_toml(v.clone()).unwrap_or_else(|e| {
                 self.errors.push(format!("{}: {e}", entry.name));
                 entry.default_method()

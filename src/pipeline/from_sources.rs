@@ -5,8 +5,7 @@
 //! NCLT session, a KITTI sequence, a folder of clouds; its sessions are the ones `inspect` lists.
 //! The pipeline is a value ([`Pipeline::of_parts`]): the sources with the options given
 //! (`--topic`, the poses, settled by each source: [`crate::sources::Source::settle`]), toporec's
-//! defaults, and toporec-plus at its loop preset ([`PlusParams::for_loops`]: looking 3 m to either
-//! side for revisits driven back a lane over), or the methods asked for. The index keeps it as
+//! defaults, and toporec-plus (at its defaults, as everywhere), or the methods asked for. The index keeps it as
 //! every run's: everything chosen (the topic, where the poses come from, their frames, the
 //! tolerance) is written in it, so `toporec run` on it, and `toporec repair`, give the same index.
 //! The index goes to `out/<first source's name>` unless `--index` says otherwise, and the next
@@ -18,7 +17,6 @@
 
 use super::config::Pipeline;
 use crate::error::{Error, Result};
-use crate::methods::toporec_plus::PlusParams;
 use crate::methods::{Method, REGISTRY};
 use crate::sources::{Input, SourceOptions};
 use std::path::{Path, PathBuf};
@@ -124,15 +122,7 @@ pub fn made(sources: &[PathBuf], options: &SourceOptions, methods: &[String], in
     } else {
         methods.to_vec()
     };
-    // Each method at its defaults; toporec-plus at its loop preset: a robot's own log holds its
-    // revisits driven back a lane over (docs/loops.md).
-    let sections: Vec<Method> = REGISTRY
-        .iter()
-        .map(|r| match r.name {
-            crate::methods::toporec_plus::NAME => Method::of(PlusParams::for_loops()),
-            _ => r.default_method(),
-        })
-        .collect();
+    let sections: Vec<Method> = REGISTRY.iter().map(|r| r.default_method()).collect();
     let pipeline = Pipeline::of_parts(index, specs, &names, &sections)?;
     let mut sessions = Vec::new();
     for s in &pipeline.sources {

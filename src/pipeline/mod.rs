@@ -277,6 +277,9 @@ fn settings_change(writer: &IndexWriter, p: &Pipeline) -> String {
     if p.methods.toporec {
         wanted.insert(0, crate::methods::TOPOREC.into());
     }
+    if let Some(hint) = views_only(manifest, p) {
+        return hint;
+    }
     if held != wanted && manifest.counts.ok > 0 {
         format!(
             "holds the descriptor methods [{}], this pipeline asks for [{}] (or other parameters); \
@@ -289,6 +292,36 @@ fn settings_change(writer: &IndexWriter, p: &Pipeline) -> String {
          rebuild it with `toporec run --full` (every scan is recomputed)"
             .into()
     }
+}
+
+/// When the index's toporec-plus differs from the pipeline's in its lateral views alone (an
+/// index made before the views were the default, its pipeline file run again): what to do.
+/// The views are a search-time setting, but they are part of the method's id, so the run
+/// keeps neither silently.
+fn views_only(manifest: &crate::sinks::index::manifest::Manifest, p: &Pipeline) -> Option<String> {
+    let name = crate::methods::toporec_plus::NAME;
+    let held = manifest.methods.get(name).filter(|e| e.kind == name)?;
+    let wanted = p.methods.computed.iter().find(|m| m.name == name)?;
+    let without_views = |v: &serde_json::Value| {
+        let mut v = crate::methods::stored_settings(name, v);
+        v.as_object_mut().map(|o| o.remove("lateral"));
+        v
+    };
+    let (held_views, wanted_views) = (
+        crate::methods::stored_settings(name, &held.params)["lateral"].clone(),
+        wanted.params()["lateral"].clone(),
+    );
+    (without_views(&held.params) == without_views(&wanted.params()) && held_views != wanted_views).then(|| {
+        let show = |v: &serde_json::Value| if v.is_null() { "[]".to_string() } else { v.to_string() };
+        format!(
+            "its {name} was made with `lateral = {}` (none was the default before [3.0]), this pipeline asks for \
+             `lateral = {}`: to keep the index's settings, write `lateral = {}` in the pipeline's [{name}]; \
+             to move the index to the pipeline's, `toporec run --full` (docs/loops.md, \"One toporec-plus\")",
+            show(&held_views),
+            show(&wanted_views),
+            show(&held_views),
+        )
+    })
 }
 
 /// The codebook the run must use: the index's (checked against the pipeline's), or the

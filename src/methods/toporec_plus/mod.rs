@@ -46,9 +46,10 @@
 //!    The polar grid finds the street; the offset says which of its neighbouring scans the
 //!    query stands nearest.
 //!
-//! 6. **Lateral views** ([`PlusParams::lateral`], none by default). The query's polar grid is
-//!    also resampled as seen from origins moved sideways, and a candidate's distance is the
-//!    smallest over the views: a revisit driven back a lane over (`docs/loops.md`).
+//! 6. **Lateral views** ([`PlusParams::lateral`], 3 m to either side by default). The query's
+//!    polar grid is also resampled as seen from origins moved sideways, and a candidate's
+//!    distance is the smallest over the views: a revisit driven back a lane over
+//!    (`docs/loops.md`). A search-time setting: the stored descriptor does not change.
 //!
 //! Nothing is trained or fitted: no codebook. A turn by a multiple of 90° maps the square
 //! grid and the polar grid onto themselves (with `sectors` a multiple of 4; angles are taken
@@ -69,9 +70,18 @@
 /// The name of the method.
 pub(crate) const NAME: &str = "toporec-plus";
 
-/// The lateral view of [`PlusParams::for_loops`] (m): chosen on towns 11, 21, 22 and 23 over
-/// 1.75 m (town 23, laps 3.5 m apart: 0.778 of the revisits separable, against 0.990).
-const LOOPS_LATERAL: f64 = 3.0;
+/// The default lateral view (m): chosen on the tuning towns 11, 21, 22 and 23 over 1.75 m
+/// (town 23, laps 3.5 m apart: 0.778 of the revisits separable, against 0.990).
+const LATERAL: f64 = 3.0;
+
+/// The loop threshold of the defaults, calibrated at precision 0.99 on the tuning towns'
+/// reversed two-lap drives (`docs/loops.md`).
+const THRESHOLD: f64 = 0.3534;
+
+/// The loop threshold of the defaults without views ([`PlusParams::plain`]), calibrated at
+/// precision 0.99 on the seed-11 drive of `docs/evaluation.md`: what indexes made before the
+/// views were the default keep.
+const PLAIN_THRESHOLD: f64 = 0.3619;
 
 /// Grid channels: the total relief in a cell, the height of its highest square.
 const CHANNELS: usize = 2;
@@ -118,7 +128,9 @@ pub struct PlusParams {
     pub fine: usize,
     /// Lateral views of the query (m): for each `s`, the query's polar grid is also seen from
     /// the origins `s` to its left and to its right (resampled, `lateral.rs`), and a
-    /// candidate's distance is the smallest over the views. Empty (the default): the query as scanned alone.
+    /// candidate's distance is the smallest over the views. `[3.0]` by default; empty: the
+    /// query as scanned alone. Left out of the settings when empty, so an index made before
+    /// the views were the default keeps its id (see [`PlusParams::from_stored`]).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub lateral: Vec<f64>,
 }
@@ -137,16 +149,25 @@ impl Default for PlusParams {
             image_side: 40,
             image_cell: 1.0,
             fine: 3,
-            lateral: Vec::new(),
+            lateral: vec![LATERAL],
         }
     }
 }
 
 impl PlusParams {
-    /// The settings `toporec loops <source>…` indexes with: the defaults with lateral views of
-    /// 3 m, for revisits driven back a lane over (`docs/loops.md`).
-    pub fn for_loops() -> Self {
-        PlusParams { lateral: vec![LOOPS_LATERAL], ..PlusParams::default() }
+    /// The defaults without lateral views: the query as scanned alone (a third of the
+    /// re-ranking's cost), the defaults of indexes made before the views were.
+    pub fn plain() -> Self {
+        PlusParams { lateral: Vec::new(), ..PlusParams::default() }
+    }
+
+    /// Fills in what settings an index stored mean by a key they lack: `lateral` was left out
+    /// when empty, and was empty by default, before the views were the default; so a stored
+    /// `[toporec-plus]` without it has no views. (A pipeline file without it gets the default.)
+    pub(crate) fn from_stored(settings: &mut serde_json::Value) {
+        if let Some(s) = settings.as_object_mut() {
+            s.entry("lateral").or_insert_with(|| serde_json::json!([]));
+        }
     }
 
     /// Values of the polar grid: 2 channels × rings × sectors (the descriptor's first part).
@@ -221,7 +242,17 @@ impl super::Computed for PlusParams {
         if let Some(s) =
             self.lateral.iter().find(|s| !(s.is_finite() && **s > 0.0 && **s <= self.max_radius / 4.0))
         {
-            out.push(format!("{NAME}.lateral: each view must be in (0, max_radius / 4] m; found {s}"));
+            let default = if self.lateral == [LATERAL] {
+                format!(
+                    " (the default; with max_radius below {}, set lateral = [] or nearer views)",
+                    4.0 * LATERAL
+                )
+            } else {
+                String::new()
+            };
+            out.push(format!(
+                "{NAME}.lateral: each view must be in (0, max_radius / 4] m; found {s}{default}"
+            ));
         }
         if !(self.image_cell.is_finite() && (0.1..=10.0).contains(&self.image_cell)) {
             out.push(format!("{NAME}.image_cell: must be in [0.1, 10] m; found {}", self.image_cell));
@@ -246,14 +277,12 @@ impl super::Computed for PlusParams {
         &["candidates", "rerank"]
     }
 
-    /// Calibrated at precision 0.99: the defaults on the seed-11 drive of `docs/evaluation.md`,
-    /// [`PlusParams::for_loops`] on reversed two-lap drives of towns 11, 21, 22 and 23
-    /// (`docs/loops.md`).
+    /// [`THRESHOLD`] for the defaults, [`PLAIN_THRESHOLD`] for the defaults without views.
     fn default_threshold(&self) -> Option<f64> {
         if *self == PlusParams::default() {
-            Some(0.3619)
-        } else if *self == PlusParams::for_loops() {
-            Some(0.3534)
+            Some(THRESHOLD)
+        } else if *self == PlusParams::plain() {
+            Some(PLAIN_THRESHOLD)
         } else {
             None
         }

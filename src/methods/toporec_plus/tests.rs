@@ -264,12 +264,13 @@ fn a_lateral_view_finds_the_scan_from_the_other_lane() {
     // The same walls scanned from 3 m to the left (y) and turned half round, as on the drive
     // back on the other side of the road. Seen from the origin 3 m to its side, the query's
     // grid is nearer the first scan's than the query's own, and the yaw stays half a turn.
-    let p = PlusParams::default();
+    let p = PlusParams::plain();
     let here = describe(&scene(), &p).unwrap();
     let moved: Vec<Point> = scene().iter().map(|&[x, y, z]| [x, y - 3.0, z]).collect();
     let there = describe(&turned(&moved, 2), &p).unwrap();
     let (plain, _) = distance(&there, &here, &p);
-    let lateral = PlusParams { lateral: vec![3.0], ..p.clone() };
+    let lateral = PlusParams::default();
+    assert_eq!(lateral.lateral, vec![3.0], "the default looks 3 m to either side");
     let searcher = Searcher::new(here.clone(), lateral.clone());
     let (hits, _) = searcher.search(&there, 1);
     assert!(hits[0].distance < 0.8 * plain, "lateral view {} against {plain}", hits[0].distance);

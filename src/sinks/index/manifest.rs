@@ -53,12 +53,19 @@ impl MethodEntry {
     /// know.
     pub fn method(&self, name: &str) -> Option<Method> {
         let kind = match self.kind.as_str() {
-            kind if Registered::of(kind).is_some() => Method::with_settings(kind, &self.params).ok()?.kind,
-            IMPORTED => MethodKind::Imported {
-                length: self.length,
-                source: self.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),
+            kind => match Registered::of(kind) {
+                Some(entry) => entry.stored_method(&self.params).ok()?.kind,
+                None if kind == IMPORTED => MethodKind::Imported {
+                    length: self.length,
+                    source: self
+                        .params
+                        .get("source")
+                        .and_then(|s| s.as_str())
+                        .unwrap_or_default()
+                        .to_string(),
+                },
+                None => return None,
             },
-            _ => return None,
         };
         Some(Method { name: name.to_string(), kind })
     }
