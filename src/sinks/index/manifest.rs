@@ -52,20 +52,13 @@ impl MethodEntry {
     /// The method this entry records, named `name`; `None` for a kind this toporec does not
     /// know.
     pub fn method(&self, name: &str) -> Option<Method> {
-        let kind = match self.kind.as_str() {
-            kind => match Registered::of(kind) {
-                Some(entry) => entry.stored_method(&self.params).ok()?.kind,
-                None if kind == IMPORTED => MethodKind::Imported {
-                    length: self.length,
-                    source: self
-                        .params
-                        .get("source")
-                        .and_then(|s| s.as_str())
-                        .unwrap_or_default()
-                        .to_string(),
-                },
-                None => return None,
+        let kind = match Registered::of(&self.kind) {
+            Some(entry) => entry.stored_method(&self.params).ok()?.kind,
+            None if self.kind == IMPORTED => MethodKind::Imported {
+                length: self.length,
+                source: self.params.get("source").and_then(|s| s.as_str()).unwrap_or_default().to_string(),
             },
+            None => return None,
         };
         Some(Method { name: name.to_string(), kind })
     }
