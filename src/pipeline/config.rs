@@ -165,7 +165,7 @@ impl Pipeline {
     ) -> Result<Self, ConfigErrors> {
         let index = clean(&std::path::absolute(index).unwrap_or_else(|_| index.to_owned()));
         let path = index.join(crate::sinks::index::PIPELINE_FILE);
-        let mut p = Parser { base: index.clone(), check_inputs: true, stored: false, errors: Vec::new() };
+        let mut p = Parser { base: index.clone(), check_inputs: true, errors: Vec::new() };
         let defaults = Table::new();
         let mut root = Section::new(&defaults, "");
         let preprocess = p.preprocess(&mut root);
@@ -198,7 +198,7 @@ impl Pipeline {
         // Absolute, so the effective pipeline written into an index stays valid anywhere.
         let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         let base = std::path::absolute(base).unwrap_or_else(|_| base.to_owned());
-        let mut p = Parser { base, check_inputs, stored: !check_inputs, errors: Vec::new() };
+        let mut p = Parser { base, check_inputs, errors: Vec::new() };
         let mut root = Section::new(&doc, "");
         let index = p.output(&mut root);
         let sources = p.sources(&mut root, &doc);
@@ -334,11 +334,10 @@ pub(crate) fn methods_named(names: &[String], sections: &[Method], errors: &mut 
 struct Parser {
     /// The file's folder (absolute): relative paths are relative to it.
     base: PathBuf,
-    /// Whether input paths must exist (not for an index's own effective pipeline).
+    /// Whether input paths must exist: not for an index's own effective pipeline, where a
+    /// method setting the text lacks means what it meant when it was written
+    /// ([`crate::methods::stored_settings`]).
     check_inputs: bool,
-    /// Whether the text is an index's own effective pipeline: a method setting it lacks means
-    /// what it meant when it was written ([`crate::methods::stored_settings`]).
-    stored: bool,
     errors: Vec<String>,
 }
 
@@ -478,10 +477,12 @@ impl Parser {
         let stored = |v: &Value| serde_json::to_value(v).map_err(|e| e.to_string());
         match root.table.get(entry.name) {
             None => entry.default_method(),
-            Some(v) if self.stored => stored(v).and_then(|v| entry.stored_method(&v)).unwrap_or_else(|e| {
-                self.errors.push(format!("{}: {e}", entry.name));
-                entry.default_method()
-            }),
+            Some(v) if !self.check_inputs => {
+                stored(v).and_then(|v| entry.stored_method(&v)).unwrap_or_else(|e| {
+                    self.errors.push(format!("{}: {e}", entry.name));
+                    entry.default_method()
+                })
+            }
             Some(v) => entry.method_from_toml(v.clone()).unwrap_or_else(|e| {
                 self.errors.push(format!("{}: {e}", entry.name));
                 entry.default_method()

@@ -300,26 +300,19 @@ fn settings_change(writer: &IndexWriter, p: &Pipeline) -> String {
 /// keeps neither silently.
 fn views_only(manifest: &crate::sinks::index::manifest::Manifest, p: &Pipeline) -> Option<String> {
     let name = crate::methods::toporec_plus::NAME;
-    let held = manifest.methods.get(name).filter(|e| e.kind == name)?;
+    // Both as read: the index's with what its stored settings meant, every default filled in.
+    let held = manifest.methods.get(name).filter(|e| e.kind == name)?.method(name)?;
     let wanted = p.methods.computed.iter().find(|m| m.name == name)?;
-    let without_views = |v: &serde_json::Value| {
-        let mut v = crate::methods::stored_settings(name, v);
-        v.as_object_mut().map(|o| o.remove("lateral"));
-        v
-    };
-    let (held_views, wanted_views) = (
-        crate::methods::stored_settings(name, &held.params)["lateral"].clone(),
-        wanted.params()["lateral"].clone(),
-    );
-    (without_views(&held.params) == without_views(&wanted.params()) && held_views != wanted_views).then(|| {
-        let show = |v: &serde_json::Value| if v.is_null() { "[]".to_string() } else { v.to_string() };
+    let (mut held, mut wanted) = (held.params(), wanted.params());
+    // An empty `lateral` is left out of the settings.
+    let views = |v: Option<serde_json::Value>| v.map_or_else(|| "[]".to_string(), |v| v.to_string());
+    let held_views = views(held.as_object_mut()?.remove("lateral"));
+    let wanted_views = views(wanted.as_object_mut()?.remove("lateral"));
+    (held == wanted && held_views != wanted_views).then(|| {
         format!(
-            "its {name} was made with `lateral = {}` (none was the default before [3.0]), this pipeline asks for \
-             `lateral = {}`: to keep the index's settings, write `lateral = {}` in the pipeline's [{name}]; \
+            "its {name} was made with `lateral = {held_views}` (none was the default before [3.0]), this pipeline asks for \
+             `lateral = {wanted_views}`: to keep the index's settings, write `lateral = {held_views}` in the pipeline's [{name}]; \
              to move the index to the pipeline's, `toporec run --full` (docs/loops.md, \"One toporec-plus\")",
-            show(&held_views),
-            show(&wanted_views),
-            show(&held_views),
         )
     })
 }
