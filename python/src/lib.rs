@@ -126,16 +126,22 @@ fn loops(py: Python<'_>, args: Vec<String>, threads: usize) -> PyResult<(String,
 /// `toporec optimize GRAPH.g2o [-o OUT]`: the graph optimized (written to `out` when given);
 /// returns the summary as JSON and each vertex's id and optimized values.
 #[pyfunction]
-#[pyo3(signature = (graph, out, robust, max_iterations))]
+#[pyo3(signature = (graph, out, robust, max_iterations, start))]
 fn optimize(
     py: Python<'_>,
     graph: PathBuf,
     out: Option<PathBuf>,
     robust: bool,
     max_iterations: usize,
+    start: &str,
 ) -> PyResult<(String, Vec<i64>, Vec<Vec<f64>>)> {
+    let start = match start {
+        "file" => toporec::map::Start::File,
+        "chordal" => toporec::map::Start::Chordal,
+        other => return Err(value_error(&format!("start: {other:?} is neither \"file\" nor \"chordal\""))),
+    };
     let done = py
-        .detach(|| toporec::map::optimize_graph(&graph, out.as_deref(), robust, max_iterations.max(1)))
+        .detach(|| toporec::map::optimize_graph(&graph, out.as_deref(), robust, max_iterations.max(1), start))
         .map_err(toporec_error)?;
     let summary = serde_json::json!({
         "kind": done.kind,
@@ -144,6 +150,7 @@ fn optimize(
         "held": done.size.2,
         "cost_before": done.costs.0,
         "cost_after": done.costs.1,
+        "cost_start": done.start_cost,
         "iterations": done.iterations,
         "rejected": done.rejected,
         "seconds": done.seconds,

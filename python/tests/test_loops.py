@@ -185,6 +185,16 @@ def test_optimize_a_graph_as_the_command_does(repo, binary, tmp_path):
         done.poses.drop_columns(["id"]).to_pandas().to_numpy(), [[float(w) for w in v[2:]] for v in vertices]
     )
     assert toporec.optimize(graph, robust=True).poses == done.poses  # out=None: nothing written
+    assert done.cost_start is None
+    chordal = toporec.optimize(graph, out=tmp_path / "chordal.g2o", start="chordal")
+    said = subprocess.run(
+        [binary, "optimize", graph, "-o", tmp_path / "command-chordal.g2o", "--start", "chordal"],
+        check=True, capture_output=True, text=True,
+    ).stdout
+    assert (tmp_path / "chordal.g2o").read_text() == (tmp_path / "command-chordal.g2o").read_text()
+    assert f"→ {chordal.cost_start:.6f} (chordal start) → {chordal.cost_after:.6f}" in said
+    with pytest.raises(ValueError, match="start"):
+        toporec.optimize(graph, start="middle")
     bad = tmp_path / "bad.g2o"
     bad.write_text(graph.read_text() + "EDGE_SE3:QUAT 0 1 oops\n")
     with pytest.raises(ValueError, match=rf"bad\.g2o:{len(graph.read_text().splitlines()) + 1}: expected 28 numbers"):

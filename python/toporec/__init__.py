@@ -449,10 +449,16 @@ class OptimizedGraph(NamedTuple):
     """Levenberg–Marquardt iterations."""
     rejected: List[Tuple[int, int]]
     """With ``robust=True``: the loops rejected, as (from id, to id)."""
+    cost_start: Optional[float] = None
+    """With ``start="chordal"``: the cost at the chordal start."""
 
 
 def optimize(
-    graph: PathLike, out: Optional[PathLike] = None, robust: bool = False, max_iterations: int = 1000
+    graph: PathLike,
+    out: Optional[PathLike] = None,
+    robust: bool = False,
+    max_iterations: int = 1000,
+    start: str = "file",
 ) -> OptimizedGraph:
     """Optimizes a pose graph in g2o's format, as ``toporec optimize`` does (docs/map.md).
 
@@ -462,13 +468,15 @@ def optimize(
         out: also write the optimized graph here (the same lines, the vertices moved).
         robust: reject the loops that disagree with the rest (graduated non-convexity).
         max_iterations: Levenberg–Marquardt iterations at most.
+        start: ``"file"`` (the file's vertices) or ``"chordal"`` (the chordal relaxation of all
+            edges, for a graph whose vertices are far off; docs/map.md).
 
     Raises:
         ValueError: a malformed line (named by number), a graph in disconnected parts, or a
             solve that does not converge (nothing is written).
     """
     text, ids, values = _toporec.optimize(
-        os.fspath(graph), None if out is None else os.fspath(out), bool(robust), int(max_iterations)
+        os.fspath(graph), None if out is None else os.fspath(out), bool(robust), int(max_iterations), str(start)
     )
     summary = json.loads(text)
     names = ["x", "y", "theta"] if summary["kind"] == "SE(2)" else ["x", "y", "z", "qx", "qy", "qz", "qw"]
@@ -482,6 +490,7 @@ def optimize(
         cost_after=summary["cost_after"],
         iterations=summary["iterations"],
         rejected=[tuple(r) for r in summary["rejected"]],
+        cost_start=summary["cost_start"],
     )
 
 

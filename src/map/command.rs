@@ -25,6 +25,20 @@ pub struct OptimizeArgs {
     /// Levenberg–Marquardt iterations at most, [1, ∞).
     #[arg(long, default_value_t = 1000, value_parser = crate::ranges::count)]
     pub max_iterations: usize,
+    /// Where the solve starts: the file's own vertices, or the chordal relaxation of all edges
+    /// (rotations, then translations, by linear least squares; for a graph whose vertices are
+    /// far off, as odometry chained over kilometres is).
+    #[arg(long, value_enum, default_value_t = Start::File)]
+    pub start: Start,
+}
+
+/// Where `toporec optimize` starts.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Start {
+    /// The graph's own vertices.
+    File,
+    /// The chordal relaxation ([`super::initialize`]).
+    Chordal,
 }
 
 /// What `toporec optimize` did.
@@ -34,8 +48,11 @@ pub struct Optimized {
     pub kind: &'static str,
     /// Vertices, edges, held vertices.
     pub size: (usize, usize, usize),
-    /// The cost before and after (GTSAM's `graph.error`: ½ Σ eᵀ Ω e).
+    /// The cost before and after (GTSAM's `graph.error`: ½ Σ eᵀ Ω e); before is the file's
+    /// vertices'.
     pub costs: (f64, f64),
+    /// With `--start chordal`, the cost at the chordal start.
+    pub start_cost: Option<f64>,
     /// Levenberg–Marquardt iterations.
     pub iterations: usize,
     /// With `--robust`: the loops rejected, as (from id, to id).
@@ -50,9 +67,10 @@ pub struct Optimized {
 impl std::fmt::Display for Optimized {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let (v, e, held) = self.size;
+        let start = self.start_cost.map(|c| format!(" → {c:.6} (chordal start)")).unwrap_or_default();
         writeln!(
             f,
-            "{} graph: {v} vertices ({held} held), {e} edges; cost {:.6} → {:.6} in {} iterations, {:.2} s",
+            "{} graph: {v} vertices ({held} held), {e} edges; cost {:.6}{start} → {:.6} in {} iterations, {:.2} s",
             self.kind, self.costs.0, self.costs.1, self.iterations, self.seconds
         )?;
         if !self.rejected.is_empty() {
@@ -68,7 +86,7 @@ impl std::fmt::Display for Optimized {
 /// atomically; a solve that does not converge is an error with its last cost, and nothing is
 /// written.
 pub fn optimize(a: &OptimizeArgs) -> Result<Optimized> {
-    optimize_graph(&a.graph, Some(&a.out), a.robust, a.max_iterations)
+    optimize_graph(&a.graph, Some(&a.out), a.robust, a.max_iterations, a.start)
 }
 
 /// [`optimize`] of the graph at `path`, written to `out` when given (the optimized poses are
@@ -78,14 +96,15 @@ pub fn optimize_graph(
     out: Option<&Path>,
     robust: bool,
     max_iterations: usize,
+    start: Start,
 ) -> Result<Optimized> {
-    let start = std::time::Instant::now();
+    let began = std::time::Instant::now();
     let options = Options { robust, max_iterations, ..Options::default() };
     let mut done = match g2o::read(path)? {
-        G2o::Plane(read) => run(read, path, out, &options, "SE(2)")?,
-        G2o::Space(read) => run(read, path, out, &options, "SE(3)")?,
+        G2o::Plane(read) => run(read, path, out, &options, start, "SE(2)")?,
+        G2o::Space(read) => run(read, path, out, &options, start, "SE(3)")?,
     };
-    done.seconds = start.elapsed().as_secs_f64();
+    done.seconds = began.elapsed().as_secs_f64();
     Ok(done)
 }
 
@@ -94,6 +113,7 @@ fn run<P: Pose<D> + g2o::FromG2o, const D: usize>(
     path: &Path,
     out: Option<&Path>,
     options: &Options,
+    start: Start,
     kind: &'static str,
 ) -> Result<Optimized> {
     let parts = read.graph.parts();
@@ -119,6 +139,16 @@ fn run<P: Pose<D> + g2o::FromG2o, const D: usize>(
         read.graph.fixed[0] = true;
     }
     let held = read.graph.fixed.iter().filter(|&&f| f).count();
+    let file_cost = read.graph.cost();
+    let start_cost = match start {
+        Start::File => None,
+        Start::Chordal => {
+            read.graph.initialize_chordal().map_err(|super::initialize::NoStart(why)| {
+                Error::invalid(format!("{}: no chordal start: {why}", path.display()))
+            })?;
+            Some(read.graph.cost())
+        }
+    };
     let solution = read.graph.optimize(options).map_err(|NotConverged { cost, iterations }| {
         Error::invalid(format!(
             "{}: the optimization did not converge in {iterations} iterations (last cost {cost:.6}); nothing written",
@@ -136,7 +166,8 @@ fn run<P: Pose<D> + g2o::FromG2o, const D: usize>(
     Ok(Optimized {
         kind,
         size: (read.graph.poses.len(), read.graph.edges.len(), held),
-        costs: (solution.initial_cost, solution.cost),
+        costs: (file_cost, solution.cost),
+        start_cost,
         iterations: solution.iterations,
         rejected,
         vertices,
