@@ -211,7 +211,8 @@ fn optimize_from_the_chordal_start_solves_w20000_in_a_few_iterations() {
     let dir = scratch_dir("optimize_chordal_w20000");
     let graph = data.join("posegraphs/w20000.g2o");
     let out = dir.join("out.g2o");
-    let o = toporec(&["optimize", graph.to_str().unwrap(), "-o", out.to_str().unwrap(), "--start", "chordal"]);
+    let o =
+        toporec(&["optimize", graph.to_str().unwrap(), "-o", out.to_str().unwrap(), "--start", "chordal"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let said = text(&o.stdout);
     // "… cost 52147703.791569 → 75.981607 (chordal start) → 18.772897 in 21 iterations, …"
