@@ -138,7 +138,7 @@ fn optimize(
     let start = match start {
         "file" => toporec::map::Start::File,
         "chordal" => toporec::map::Start::Chordal,
-        other => return Err(value_error(&format!("start: {other:?} is neither \"file\" nor \"chordal\""))),
+        other => return Err(value_error(format!("start: {other:?} is neither \"file\" nor \"chordal\""))),
     };
     let done = py
         .detach(|| toporec::map::optimize_graph(&graph, out.as_deref(), robust, max_iterations.max(1), start))
