@@ -14,7 +14,7 @@
 
 use super::lie::Pose;
 use super::solve::Graph;
-use super::sparse::{Factor, NotPositive, Pattern};
+use super::sparse::{Factor, NotPositive};
 use nalgebra::{Isometry3, Matrix3, Rotation3, SVector, Translation3, UnitQuaternion, Vector3};
 
 /// Why a start could not be made: a part of the graph holds no pose (the gauge), or the linear
@@ -26,27 +26,14 @@ impl<P: Pose<D>, const D: usize> Graph<P, D> {
     /// Replaces the free poses by the chordal relaxation's estimate (see the module doc). Every
     /// connected part needs a held pose.
     pub fn initialize_chordal(&mut self) -> Result<(), NoStart> {
-        let mut variable = vec![usize::MAX; self.poses.len()];
-        let mut free = Vec::new();
-        for (v, &held) in self.fixed.iter().enumerate() {
-            if !held {
-                variable[v] = free.len();
-                free.push(v);
-            }
-        }
+        let (variable, free) = self.variables();
         if free.is_empty() {
             return Ok(());
         }
         if self.fixed.iter().all(|&f| !f) {
             return Err(NoStart("no pose is held".into()));
         }
-        let links: Vec<(usize, usize)> = self
-            .edges
-            .iter()
-            .filter(|e| variable[e.from] != usize::MAX && variable[e.to] != usize::MAX)
-            .map(|e| (variable[e.from], variable[e.to]))
-            .collect();
-        let pattern = Pattern::new(free.len(), &links);
+        let pattern = self.pattern(&variable, free.len());
         let poses: Vec<Isometry3<f64>> = self.poses.iter().map(|p| p.to_3d()).collect();
         let measured: Vec<Isometry3<f64>> = self.edges.iter().map(|e| e.measured.to_3d()).collect();
         let singular = |_: NotPositive| NoStart("a part of the graph holds no pose".into());

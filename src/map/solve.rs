@@ -208,15 +208,9 @@ impl<P: Pose<D>, const D: usize> Graph<P, D> {
         parts.into_values().collect()
     }
 
-    /// Levenberg–Marquardt on the weighted least-squares cost, from the current poses; returns
-    /// the iterations spent (`spent`: before this solve, for the error's count).
-    fn least_squares(
-        &mut self,
-        weights: &[f64],
-        options: &Options,
-        spent: usize,
-    ) -> Result<usize, NotConverged> {
-        // The variables: the poses not held.
+    /// The variables, the poses not held: each pose's variable (`usize::MAX` when held), and
+    /// each variable's pose.
+    pub(super) fn variables(&self) -> (Vec<usize>, Vec<usize>) {
         let mut variable = vec![usize::MAX; self.poses.len()];
         let mut free: Vec<usize> = Vec::new();
         for (v, &held) in self.fixed.iter().enumerate() {
@@ -225,16 +219,33 @@ impl<P: Pose<D>, const D: usize> Graph<P, D> {
                 free.push(v);
             }
         }
-        if free.is_empty() {
-            return Ok(0);
-        }
+        (variable, free)
+    }
+
+    /// The normal equations' pattern over `count` variables: the edges between two of them.
+    pub(super) fn pattern(&self, variable: &[usize], count: usize) -> Pattern {
         let links: Vec<(usize, usize)> = self
             .edges
             .iter()
             .filter(|e| variable[e.from] != usize::MAX && variable[e.to] != usize::MAX)
             .map(|e| (variable[e.from], variable[e.to]))
             .collect();
-        let pattern = Pattern::new(free.len(), &links);
+        Pattern::new(count, &links)
+    }
+
+    /// Levenberg–Marquardt on the weighted least-squares cost, from the current poses; returns
+    /// the iterations spent (`spent`: before this solve, for the error's count).
+    fn least_squares(
+        &mut self,
+        weights: &[f64],
+        options: &Options,
+        spent: usize,
+    ) -> Result<usize, NotConverged> {
+        let (variable, free) = self.variables();
+        if free.is_empty() {
+            return Ok(0);
+        }
+        let pattern = self.pattern(&variable, free.len());
         let inverses: Vec<P> = self.edges.iter().map(|e| e.measured.inverse()).collect();
         let mut cost = self.cost_at(&self.poses, weights, &inverses);
         // λ starts at GTSAM's 1e-5 and moves by tens (Marquardt's damping on the diagonal's
