@@ -32,23 +32,10 @@ def tum(path):
     return np.array([[float(w) for w in line.split()[:4]] for line in open(path) if line.strip()])
 
 
-def aligned_rmse(pairs):
-    """The RMSE of the estimates' positions after one rigid alignment (Umeyama, no scale) of all
-    `pairs` (estimate, truth) of equal-length position arrays together."""
-    est = np.vstack([e for e, _ in pairs])
-    ref = np.vstack([t for _, t in pairs])
-    mu_e, mu_r = est.mean(0), ref.mean(0)
-    u, _, vt = np.linalg.svd((ref - mu_r).T @ (est - mu_e))
-    d = np.eye(3)
-    d[2, 2] = np.sign(np.linalg.det(u @ vt))
-    rotation = u @ d @ vt
-    moved = (rotation @ (est - mu_e).T).T + mu_r
-    return float(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1))))
-
-
-def similarity_rmse(pairs):
-    """The same RMSE after one similarity alignment (Umeyama with scale): what is left when the
-    odometry's scale error, which no loop can see, is set aside."""
+def aligned_rmse(pairs, with_scale=False):
+    """The RMSE of the estimates' positions after one alignment (Umeyama) of all `pairs`
+    (estimate, truth) of equal-length position arrays together: rigid, or with `with_scale` a
+    similarity, which sets aside the odometry's scale error (no loop can see it)."""
     est = np.vstack([e for e, _ in pairs])
     ref = np.vstack([t for _, t in pairs])
     mu_e, mu_r = est.mean(0), ref.mean(0)
@@ -57,7 +44,7 @@ def similarity_rmse(pairs):
     d = np.eye(3)
     d[2, 2] = np.sign(np.linalg.det(u @ vt))
     rotation = u @ d @ vt
-    scale = np.trace(np.diag(sigma) @ d) / np.sum(centred_e ** 2)
+    scale = np.trace(np.diag(sigma) @ d) / np.sum(centred_e ** 2) if with_scale else 1.0
     moved = scale * (rotation @ centred_e.T).T + mu_r
     return float(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1))))
 
@@ -90,7 +77,7 @@ def drive(toporec, seed, kind, scratch, drift):
     odometry = {s: odometry_of(os.path.join(out, "graph.toporec-plus.g2o"), truth, sessions, s) for s in sessions}
     odometry_ate = math.sqrt(np.mean([aligned_rmse([(odometry[s], truth[s][:, 1:])]) ** 2 for s in sessions]))
     map_ate = aligned_rmse([(corrected[s][:, 1:], truth[s][:, 1:]) for s in sessions])
-    map_ate_scaled = similarity_rmse([(corrected[s][:, 1:], truth[s][:, 1:]) for s in sessions])
+    map_ate_scaled = aligned_rmse([(corrected[s][:, 1:], truth[s][:, 1:]) for s in sessions], with_scale=True)
     # Each loop's true distance: vertex v is scan v of the sessions in order.
     places = np.vstack([truth[s][:, 1:] for s in sessions])
     kept_far, rejected = 0, []
