@@ -7,7 +7,11 @@
 //! roll and pitch 0, as the index keeps them). An edge between consecutive scans of a session
 //! with their relative pose, its information from a drift model: σ = 2 cm + 2 % of the step for
 //! each axis of the translation, 0.002 rad + 0.005 rad a metre for yaw, 0.01 rad for roll and
-//! pitch (which the stored poses do not have). An edge per kept loop, from the matched scan to
+//! pitch (which the stored poses do not have). With `--odometry icp`, each such step is aligned
+//! again by ICP between the two raw scans, starting from the stored step, and measured by the
+//! alignment where it passes the check's limits and lies within three of those σ of the stored
+//! step (the information as a loop's, below): a LiDAR odometry, metric where the log's may be
+//! long or short by a scale no loop can see. An edge per kept loop, from the matched scan to
 //! the query, with ICP's relative pose: σ = the alignment's RMSE (at least 5 cm) for the
 //! translation, 0.5° for each rotation. Without verification (`--no-verify`), the descriptor's
 //! own estimate (x_m, y_m, yaw) at a weaker information: σ = 1 m for the translation, 5° for
@@ -42,6 +46,27 @@ pub enum Frames {
     Own,
 }
 
+/// Where the steps between consecutive scans come from.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Odometry {
+    /// The stored poses' steps (the log's odometry, or the pose file's).
+    #[default]
+    Poses,
+    /// Each step aligned again by ICP between the two raw scans, from the stored step; where
+    /// the alignment fails its limits or strays from the stored step, the stored step.
+    Icp,
+}
+
+/// A step between consecutive scans aligned by ICP: the later scan's pose in the earlier's
+/// frame, and the alignment's RMSE (m).
+#[derive(Clone, Copy, Debug)]
+pub struct AlignedStep {
+    /// The relative pose.
+    pub pose: Isometry3<f64>,
+    /// The alignment's point-to-plane RMSE (m).
+    pub rmse: f64,
+}
+
 /// A scan of the walk with its stored pose.
 #[derive(Clone, Debug)]
 pub struct Vertex {
@@ -68,6 +93,9 @@ pub struct MethodMap {
     pub unposed_named: Vec<String>,
     /// Loops put in the graph; of those, kept by the map.
     pub loops: (usize, usize),
+    /// With `--odometry icp`: the steps between consecutive scans, and those measured by ICP
+    /// (the rest keep the stored step).
+    pub steps_aligned: Option<(usize, usize)>,
     /// The cost before and after, and the iterations.
     pub costs: (f64, f64),
     /// Levenberg–Marquardt iterations.
@@ -99,9 +127,13 @@ impl std::fmt::Display for MethodMap {
             return writeln!(f, "map ({}): not optimized (--no-optimize)", self.method);
         }
         let (loops, kept) = self.loops;
+        let steps = match self.steps_aligned {
+            Some((steps, aligned)) => format!(", {aligned} of {steps} steps aligned by ICP"),
+            None => String::new(),
+        };
         write!(
             f,
-            "map ({}): {} scans, {loops} loops, {kept} kept, {} rejected as inconsistent; cost {:.3} → {:.3} in {} iterations",
+            "map ({}): {} scans{steps}, {loops} loops, {kept} kept, {} rejected as inconsistent; cost {:.3} → {:.3} in {} iterations",
             self.method,
             self.vertices,
             loops - kept,
@@ -185,15 +217,60 @@ fn odometry_information(step: &Isometry3<f64>) -> SMatrix<f64, 6, 6> {
     diagonal(0.02 + 0.02 * d, 0.01, 0.002 + 0.005 * d)
 }
 
+/// The odometry's steps of `walk`: the walk positions of each posed scan's previous posed scan
+/// in its session and of the scan.
+pub(super) fn steps(walk: &[Vertex]) -> Vec<(usize, usize)> {
+    let mut last_of: BTreeMap<&str, usize> = BTreeMap::new();
+    let mut out = Vec::new();
+    for (v, vertex) in walk.iter().enumerate() {
+        if vertex.pose.is_none() {
+            continue;
+        }
+        if let Some(&u) = last_of.get(vertex.session.as_str()) {
+            out.push((u, v));
+        }
+        last_of.insert(vertex.session.as_str(), v);
+    }
+    out
+}
+
+/// The stored step from `from` to `to`: the later's pose in the earlier's frame.
+pub(super) fn stored_step(from: &Vertex, to: &Vertex) -> Option<Isometry3<f64>> {
+    Some(isometry(from.pose.as_ref()?).inverse() * isometry(to.pose.as_ref()?))
+}
+
+/// The step an odometry edge measures, its information, and whether ICP measured it: an ICP
+/// step (σ = its RMSE, at least 5 cm, for the translation; 0.5° for each rotation, as a loop's)
+/// where one is given and lies within three of the stored step's σ of it (see the module doc),
+/// else the stored step.
+fn odometry_edge(
+    stored: &Isometry3<f64>,
+    aligned: Option<&AlignedStep>,
+) -> (Isometry3<f64>, SMatrix<f64, 6, 6>, bool) {
+    if let Some(a) = aligned {
+        let d = stored.translation.vector.norm();
+        let off = stored.inverse() * a.pose;
+        let agrees = off.translation.vector.norm() <= 3.0 * (0.02 + 0.02 * d)
+            && off.rotation.angle() <= 3.0 * (0.01f64.max(0.002 + 0.005 * d));
+        if agrees {
+            let rmse = if a.rmse.is_finite() { a.rmse.max(0.05) } else { 0.05 };
+            return (a.pose, diagonal(rmse, 0.5f64.to_radians(), 0.5f64.to_radians()), true);
+        }
+    }
+    (*stored, odometry_information(stored), false)
+}
+
 /// Builds and optimizes one method's map over `walk` (by walking order) and its `rows`;
 /// `frame_of` gives each session's frame (sessions of one frame share it), `first` the session
-/// whose frame the map is in.
+/// whose frame the map is in; `aligned` (`--odometry icp`) the steps ICP measured (by their
+/// walk positions), which replace the stored steps where they agree.
 pub(super) fn make(
     method: &str,
     walk: &[Vertex],
     rows: &[LoopRow],
     frame_of: &dyn Fn(&str) -> usize,
     first: &str,
+    aligned: Option<&BTreeMap<(usize, usize), AlignedStep>>,
     optimize: bool,
 ) -> MethodMap {
     let n = walk.len();
@@ -295,24 +372,28 @@ pub(super) fn make(
     let poses: Vec<Se3> = positions.iter().map(|&v| Se3(initial[v].expect("posed"))).collect();
     let mut fixed = vec![false; poses.len()];
     let mut edges = Vec::new();
-    let mut last_of: BTreeMap<&str, usize> = BTreeMap::new();
+    let steps = steps(walk);
+    let mut follows = vec![false; n];
+    let mut measured_by_icp = 0;
+    for &(u, v) in &steps {
+        follows[v] = true;
+        let stored = initial[u].expect("posed").inverse() * initial[v].expect("posed");
+        let (measured, information, by_icp) = odometry_edge(&stored, aligned.and_then(|a| a.get(&(u, v))));
+        measured_by_icp += usize::from(by_icp);
+        edges.push(Edge {
+            from: index[u].expect("posed"),
+            to: index[v].expect("posed"),
+            measured: Se3(measured),
+            information,
+            robust: false,
+        });
+    }
     for &v in &positions {
-        let session = walk[v].session.as_str();
-        if let Some(&u) = last_of.get(session) {
-            let step = initial[u].expect("posed").inverse() * initial[v].expect("posed");
-            edges.push(Edge {
-                from: index[u].expect("posed"),
-                to: index[v].expect("posed"),
-                measured: Se3(step),
-                information: odometry_information(&step),
-                robust: false,
-            });
-        } else if frame[v] == anchor || !placed.contains(&frame[v]) {
+        if !follows[v] && (frame[v] == anchor || !placed.contains(&frame[v])) {
             // Each session's first scan is held in the first's frame and in frames left apart;
             // a frame placed by its loops moves with the map.
             fixed[index[v].expect("posed")] = true;
         }
-        last_of.insert(session, v);
     }
     for &(_, a, b, z, info) in &loops {
         edges.push(Edge {
@@ -324,6 +405,7 @@ pub(super) fn make(
         });
     }
     let odometry = edges.len() - loops.len();
+    out.steps_aligned = aligned.map(|_| (steps.len(), measured_by_icp));
     let mut graph = Graph { poses, fixed, edges };
     graph.hold_one_per_part();
     out.graph = Some((positions.iter().map(|&v| v as i64).collect(), graph.clone()));
@@ -548,7 +630,7 @@ mod tests {
             .map(|k| row(k - 80, k, iso(truth[k - 80]).inverse() * iso(truth[k]), ("a", "a")))
             .collect();
         rows.push(row(30, 130, iso([1.2, 0.3, 0.05]), ("a", "a")));
-        let map = make("m", &vertices, &rows, &|_| 0, "a", true);
+        let map = make("m", &vertices, &rows, &|_| 0, "a", None, true);
         assert_eq!(map.in_map.last(), Some(&Some(false)), "{:?}", map.in_map);
         assert!(map.in_map[..rows.len() - 1].iter().all(|k| *k == Some(true)), "{:?}", map.in_map);
         // The loops hold the second lap to the first; what drift the two share, they cannot see.
@@ -589,7 +671,7 @@ mod tests {
             "b" => 1,
             _ => 2,
         };
-        let map = make("m", &vertices, &rows, &frame, "a", true);
+        let map = make("m", &vertices, &rows, &frame, "a", None, true);
         assert_eq!(map.apart, vec!["c".to_string()]);
         assert!(map.in_map.iter().all(|k| *k == Some(true)), "{:?}", map.in_map);
         // Each revisit sits where it should beside the scan it revisits (0.5 m to the side).

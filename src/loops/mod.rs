@@ -123,6 +123,12 @@ pub struct LoopsArgs {
     /// The cloud's cell size (m, > 0): one point, the mean of those in it, per occupied cell.
     #[arg(long, default_value_t = 0.2, value_parser = ranges::positive, requires = "cloud")]
     pub cloud_voxel: f64,
+    /// The steps between consecutive scans of a session in the map: `poses`, the stored poses'
+    /// (the log's odometry or the pose file's), or `icp`, each step aligned again between the two
+    /// raw scans from the stored one (about as costly as a loop's check per scan; it undoes an
+    /// odometry's scale error, which no loop can see).
+    #[arg(long, value_enum, default_value_t = map::Odometry::Poses)]
+    pub odometry: map::Odometry,
     /// Which sessions' poses share a frame: auto (a pose file's sessions share it; each log's own
     /// poses are a frame of their own), shared or own.
     #[arg(long, value_enum, default_value_t = map::Frames::Auto)]

@@ -189,7 +189,17 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             .collect();
         if wants_map && vertices.iter().any(|v| v.pose.is_some()) {
             let first = a.sessions.first().cloned().unwrap_or_else(|| vertices[0].session.clone());
-            let mut made = map::make(method, &vertices, &rows, &frame_of, &first, !a.no_optimize);
+            let aligned = if a.odometry == map::Odometry::Icp {
+                let pairs: Vec<(usize, usize, _)> = map::steps(&vertices)
+                    .into_iter()
+                    .filter_map(|(u, v)| Some((u, v, map::stored_step(&vertices[u], &vertices[v])?)))
+                    .collect();
+                Some(verify::align_steps(index, &vertices, &pairs, a.limits, !a.no_progress, &damage)?)
+            } else {
+                None
+            };
+            let mut made =
+                map::make(method, &vertices, &rows, &frame_of, &first, aligned.as_ref(), !a.no_optimize);
             if !a.no_optimize && made.failed.is_none() {
                 for (r, kept) in rows.iter_mut().zip(&made.in_map) {
                     r.in_map = *kept;

@@ -150,6 +150,46 @@ pub fn check(
     Ok(checks)
 }
 
+/// The steps `pairs` (walk positions in `walk`: an earlier scan, a later one of its session, and
+/// their stored step) aligned again by ICP from the stored step, in parallel; a step is given
+/// where its alignment passes `limits` (each unreadable scan named once by [`load`]).
+pub(super) fn align_steps(
+    index: &Path,
+    walk: &[super::map::Vertex],
+    pairs: &[(usize, usize, Isometry3<f64>)],
+    limits: Limits,
+    progress: bool,
+    damage: &crate::sinks::index::damage::Damage,
+) -> Result<std::collections::BTreeMap<(usize, usize), super::map::AlignedStep>> {
+    use rayon::prelude::*;
+    let p = IcpParams::default();
+    let ids: HashSet<&str> =
+        pairs.iter().flat_map(|&(u, v, _)| [walk[u].scan_id.as_str(), walk[v].scan_id.as_str()]).collect();
+    let clouds = load(index, &ids, p.voxel, damage)?;
+    let bar = super::progress_bar(progress, pairs.len(), "steps aligned");
+    // Each scan is the target of its next step and the source of its own: made ready once as
+    // each, so a pair builds its own two.
+    let aligned = pairs
+        .par_iter()
+        .filter_map(|&(u, v, stored)| {
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            let earlier = clouds.get(walk[u].scan_id.as_str())?.as_ref().ok()?;
+            let later = clouds.get(walk[v].scan_id.as_str())?.as_ref().ok()?;
+            let target = icp::Target::of_voxels(earlier.clone(), &p).ok()?;
+            let source = icp::Source::of_voxels(later.clone(), &p);
+            let a = icp::align_ready(&source, &target, stored, &p).ok()?;
+            (a.fitness >= limits.min_fitness && a.rmse <= limits.max_rmse)
+                .then_some(((u, v), super::map::AlignedStep { pose: a.pose, rmse: a.rmse }))
+        })
+        .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    Ok(aligned)
+}
+
 /// The alignment from the descriptor's yaw taken either way round (the methods differ in its
 /// sign; at 0° and 180° both are one), the better after the coarse stage going on
 /// ([`icp::align_best`]); each starts at the method's estimate of the query's position in the
