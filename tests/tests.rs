@@ -19,6 +19,7 @@ mod layout;
 mod logs;
 mod loops;
 mod map;
+mod map_drives;
 mod methods;
 mod oneshot;
 mod pipeline;
