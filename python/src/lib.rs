@@ -135,11 +135,15 @@ fn optimize(
     max_iterations: usize,
     start: &str,
 ) -> PyResult<(String, Vec<i64>, Vec<Vec<f64>>)> {
-    let start = match start {
-        "file" => toporec::map::Start::File,
-        "chordal" => toporec::map::Start::Chordal,
-        other => return Err(value_error(format!("start: {other:?} is neither \"file\" nor \"chordal\""))),
-    };
+    // The command line's own names (`--start file|chordal`).
+    use clap::ValueEnum;
+    let start = toporec::map::Start::from_str(start, false).map_err(|_| {
+        let names: Vec<String> = toporec::map::Start::value_variants()
+            .iter()
+            .filter_map(|v| v.to_possible_value().map(|p| p.get_name().to_string()))
+            .collect();
+        value_error(format!("start: {start:?} is none of {}", names.join(", ")))
+    })?;
     let done = py
         .detach(|| toporec::map::optimize_graph(&graph, out.as_deref(), robust, max_iterations.max(1), start))
         .map_err(toporec_error)?;
