@@ -532,37 +532,26 @@ pub(crate) fn aligned_rmse(estimate: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
 fn a_drifting_simulated_odometry_is_corrected_by_the_map() {
     let dir = scratch_dir("drifting_simulated_odometry");
     let sim = dir.join("sim");
-    let o = toporec(&[
-        "simulate",
-        "-o",
-        sim.to_str().unwrap(),
-        "--format",
-        "bag",
-        "--sessions",
-        "1",
-        "--laps",
-        "2",
-        "--lap-offset",
-        "1.5",
-        "--seed",
-        "13",
-        "--azimuth-res",
-        "1.0",
-        "--rate",
-        "2",
-        "--blocks",
-        "3",
-        "--block-size",
-        "40",
-        "--drift-scale",
-        "0.02",
-        "--drift-heading",
-        "0.05",
-        "--drift-noise",
-        "0.005",
-        "--own-frames",
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    crate::map_drives::simulate_drifting(
+        &sim,
+        &[
+            "--sessions",
+            "1",
+            "--laps",
+            "2",
+            "--lap-offset",
+            "1.5",
+            "--seed",
+            "13",
+            "--rate",
+            "2",
+            "--blocks",
+            "3",
+            "--block-size",
+            "40",
+            "--own-frames",
+        ],
+    );
     let truth = tum(&sim.join("truth/2026-01-01.tum"));
     assert_eq!(truth.len(), 64);
     let bag = sim.join("bag/2026-01-01.bag");

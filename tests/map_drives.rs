@@ -3,6 +3,18 @@
 
 use crate::map::{aligned_rmse, tum};
 use crate::util::{scratch_dir, text, toporec};
+use std::path::Path;
+
+/// `toporec simulate -o sim --format bag` with `drive`'s settings, at 1° azimuth and with the
+/// drifting odometry of docs/loops.md's towns: 2 % long, 0.05° a metre to the left, 0.005 m and
+/// 0.005 rad of noise a metre.
+pub(crate) fn simulate_drifting(sim: &Path, drive: &[&str]) {
+    let mut args = vec!["simulate", "-o", sim.to_str().unwrap(), "--format", "bag", "--azimuth-res", "1.0"];
+    args.extend(drive);
+    args.extend(["--drift-scale", "0.02", "--drift-heading", "0.05", "--drift-noise", "0.005"]);
+    let o = toporec(&args);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+}
 
 /// Two sessions of one town, each odometry 2 % long and in a frame of its own: loops between
 /// revisits cannot see the scale, so the map from the logs' steps keeps it; with `--odometry
@@ -12,35 +24,24 @@ use crate::util::{scratch_dir, text, toporec};
 fn icp_odometry_undoes_a_scale_no_loop_can_see() {
     let dir = scratch_dir("icp_odometry");
     let sim = dir.join("sim");
-    let o = toporec(&[
-        "simulate",
-        "-o",
-        sim.to_str().unwrap(),
-        "--format",
-        "bag",
-        "--sessions",
-        "2",
-        "--laps",
-        "1",
-        "--own-frames",
-        "--seed",
-        "13",
-        "--azimuth-res",
-        "1.0",
-        "--rate",
-        "2",
-        "--blocks",
-        "3",
-        "--block-size",
-        "40",
-        "--drift-scale",
-        "0.02",
-        "--drift-heading",
-        "0.05",
-        "--drift-noise",
-        "0.005",
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    simulate_drifting(
+        &sim,
+        &[
+            "--sessions",
+            "2",
+            "--laps",
+            "1",
+            "--own-frames",
+            "--seed",
+            "13",
+            "--rate",
+            "2",
+            "--blocks",
+            "3",
+            "--block-size",
+            "40",
+        ],
+    );
     let sessions = ["2026-01-01", "2026-01-02"];
     let truth: Vec<[f64; 2]> = sessions
         .iter()
@@ -93,34 +94,23 @@ fn icp_odometry_undoes_a_scale_no_loop_can_see() {
 fn false_loops_that_pass_icp_are_rejected_by_the_map() {
     let dir = scratch_dir("false_loops_pass_icp");
     let sim = dir.join("sim");
-    let o = toporec(&[
-        "simulate",
-        "-o",
-        sim.to_str().unwrap(),
-        "--format",
-        "bag",
-        "--sessions",
-        "1",
-        "--laps",
-        "2",
-        "--lap-offset",
-        "3.5",
-        "--seed",
-        "73",
-        "--sensor",
-        "hdl64",
-        "--azimuth-res",
-        "1.0",
-        "--rate",
-        "5",
-        "--drift-scale",
-        "0.02",
-        "--drift-heading",
-        "0.05",
-        "--drift-noise",
-        "0.005",
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    simulate_drifting(
+        &sim,
+        &[
+            "--sessions",
+            "1",
+            "--laps",
+            "2",
+            "--lap-offset",
+            "3.5",
+            "--seed",
+            "73",
+            "--sensor",
+            "hdl64",
+            "--rate",
+            "5",
+        ],
+    );
     let truth = tum(&sim.join("truth/2026-01-01.tum"));
     let out = dir.join("loops.csv");
     let o = toporec(&[
