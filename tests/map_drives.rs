@@ -84,6 +84,31 @@ fn icp_odometry_undoes_a_scale_no_loop_can_see() {
     assert!(said.contains(&format!(", {steps} of {steps} steps aligned by ICP")), "{said}");
     assert!(from_poses > 0.3, "the logs' scale left in: {from_poses}");
     assert!(from_icp < 0.1, "{from_icp}");
+    // The logs moved away: the steps keep the stored poses', and one warning says so.
+    std::fs::rename(&sim, dir.join("moved")).unwrap();
+    let index = dir.join("index");
+    let out = dir.join("moved.csv");
+    let o = toporec(&[
+        "loops",
+        "--index",
+        index.to_str().unwrap(),
+        "--exclude-seconds",
+        "10",
+        "--odometry",
+        "icp",
+        "--no-progress",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let said = text(&o.stderr);
+    assert!(o.status.success(), "{said}");
+    let warned: Vec<&str> = said.lines().filter(|l| l.contains("cannot be read again")).collect();
+    assert_eq!(warned.len(), 1, "{said}");
+    assert!(
+        warned[0].contains(&format!("--odometry icp: {} scans cannot be read again", truth.len())),
+        "{said}"
+    );
+    assert!(said.contains(&format!(", 0 of {steps} steps aligned by ICP")), "{said}");
 }
 
 /// Town 73 (the seed of docs/loops.md's table), two laps 3.5 m apart, the second reversed: three

@@ -32,12 +32,14 @@ impl Default for Limits {
 
 /// The raw scans `ids` of `index`, voxelized for ICP: each read again from where the index
 /// found it ([`crate::sources::reread`]: a scan file alone, a log's messages in one pass), points
-/// only; a scan that cannot be read maps to the reason.
+/// only; a scan that cannot be read maps to the reason. One warning counts those scans, naming
+/// the option that asked and what follows for them (`consequence`).
 fn load(
     index: &Path,
     ids: &HashSet<&str>,
     voxel: f64,
     damage: &crate::sinks::index::damage::Damage,
+    consequence: (&str, &str),
 ) -> Result<HashMap<String, std::result::Result<Vec<Point>, String>>> {
     let reader = crate::sinks::index::IndexReader::open_with(index, damage)?;
     let places: Vec<_> =
@@ -56,17 +58,21 @@ fn load(
     for id in ids {
         out.entry(id.to_string()).or_insert_with(|| Err("not in the index's scans table".into()));
     }
-    for (id, points) in &out {
-        if let Err(e) = points {
-            tracing::warn!("--verify: scan {id} cannot be read again, its matches fail the check: {e}");
-        }
+    let mut unreadable: Vec<(&String, &String)> =
+        out.iter().filter_map(|(id, points)| points.as_ref().err().map(|e| (id, e))).collect();
+    unreadable.sort();
+    if let Some((id, e)) = unreadable.first() {
+        let n = unreadable.len();
+        let scans = if n == 1 { "scan" } else { "scans" };
+        let (option, consequence) = consequence;
+        tracing::warn!("{option}: {n} {scans} cannot be read again, {consequence} (the first, {id}: {e})");
     }
     Ok(out)
 }
 
 /// Checks the accepted rows of `rows` (in parallel), returning each one's check (`None` for
-/// the rows not checked); a row whose scans cannot be read or aligned fails its check (each
-/// unreadable scan named once, the alignments that failed counted in one warning).
+/// the rows not checked); a row whose scans cannot be read or aligned fails its check (the
+/// unreadable scans and the alignments that failed each counted in one warning).
 pub fn check(
     index: &Path,
     rows: &[LoopRow],
@@ -83,7 +89,7 @@ pub fn check(
         .filter(|r| r.found.accepted)
         .flat_map(|r| [r.query_scan.as_str(), r.matched_scan.as_str()])
         .collect();
-    let clouds = load(index, &ids, p.voxel, damage)?;
+    let clouds = load(index, &ids, p.voxel, damage, ("--verify", "their matches fail the check"))?;
     // Each scan made ready once, as a target where it is matched and as a source where it asks.
     let side = |query: bool| -> HashSet<&str> {
         rows.iter()
@@ -152,7 +158,7 @@ pub fn check(
 
 /// The steps `pairs` (walk positions in `walk`: an earlier scan, a later one of its session, and
 /// their stored step) aligned again by ICP from the stored step, in parallel; a step is given
-/// where its alignment passes `limits` (each unreadable scan named once by [`load`]).
+/// where its alignment passes `limits` (the unreadable scans counted in one warning by [`load`]).
 pub(super) fn align_steps(
     index: &Path,
     walk: &[super::map::Vertex],
@@ -165,7 +171,7 @@ pub(super) fn align_steps(
     let p = IcpParams::default();
     let ids: HashSet<&str> =
         pairs.iter().flat_map(|&(u, v, _)| [walk[u].scan_id.as_str(), walk[v].scan_id.as_str()]).collect();
-    let clouds = load(index, &ids, p.voxel, damage)?;
+    let clouds = load(index, &ids, p.voxel, damage, ("--odometry icp", "their steps are the stored poses'"))?;
     let bar = super::progress_bar(progress, pairs.len(), "steps aligned");
     // Each scan is the target of its next step and the source of its own: made ready once as
     // each, so a pair builds its own two.
