@@ -191,8 +191,7 @@ pub(super) fn loop_edge(r: &LoopRow) -> Option<(Isometry3<f64>, SMatrix<f64, 6, 
                 Translation3::new(x, y, z),
                 UnitQuaternion::from_euler_angles(roll.to_radians(), pitch.to_radians(), yaw.to_radians()),
             );
-            let rmse = if c.rmse.is_finite() { c.rmse.max(0.05) } else { 0.05 };
-            Some((pose, diagonal(rmse, 0.5f64.to_radians(), 0.5f64.to_radians())))
+            Some((pose, aligned_information(c.rmse)))
         }
         Some(_) => None,
         None => {
@@ -211,10 +210,25 @@ pub(super) fn loop_edge(r: &LoopRow) -> Option<(Isometry3<f64>, SMatrix<f64, 6, 
 /// relative pose and its information.
 type LoopEdge = (usize, usize, usize, Isometry3<f64>, SMatrix<f64, 6, 6>);
 
+/// The information of a relative pose measured by an ICP alignment (a loop's, or a step's with
+/// `--odometry icp`): σ = the alignment's RMSE, at least 5 cm, for the translation; 0.5° for
+/// each rotation.
+fn aligned_information(rmse: f64) -> SMatrix<f64, 6, 6> {
+    let rmse = if rmse.is_finite() { rmse.max(0.05) } else { 0.05 };
+    diagonal(rmse, 0.5f64.to_radians(), 0.5f64.to_radians())
+}
+
+/// The drift model's σ of a step of `step` (see the module doc): translation (m), roll and
+/// pitch, yaw (rad).
+fn odometry_sigmas(step: &Isometry3<f64>) -> (f64, f64, f64) {
+    let d = step.translation.vector.norm();
+    (0.02 + 0.02 * d, 0.01, 0.002 + 0.005 * d)
+}
+
 /// The odometry information of a step of `pose` (see the module doc).
 fn odometry_information(step: &Isometry3<f64>) -> SMatrix<f64, 6, 6> {
-    let d = step.translation.vector.norm();
-    diagonal(0.02 + 0.02 * d, 0.01, 0.002 + 0.005 * d)
+    let (translation, roll_pitch, yaw) = odometry_sigmas(step);
+    diagonal(translation, roll_pitch, yaw)
 }
 
 /// The odometry's steps of `walk`: the walk positions of each posed scan's previous posed scan
@@ -248,13 +262,12 @@ fn odometry_edge(
     aligned: Option<&AlignedStep>,
 ) -> (Isometry3<f64>, SMatrix<f64, 6, 6>, bool) {
     if let Some(a) = aligned {
-        let d = stored.translation.vector.norm();
+        let (translation, roll_pitch, yaw) = odometry_sigmas(stored);
         let off = stored.inverse() * a.pose;
-        let agrees = off.translation.vector.norm() <= 3.0 * (0.02 + 0.02 * d)
-            && off.rotation.angle() <= 3.0 * (0.01f64.max(0.002 + 0.005 * d));
+        let agrees = off.translation.vector.norm() <= 3.0 * translation
+            && off.rotation.angle() <= 3.0 * roll_pitch.max(yaw);
         if agrees {
-            let rmse = if a.rmse.is_finite() { a.rmse.max(0.05) } else { 0.05 };
-            return (a.pose, diagonal(rmse, 0.5f64.to_radians(), 0.5f64.to_radians()), true);
+            return (a.pose, aligned_information(a.rmse), true);
         }
     }
     (*stored, odometry_information(stored), false)
