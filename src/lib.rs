@@ -45,12 +45,14 @@
 //! diagrams as CSV. Beside it: [`offline`] fits codebooks and
 //! vectorizes stored diagrams, [`simulate`] makes multi-session drives in the formats the
 //! sources read, and [`split`] makes a map and a query session of one drive. At the bottom, shared by all: [`types`], [`error`], [`fsutil`] (atomic files),
-//! [`rng`], [`fingerprint`]. The `toporec` binary is a thin command line over this library; the
+//! [`rng`], [`fingerprint`], [`checked_map`] (mapped bytes checked block by block as they are
+//! read). The `toporec` binary is a thin command line over this library; the
 //! names a user starts from are re-exported here.
 #![deny(missing_docs)]
 #![warn(unreachable_pub)]
 
 pub mod batch;
+pub mod checked_map;
 pub mod describe;
 pub mod diagram_csv;
 pub mod error;

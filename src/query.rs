@@ -180,7 +180,7 @@ pub fn run(
                 .collect();
             let flat: Vec<f32> =
                 described.iter().filter_map(|r| r.as_ref().ok()).flat_map(|r| r.1.iter().copied()).collect();
-            let mut found = engine.find_many(&flat, args.k).into_iter();
+            let mut found = engine.find_many(&flat, args.k)?.into_iter();
             let mut answers: Vec<(&str, Vec<Hit>)> = Vec::new();
             for r in &described {
                 let (id, _, t) = match r {

@@ -17,7 +17,8 @@ use crate::sinks::index::searchers;
 use crate::sinks::index::{IndexReader, IndexedScan};
 use crate::sources::Scan;
 use crate::vectorize::codebook::Codebook;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, OnceLock};
 
 /// One method's stored descriptors, checked: all of one length, made by one codebook (or one
 /// parameter set), finite.
@@ -49,6 +50,22 @@ pub struct Engine {
     /// Descriptor length.
     length: usize,
     searcher: Box<dyn Searcher>,
+    /// The cache the searcher is mapped from, when it is: what rebuilds it when a search finds
+    /// a block of it damaged.
+    cache: Option<CacheOrigin>,
+    /// The engine rebuilt from the index after a search found the cache damaged; every later
+    /// search goes to it.
+    rebuilt: OnceLock<Box<Engine>>,
+    rebuilding: Mutex<()>,
+}
+
+/// Where a mapped searcher came from.
+struct CacheOrigin {
+    index: PathBuf,
+    path: PathBuf,
+    method: String,
+    damage: Damage,
+    budget: Option<SearchBudget>,
 }
 
 /// Per-query seconds of each step (those a method does not have stay 0).
@@ -118,6 +135,18 @@ impl Engine {
         chosen: &dyn Fn(&IndexedScan) -> bool,
         damage: &Damage,
     ) -> Result<Option<Self>> {
+        Self::open_cached_from(index, method, chosen, damage, true)
+    }
+
+    /// [`Engine::open_cached`]; with `use_cache` false the structure is built from the index
+    /// and cached again whatever the cache holds (a cache a search found damaged).
+    fn open_cached_from(
+        index: &Path,
+        method: &str,
+        chosen: &dyn Fn(&IndexedScan) -> bool,
+        damage: &Damage,
+        use_cache: bool,
+    ) -> Result<Option<Self>> {
         let reader = IndexReader::open(index)?;
         let Some(manifest) = reader.manifest() else { return Ok(None) };
         let Some(entry) = manifest.methods.get(method) else { return Ok(None) };
@@ -125,7 +154,18 @@ impl Engine {
         let Some(computed) = m.as_computed() else { return Ok(None) };
         let Some(layout) = computed.cache_layout() else { return Ok(None) };
         let path = searchers::path(index, method);
-        let cached = match searchers::open(&path, manifest.generation, &entry.id, layout) {
+        let origin = CacheOrigin {
+            index: index.to_path_buf(),
+            path: path.clone(),
+            method: method.to_string(),
+            damage: damage.clone(),
+            budget: None,
+        };
+        let opened = match use_cache {
+            true => searchers::open(&path, manifest.generation, &entry.id, layout),
+            false => searchers::Opened::Missing,
+        };
+        let cached = match opened {
             searchers::Opened::Current(cached) => Some(cached),
             searchers::Opened::Missing | searchers::Opened::Stale => None,
             searchers::Opened::OtherVersion(why) => {
@@ -140,12 +180,12 @@ impl Engine {
                 None
             }
         };
-        let (searcher, rows) = match cached {
+        let (searcher, rows, mapped) = match cached {
             Some(cached) => {
-                let (body, n) = (cached.header.body.0, cached.header.rows);
+                let n = cached.header.rows;
                 let searcher =
-                    computed.mapped_searcher(cached.map, body, n).map_err(|e| Error::index(&path, e))?;
-                (searcher, cached.rows)
+                    computed.mapped_searcher(cached.body, n).map_err(|e| Error::index(&path, e))?;
+                (searcher, cached.rows, true)
             }
             None => {
                 let skipped_before = damage.found().len();
@@ -172,7 +212,7 @@ impl Engine {
                         tracing::info!("{}: not cached ({e})", path.display());
                     }
                 }
-                (searcher, rows)
+                (searcher, rows, false)
             }
         };
         let engine = Engine {
@@ -182,8 +222,16 @@ impl Engine {
             id: entry.id.clone(),
             scans: rows,
             searcher,
+            cache: mapped.then_some(origin),
+            rebuilt: OnceLock::new(),
+            rebuilding: Mutex::new(()),
         };
         let engine = engine.retain(chosen)?;
+        // Copying some of the rows read every block.
+        if let Some(why) = engine.searcher.damage() {
+            tracing::warn!("{}: damaged: {why}; rebuilding it", path.display());
+            return Self::open_cached_from(index, method, chosen, damage, false);
+        }
         if engine.scans.is_empty() {
             let skipped = match damage.found().len() {
                 0 => String::new(),
@@ -219,7 +267,17 @@ impl Engine {
         let Loaded { method, id, length, scans, .. } = loaded;
         let vectors: Vec<f32> = scans.iter().flat_map(|s| s.descriptor.iter().copied()).collect();
         let searcher = method.searcher(vectors, length);
-        Engine { describer, method, id, scans, length, searcher }
+        Engine {
+            describer,
+            method,
+            id,
+            scans,
+            length,
+            searcher,
+            cache: None,
+            rebuilt: OnceLock::new(),
+            rebuilding: Mutex::new(()),
+        }
     }
 
     /// The engine over the database rows `keep` keeps, in their order (a subset of a cached
@@ -242,6 +300,9 @@ impl Engine {
     /// entries: nothing rebuilt).
     pub fn with_budget(mut self, budget: SearchBudget) -> Self {
         self.searcher.set_budget(budget, self.scans.len());
+        if let Some(cache) = &mut self.cache {
+            cache.budget = Some(budget);
+        }
         self
     }
 
@@ -304,20 +365,66 @@ impl Engine {
     }
 
     /// The `k` best database rows, with the time of each search step.
-    pub fn find(&self, descriptor: &[f32], k: usize) -> (Vec<Hit>, StepTimes) {
-        self.find_many(descriptor, k).pop().unwrap_or_default()
+    pub fn find(&self, descriptor: &[f32], k: usize) -> Result<(Vec<Hit>, StepTimes)> {
+        Ok(self.find_many(descriptor, k)?.pop().unwrap_or_default())
     }
 
     /// The `k` best database rows of each query (`queries` is `m × length`, row-major), each
     /// charged its share of the search time.
-    pub fn find_many(&self, queries: &[f32], k: usize) -> Vec<(Vec<Hit>, StepTimes)> {
-        self.searcher
-            .search_many(queries, self.length, k)
-            .into_iter()
-            .map(|(hits, t)| {
-                (hits, StepTimes { search: t.candidates, rerank: t.rerank, ..Default::default() })
-            })
-            .collect()
+    ///
+    /// A searcher mapped from the index's cache checks each block of it when a search first
+    /// reads it; when one fails, the cache is damaged: a warning naming it, and the searcher is
+    /// rebuilt from the index (and cached again) and answers instead. An error when it cannot
+    /// be.
+    pub fn find_many(&self, queries: &[f32], k: usize) -> Result<Vec<(Vec<Hit>, StepTimes)>> {
+        if let Some(rebuilt) = self.rebuilt.get() {
+            return rebuilt.find_many(queries, k);
+        }
+        let found = self.searcher.search_many(queries, self.length, k);
+        match self.searcher.damage() {
+            None => Ok(found
+                .into_iter()
+                .map(|(hits, t)| {
+                    (hits, StepTimes { search: t.candidates, rerank: t.rerank, ..Default::default() })
+                })
+                .collect()),
+            Some(why) => self.rebuild(&why)?.find_many(queries, k),
+        }
+    }
+
+    /// The engine rebuilt from the index when its cache was found damaged (`why`): one thread
+    /// rebuilds, the others wait for it.
+    #[cold]
+    fn rebuild(&self, why: &str) -> Result<&Engine> {
+        let _one = self.rebuilding.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(rebuilt) = self.rebuilt.get() {
+            return Ok(rebuilt);
+        }
+        let Some(cache) = &self.cache else {
+            return Err(Error::invalid(format!("a search structure built in memory reports damage: {why}")));
+        };
+        tracing::warn!("{}: damaged: {why}; rebuilding it", cache.path.display());
+        let mine: std::collections::HashSet<(&str, &str)> =
+            self.scans.iter().map(|s| (s.session.as_str(), s.scan_id.as_str())).collect();
+        let chosen = |s: &IndexedScan| mine.contains(&(s.session.as_str(), s.scan_id.as_str()));
+        let mut rebuilt = Self::open_cached_from(&cache.index, &cache.method, &chosen, &cache.damage, false)?
+            .ok_or_else(|| Error::index(&cache.index, format!("{} is no longer cached", cache.method)))?;
+        if let Some(budget) = cache.budget {
+            rebuilt = rebuilt.with_budget(budget);
+        }
+        let same = rebuilt.scans.len() == self.scans.len()
+            && rebuilt
+                .scans
+                .iter()
+                .zip(&self.scans)
+                .all(|(a, b)| a.session == b.session && a.scan_id == b.scan_id);
+        if !same {
+            return Err(Error::index(
+                &cache.index,
+                format!("its {} rows changed while it was searched; search again", cache.method),
+            ));
+        }
+        Ok(self.rebuilt.get_or_init(|| Box::new(rebuilt)))
     }
 }
 

@@ -79,7 +79,7 @@ fn answers(index: &Path, damage: &Damage) -> toporec::Result<Vec<String>> {
         let engine = Engine::open_with(index, &[DB.to_string()], m, damage)?;
         let queries = reader.descriptors_of(m, &[QUERIES.to_string()], Some(length))?;
         let flat: Vec<f32> = queries.iter().flat_map(|q| q.descriptor.iter().copied()).collect();
-        for (q, (hits, _)) in queries.iter().zip(engine.find_many(&flat, 3)) {
+        for (q, (hits, _)) in queries.iter().zip(engine.find_many(&flat, 3).unwrap()) {
             for h in hits {
                 let id = &engine.scans[h.row].scan_id;
                 out.push(format!("{m} {} {id} {:016x}", q.scan_id, h.distance.to_bits()));

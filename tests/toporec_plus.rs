@@ -278,6 +278,11 @@ fn the_search_structure_is_cached_in_the_index_and_rebuilt_after_a_commit() {
 /// is not a multiple of the first-values block (4), and entries as long as the method's
 /// descriptor (its sector rows and its image). Written and mapped through the index's own
 /// functions, it answers exactly as the searcher in memory.
+/// The byte offset of the body of the cache at `path`.
+fn cached_body_offset(path: &std::path::Path) -> usize {
+    toporec::sinks::index::searchers::header(path).unwrap().body.0
+}
+
 #[test]
 fn a_cache_of_several_blocks_answers_as_the_searcher_in_memory() {
     use toporec::methods::Computed;
@@ -333,10 +338,29 @@ fn a_cache_of_several_blocks_answers_as_the_searcher_in_memory() {
         panic!("a current cache")
     };
     assert!(cached.header.checksums.body.len() >= 2, "several checksum blocks");
-    let mapped = Searcher::mapped(cached.map, cached.header.body.0, cached.header.rows, p.clone()).unwrap();
+    let mapped = Searcher::mapped(cached.body, cached.header.rows, p.clone()).unwrap();
     for q in &queries {
         assert_eq!(mapped.search(q, 10).0, in_memory.search(q, 10).0);
     }
+    assert_eq!(mapped.damage(), None);
+    // The body's blocks are checked as a search reads them: a flipped code in the columns of
+    // the first query's own entry passes the open and is found by the search that re-ranks it.
+    let (_, columns) =
+        toporec_plus::body_sections(n, &p).into_iter().find(|(name, _)| *name == "columns").unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[cached_body_offset(&path) + columns.start + 17] ^= 0x40;
+    let damaged = dir.join("damaged.searcher");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let searchers::Opened::Current(cached) =
+        searchers::open(&damaged, 1, "test", toporec_plus::SEARCHER_LAYOUT)
+    else {
+        panic!("the open reads the header and rows only")
+    };
+    let mapped = Searcher::mapped(cached.body, n, p.clone()).unwrap();
+    assert_eq!(mapped.damage(), None, "nothing read yet");
+    mapped.search(&queries[0], 10);
+    let why = mapped.damage().expect("the search read the damaged block");
+    assert!(why.starts_with("body block 1 of "), "{why}");
     // Values that are not whole entries are refused at once, not read shifted.
     let short = vec![0.0f32; 2 * p.len() - 1];
     let refused = std::panic::catch_unwind(|| Searcher::new(short, p.clone()));

@@ -136,7 +136,7 @@ impl QueryEngine {
             })
             .collect::<PyResult<_>>()?;
         let engine = self.engine.clone();
-        Ok(py.detach(move || {
+        py.detach(move || {
             let described: Vec<Described> = scans
                 .into_par_iter()
                 .map(|(id, points)| {
@@ -146,7 +146,7 @@ impl QueryEngine {
                 })
                 .collect();
             answer(&engine, described, k)
-        }))
+        })
     }
 
     /// Scan files, clouds or logs, read as `toporec query` reads them.
@@ -170,7 +170,7 @@ impl QueryEngine {
                     engine.describe_scan(scan).map(|(v, _)| (id, v)).map_err(|e| e.to_string())
                 })
                 .collect();
-            Ok(answer(&engine, described, k))
+            answer(&engine, described, k)
         })
     }
 }
@@ -181,9 +181,9 @@ pub(crate) fn answer(
     engine: &toporec::Engine,
     described: Vec<Described>,
     k: usize,
-) -> (ArrowStream, Vec<String>) {
+) -> PyResult<(ArrowStream, Vec<String>)> {
     let flat: Vec<f32> = described.iter().flatten().flat_map(|(_, v)| v.iter().copied()).collect();
-    let mut found = engine.find_many(&flat, k).into_iter();
+    let mut found = engine.find_many(&flat, k).map_err(toporec_error)?.into_iter();
     let mut answered = Vec::new();
     let mut failures = Vec::new();
     for d in &described {
@@ -194,5 +194,5 @@ pub(crate) fn answer(
     }
     let answers: Vec<(&str, &[toporec::Hit])> = answered.iter().map(|(id, h)| (*id, h.as_slice())).collect();
     let batch = toporec::query::hits_batch(engine, &answers);
-    (ArrowStream::new(batch.schema(), vec![batch]), failures)
+    Ok((ArrowStream::new(batch.schema(), vec![batch]), failures))
 }

@@ -365,7 +365,7 @@ fn perturbation_of(
     let mut times: Vec<StepTimes> = Vec::new();
     let topological = engine.describer.topological;
     for kind in kinds {
-        let outcomes: Vec<Result<(Option<usize>, StepTimes), crate::describe::DescribeError>> = present
+        let outcomes: Vec<Result<(Option<usize>, StepTimes)>> = present
             .par_iter()
             .map(|(c, row)| {
                 let seed = a.seed ^ crate::preprocess::seed_of(&c.scan_id);
@@ -373,15 +373,16 @@ fn perturbation_of(
                     (Some(pts), true) => kind.apply(pts, seed),
                     _ => kind.apply_in(&c.raw, seed, c.unit),
                 };
-                let (v, t) = engine.describe_points(&p, &c.scan_id)?;
-                let (hits, s) = engine.find(&v, want);
+                let (v, t) =
+                    engine.describe_points(&p, &c.scan_id).map_err(|e| Error::invalid(e.to_string()))?;
+                let (hits, s) = engine.find(&v, want)?;
                 let t = StepTimes { search: s.search, rerank: s.rerank, ..t };
                 Ok((first_hit(&hits.iter().map(|h| h.row).collect::<Vec<_>>(), |r| r == *row), t))
             })
             .collect();
         let mut hits = Vec::new();
         for o in outcomes {
-            let (h, t) = o.map_err(|e| Error::invalid(e.to_string()))?;
+            let (h, t) = o?;
             hits.push(h);
             times.push(t);
         }

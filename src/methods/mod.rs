@@ -113,12 +113,11 @@ pub trait Computed: Settings + std::fmt::Debug + Send + Sync + 'static {
         None
     }
 
-    /// The searcher over `n` entries laid out in `map` from byte `body` on (a cache written from
+    /// The searcher over `n` entries laid out in `body` (a cache written from
     /// [`Searcher::bytes`]), for the methods with a [`Computed::cache_layout`].
     fn mapped_searcher(
         &self,
-        _map: memmap2::Mmap,
-        _body: usize,
+        _body: crate::checked_map::CheckedMap,
         _n: usize,
     ) -> Result<Box<dyn Searcher>, String> {
         Err(format!("{}: no cached search structure", self.name()))

@@ -86,6 +86,13 @@ pub trait Searcher: Send + Sync {
     fn bytes(&self) -> Option<std::borrow::Cow<'_, [u8]>> {
         None
     }
+
+    /// What failed, when bytes a search read from a mapped cache failed their checksum
+    /// ([`crate::checked_map`]): the answers of every search since it was opened are then not
+    /// to be trusted.
+    fn damage(&self) -> Option<String> {
+        None
+    }
 }
 
 /// How much a method's search re-ranks (`eval --search`), so that methods compare at equal

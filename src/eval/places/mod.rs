@@ -534,7 +534,14 @@ impl Prepared {
         for block in described_rows.chunks(256) {
             let flat: Vec<f32> = block.iter().flat_map(|&i| vectors[i].unwrap().iter().copied()).collect();
             debug_assert_eq!(flat.len(), block.len() * c.length);
-            for (&i, (hits, t)) in block.iter().zip(self.engine.find_many(&flat, k)) {
+            let found = match self.engine.find_many(&flat, k) {
+                Ok(found) => found,
+                Err(e) => {
+                    c.not_applicable = Some(format!("the search failed: {e}"));
+                    return c;
+                }
+            };
+            for (&i, (hits, t)) in block.iter().zip(found) {
                 let q = &self.queries[i];
                 let kept: Vec<Hit> =
                     hits.into_iter().filter(|h| !self.excluded(a, q, &db[h.row])).take(want).collect();

@@ -168,7 +168,7 @@ pub(crate) fn evaluate_method(
                     if !(0..db.len()).any(positive) {
                         continue;
                     }
-                    let (found, _) = engine.find(&q.descriptor, k);
+                    let (found, _) = engine.find(&q.descriptor, k)?;
                     let rows: Vec<usize> = found.iter().map(|f| f.row).collect();
                     hits.push(first_hit(&rows, positive));
                     has.push(true);

@@ -294,10 +294,9 @@ impl super::Computed for PlusParams {
 
     fn mapped_searcher(
         &self,
-        map: memmap2::Mmap,
-        body: usize,
+        body: crate::checked_map::CheckedMap,
         n: usize,
     ) -> Result<Box<dyn super::Searcher>, String> {
-        Ok(Box::new(Searcher::mapped(map, body, n, self.clone())?))
+        Ok(Box::new(Searcher::mapped(body, n, self.clone())?))
     }
 }

@@ -40,6 +40,8 @@ pub struct Searcher {
     /// Every entry's columns and keys, by sections ([`Section`]): owned (and growing), or
     /// mapped from a cache file.
     store: Store,
+    /// What failed in the mapped bytes an owned store was copied from ([`Searcher::subset`]).
+    copied_damage: Option<String>,
 }
 
 /// The sections of a searcher's buffer, per entry: the code columns (u8), reach (u8); the first
@@ -134,13 +136,12 @@ pub fn entry_bytes(p: &PlusParams) -> usize {
 }
 
 /// A searcher's sections: built in memory (one growing vector each), or mapped from a cache
-/// file (read only; the OS pages it in as searches touch it).
+/// file (read only; the OS pages it in, and its blocks are checked, as searches touch it).
 pub(super) enum Store {
     Owned([Vec<u8>; SECTIONS]),
-    /// The file's bytes from `body` on, the sections at `offsets` ([`layout`]).
+    /// The cache's body, the sections at `offsets` ([`layout`]).
     Mapped {
-        map: memmap2::Mmap,
-        body: usize,
+        body: crate::checked_map::CheckedMap,
         offsets: [usize; SECTIONS],
     },
 }
@@ -373,6 +374,7 @@ impl Builder {
             aligner: Arc::new(Aligner::new(&self.params)),
             params: self.params,
             store: Store::Owned(self.sections),
+            copied_damage: None,
         }
     }
 }
@@ -396,7 +398,7 @@ impl Searcher {
     pub fn bytes(&self) -> std::borrow::Cow<'_, [u8]> {
         let (offsets, total) = layout(self.n, &self.params);
         match &self.store {
-            Store::Mapped { map, body, .. } => std::borrow::Cow::Borrowed(&map[*body..*body + total]),
+            Store::Mapped { body, .. } => std::borrow::Cow::Borrowed(&body.all()[..total]),
             Store::Owned(_) => {
                 let mut out = vec![0u8; total];
                 for (i, section) in ALL_SECTIONS.into_iter().enumerate() {
@@ -408,22 +410,33 @@ impl Searcher {
         }
     }
 
-    /// A searcher over the `n` entries laid out in `map` from byte `body` on (a cache file
-    /// written from [`Searcher::bytes`]).
-    pub fn mapped(map: memmap2::Mmap, body: usize, n: usize, params: PlusParams) -> Result<Self, String> {
+    /// A searcher over the `n` entries laid out in `body` (a cache file's, written from
+    /// [`Searcher::bytes`]).
+    pub fn mapped(
+        body: crate::checked_map::CheckedMap,
+        n: usize,
+        params: PlusParams,
+    ) -> Result<Self, String> {
         let (offsets, total) = layout(n, &params);
-        if map.len() < body + total {
-            return Err(format!(
-                "{} bytes for {n} entries, {total} expected",
-                map.len().saturating_sub(body)
-            ));
+        if body.len() < total {
+            return Err(format!("{} bytes for {n} entries, {total} expected", body.len()));
         }
         Ok(Searcher {
             aligner: Arc::new(Aligner::new(&params)),
             params,
             n,
-            store: Store::Mapped { map, body, offsets },
+            store: Store::Mapped { body, offsets },
+            copied_damage: None,
         })
+    }
+
+    /// What failed, when bytes read from the mapped cache (or the one this searcher's entries
+    /// were copied from) failed their checksum.
+    pub fn damage(&self) -> Option<String> {
+        match &self.store {
+            Store::Mapped { body, .. } => body.damage().map(str::to_string),
+            Store::Owned(_) => self.copied_damage.clone(),
+        }
     }
 
     /// The entries `rows` (in that order) in a searcher of their own, copied.
@@ -442,6 +455,7 @@ impl Searcher {
             aligner: self.aligner.clone(),
             n: rows.len(),
             store: Store::Owned(sections),
+            copied_damage: self.damage(),
         }
     }
 
@@ -460,18 +474,22 @@ impl Searcher {
 
     /// One section of every entry.
     fn section(&self, section: Section) -> &[u8] {
+        self.section_part(section, 0..section.bytes_for(self.n, &self.params))
+    }
+
+    /// Bytes `range` of one section: only they are read (and, mapped, checked).
+    fn section_part(&self, section: Section, range: std::ops::Range<usize>) -> &[u8] {
         let i = section as usize;
-        let len = section.bytes_for(self.n, &self.params);
         match &self.store {
-            Store::Owned(sections) => &sections[i][..len],
-            Store::Mapped { map, body, offsets } => &map[body + offsets[i]..body + offsets[i] + len],
+            Store::Owned(sections) => &sections[i][range],
+            Store::Mapped { body, offsets } => body.get(offsets[i] + range.start..offsets[i] + range.end),
         }
     }
 
-    /// One section of entry `row`.
+    /// One section of entry `row` (not of [`Section::Firsts`], whose entries are interleaved).
     fn entry_section(&self, section: Section, row: usize) -> &[u8] {
         let per = section.entry_bytes(&self.params);
-        &self.section(section)[row * per..(row + 1) * per]
+        self.section_part(section, row * per..(row + 1) * per)
     }
 
     /// The parameters.
@@ -506,8 +524,7 @@ impl Searcher {
         let [by_ring, coarse_shape, coarse_profile] =
             pass.nearest([long, COARSE_PER_CANDIDATE * long, COARSE_PER_CANDIDATE * long], allowed);
         let refined = |section: Section, key: &[u8], mut coarse: Vec<usize>| -> Vec<usize> {
-            let all = self.section(section);
-            let entry = |row: usize| &all[row * key.len()..(row + 1) * key.len()];
+            let entry = |row: usize| self.entry_section(section, row);
             // The rows lie anywhere in the section: each one's bytes are asked for a few rows
             // ahead of their use, in the section's order.
             coarse.sort_unstable();
@@ -703,5 +720,9 @@ impl crate::methods::Searcher for Searcher {
 
     fn bytes(&self) -> Option<std::borrow::Cow<'_, [u8]>> {
         Some(Searcher::bytes(self))
+    }
+
+    fn damage(&self) -> Option<String> {
+        Searcher::damage(self)
     }
 }

@@ -19,11 +19,14 @@
 //! position (what a query prints); the body is the method's structure, as its searcher lays it
 //! out. Every byte is covered by a checksum (xxh3-64): the header by the one after it, the rows
 //! and the padding after them by one in the header, the body by one per [`BLOCK`] bytes in the
-//! header. [`open`] checks them all before the cache answers anything (the blocks on every
-//! core); a cache that fails a check is damaged, and treated as a stale one: a warning naming
-//! the file and what failed, then rebuilt. [`check`] is `verify`'s.
+//! header. [`open`] checks the header and the rows; each block of the body is checked the first
+//! time a search reads it ([`crate::checked_map`]), so opening costs what the rows cost, not a
+//! read of the whole file. A cache that fails a check is damaged, and treated as a stale one: a
+//! warning naming the file and what failed, then rebuilt (by the search that found it, for a
+//! block of the body). [`check`] is `verify`'s: every byte, at once.
 
 use super::reader::IndexedScan;
+use crate::checked_map::CheckedMap;
 use crate::error::{Result, ResultExt};
 use crate::fingerprint::{hex, of_bytes};
 use rayon::prelude::*;
@@ -38,8 +41,9 @@ const MAGIC: &[u8; 16] = b"toporec-search\0\0";
 pub const FORMAT_VERSION: u64 = 2;
 /// The body starts on a page boundary, so its sections are aligned when mapped.
 const PAGE: usize = 4096;
-/// Bytes of the body under one checksum.
-pub const BLOCK: usize = 8 << 20;
+/// Bytes of the body under one checksum: a search checks whole blocks, so a block is small
+/// beside what it reads of the entries it touches (a few KB each).
+pub const BLOCK: usize = 64 << 10;
 /// Magic, header length.
 const LEAD: usize = 24;
 
@@ -114,14 +118,15 @@ impl Header {
     }
 }
 
-/// A cache opened for searching, every checksum checked: its header, rows, and its mapped bytes.
+/// A cache opened for searching: its header and rows, checked, and its body, mapped, each block
+/// checked when first read.
 pub struct Mapped {
     /// What it was built from.
     pub header: Header,
     /// The rows, without descriptors.
     pub rows: Vec<IndexedScan>,
-    /// The file, mapped.
-    pub map: memmap2::Mmap,
+    /// The body.
+    pub body: CheckedMap,
 }
 
 /// Writes the cache of `rows` and `body` (the searcher's bytes) for `header`, atomically.
@@ -185,24 +190,31 @@ pub enum Opened {
     Damaged(String),
 }
 
-/// Opens the cache at `path` when it was built from `generation` and `id` in `layout`, every
-/// checksum checked (the header, the rows, each block of the body) before it is used.
+/// Opens the cache at `path` when it was built from `generation` and `id` in `layout`: its
+/// header and rows checked, its body mapped, each block checked when a search first reads it.
 pub fn open(path: &Path, generation: u64, id: &str, layout: &str) -> Opened {
     let Ok(file) = std::fs::File::open(path) else { return Opened::Missing };
     // SAFETY: cache files are replaced by rename, never written in place, so the mapped bytes
-    // do not change under the map. Every page is read into the map at once: the checks read
-    // them all anyway.
-    let map = match unsafe { memmap2::MmapOptions::new().populate().map(&file) } {
+    // do not change under the map. Pages are read as searches touch them.
+    let map = match unsafe { memmap2::Mmap::map(&file) } {
         Ok(map) => map,
         Err(e) => return Opened::Damaged(format!("cannot be mapped ({e})")),
     };
-    match parse(&map) {
+    match parse(&map, Body::Later) {
         Ok((header, _)) if header.layout != layout => Opened::OtherVersion(format!(
             "its body layout is {:?}, this toporec's is {layout:?}",
             header.layout
         )),
         Ok((header, _)) if header.generation != generation || header.id != id => Opened::Stale,
-        Ok((header, rows)) => Opened::Current(Box::new(Mapped { header, rows, map })),
+        Ok((header, rows)) => {
+            let c = &header.checksums;
+            let sums: Option<Vec<u64>> = c.body.iter().map(|h| u64::from_str_radix(h, 16).ok()).collect();
+            let Some(sums) = sums else { return Opened::Damaged("a body checksum is not hex".into()) };
+            match CheckedMap::new(map, header.body.0, header.body.1, c.block, sums) {
+                Ok(body) => Opened::Current(Box::new(Mapped { header, rows, body })),
+                Err(e) => Opened::Damaged(e),
+            }
+        }
         Err(Fault::OtherFormat(v)) => {
             Opened::OtherVersion(format!("cache format {v}; this toporec reads {FORMAT_VERSION}"))
         }
@@ -227,7 +239,7 @@ pub fn check(path: &Path) -> Check {
         Ok(b) => b,
         Err(e) => return Check::Damaged(format!("cannot be read ({e})")),
     };
-    match parse(&bytes) {
+    match parse(&bytes, Body::Now) {
         Ok((h, _)) => Check::Intact(h),
         Err(Fault::OtherFormat(v)) => Check::OtherFormat(v),
         Err(Fault::Damaged(e)) => Check::Damaged(e),
@@ -258,7 +270,16 @@ fn damaged(what: impl Into<String>) -> Fault {
     Fault::Damaged(what.into())
 }
 
-fn parse(bytes: &[u8]) -> std::result::Result<(Header, Vec<IndexedScan>), Fault> {
+/// When the body's blocks are checked.
+#[derive(Clone, Copy, PartialEq)]
+enum Body {
+    /// At once, every block on every core.
+    Now,
+    /// Each when first read ([`CheckedMap`]).
+    Later,
+}
+
+fn parse(bytes: &[u8], body_check: Body) -> std::result::Result<(Header, Vec<IndexedScan>), Fault> {
     if bytes.is_empty() {
         return Err(damaged("empty file"));
     }
@@ -293,7 +314,7 @@ fn parse(bytes: &[u8]) -> std::result::Result<(Header, Vec<IndexedScan>), Fault>
     if c.block == 0 || c.body.len() != size.div_ceil(c.block) {
         return Err(damaged("header lists the wrong number of body checksums"));
     }
-    let sums = block_checksums(body, c.block);
+    let sums = if body_check == Body::Now { block_checksums(body, c.block) } else { c.body.clone() };
     if let Some(i) = (0..sums.len()).find(|&i| sums[i] != c.body[i]) {
         let start = offset + i * c.block;
         let end = (start + c.block).min(bytes.len());
