@@ -349,11 +349,11 @@ fn main() {
         let warm_open = median(warm_opens);
         let (checked, unchecked) = (median(checked_ms), median(unchecked_ms));
         println!(
-            "cached: {:.2} GB file ({:.1} KB an entry) written in {written:.1} s; opened (header and rows checked) in {warm_open:.2} s from the page cache (median of 4), {} cold",
+            "cached: {:.2} GB file ({:.1} KB an entry) written in {written:.1} s; opened (header and rows checked) in {warm_open:.2} s from the page cache (median of 4); cold: {}",
             bytes as f64 / 1e9,
             bytes as f64 / n as f64 / 1e3,
             cold.map_or("not measured".into(), |c| format!(
-                "{:.2} s; after the cold open, the first query {:.1} ms and the next {} {:.1} ms each (their blocks read and checked)",
+                "opened in {:.2} s, then the first query {:.1} ms and the next {} {:.1} ms each (their blocks read and checked)",
                 c.0,
                 c.1,
                 queries.len() - 1,

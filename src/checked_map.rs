@@ -90,6 +90,17 @@ impl CheckedMap {
         &self.map[self.start + range.start..self.start + range.end]
     }
 
+    /// Asks the OS to start reading bytes `range` from the file, in the background (a hint:
+    /// nothing is checked, nothing waits).
+    pub fn will_need(&self, range: Range<usize>) {
+        #[cfg(unix)]
+        if range.start < range.end && range.end <= self.len {
+            let _ = self.map.advise_range(memmap2::Advice::WillNeed, self.start + range.start, range.len());
+        }
+        #[cfg(not(unix))]
+        let _ = range;
+    }
+
     /// Every byte, every block checked.
     pub fn all(&self) -> &[u8] {
         self.get(0..self.len)

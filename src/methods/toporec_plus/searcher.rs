@@ -421,6 +421,12 @@ impl Searcher {
         if body.len() < total {
             return Err(format!("{} bytes for {n} entries, {total} expected", body.len()));
         }
+        // Every search reads these sections whole or at thousands of scattered rows; the others
+        // at a few rows each.
+        for section in [Section::Firsts, Section::Shapes, Section::Profiles] {
+            let i = section as usize;
+            body.will_need(offsets[i]..offsets[i] + section.bytes_for(n, &params));
+        }
         Ok(Searcher {
             aligner: Arc::new(Aligner::new(&params)),
             params,

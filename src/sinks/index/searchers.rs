@@ -177,7 +177,8 @@ fn block_checksums(body: &[u8], block: usize) -> Vec<String> {
 
 /// What [`open`] found at a cache's path.
 pub enum Opened {
-    /// A current cache, every checksum checked.
+    /// A current cache: its header and rows checked, its body's blocks checked as searches
+    /// read them.
     Current(Box<Mapped>),
     /// None there.
     Missing,
