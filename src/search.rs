@@ -62,7 +62,6 @@ pub struct Engine {
 /// Where a mapped searcher came from.
 struct CacheOrigin {
     index: PathBuf,
-    path: PathBuf,
     method: String,
     damage: Damage,
     budget: Option<SearchBudget>,
@@ -135,17 +134,18 @@ impl Engine {
         chosen: &dyn Fn(&IndexedScan) -> bool,
         damage: &Damage,
     ) -> Result<Option<Self>> {
-        Self::open_cached_from(index, method, chosen, damage, true)
+        Self::open_cached_from(index, method, chosen, damage, None)
     }
 
-    /// [`Engine::open_cached`]; with `use_cache` false the structure is built from the index
-    /// and cached again whatever the cache holds (a cache a search found damaged).
+    /// [`Engine::open_cached`]; given what a search found `damaged` in the cache, the cache is
+    /// treated as a damaged one (a warning, then the structure built from the index and cached
+    /// again) instead of opened.
     fn open_cached_from(
         index: &Path,
         method: &str,
         chosen: &dyn Fn(&IndexedScan) -> bool,
         damage: &Damage,
-        use_cache: bool,
+        damaged: Option<&str>,
     ) -> Result<Option<Self>> {
         let reader = IndexReader::open(index)?;
         let Some(manifest) = reader.manifest() else { return Ok(None) };
@@ -156,14 +156,13 @@ impl Engine {
         let path = searchers::path(index, method);
         let origin = CacheOrigin {
             index: index.to_path_buf(),
-            path: path.clone(),
             method: method.to_string(),
             damage: damage.clone(),
             budget: None,
         };
-        let opened = match use_cache {
-            true => searchers::open(&path, manifest.generation, &entry.id, layout),
-            false => searchers::Opened::Missing,
+        let opened = match damaged {
+            None => searchers::open(&path, manifest.generation, &entry.id, layout),
+            Some(why) => searchers::Opened::Damaged(why.to_string()),
         };
         let cached = match opened {
             searchers::Opened::Current(cached) => Some(cached),
@@ -229,8 +228,7 @@ impl Engine {
         let engine = engine.retain(chosen)?;
         // Copying some of the rows read every block.
         if let Some(why) = engine.searcher.damage() {
-            tracing::warn!("{}: damaged: {why}; rebuilding it", path.display());
-            return Self::open_cached_from(index, method, chosen, damage, false);
+            return Self::open_cached_from(index, method, chosen, damage, Some(&why));
         }
         if engine.scans.is_empty() {
             let skipped = match damage.found().len() {
@@ -403,12 +401,12 @@ impl Engine {
         let Some(cache) = &self.cache else {
             return Err(Error::invalid(format!("a search structure built in memory reports damage: {why}")));
         };
-        tracing::warn!("{}: damaged: {why}; rebuilding it", cache.path.display());
         let mine: std::collections::HashSet<(&str, &str)> =
             self.scans.iter().map(|s| (s.session.as_str(), s.scan_id.as_str())).collect();
         let chosen = |s: &IndexedScan| mine.contains(&(s.session.as_str(), s.scan_id.as_str()));
-        let mut rebuilt = Self::open_cached_from(&cache.index, &cache.method, &chosen, &cache.damage, false)?
-            .ok_or_else(|| Error::index(&cache.index, format!("{} is no longer cached", cache.method)))?;
+        let mut rebuilt =
+            Self::open_cached_from(&cache.index, &cache.method, &chosen, &cache.damage, Some(why))?
+                .ok_or_else(|| Error::index(&cache.index, format!("{} is no longer cached", cache.method)))?;
         if let Some(budget) = cache.budget {
             rebuilt = rebuilt.with_budget(budget);
         }

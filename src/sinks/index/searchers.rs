@@ -201,21 +201,16 @@ pub fn open(path: &Path, generation: u64, id: &str, layout: &str) -> Opened {
         Ok(map) => map,
         Err(e) => return Opened::Damaged(format!("cannot be mapped ({e})")),
     };
-    match parse(&map, Body::Later) {
+    match parse(&map) {
         Ok((header, _)) if header.layout != layout => Opened::OtherVersion(format!(
             "its body layout is {:?}, this toporec's is {layout:?}",
             header.layout
         )),
         Ok((header, _)) if header.generation != generation || header.id != id => Opened::Stale,
-        Ok((header, rows)) => {
-            let c = &header.checksums;
-            let sums: Option<Vec<u64>> = c.body.iter().map(|h| u64::from_str_radix(h, 16).ok()).collect();
-            let Some(sums) = sums else { return Opened::Damaged("a body checksum is not hex".into()) };
-            match CheckedMap::new(map, header.body.0, header.body.1, c.block, sums) {
-                Ok(body) => Opened::Current(Box::new(Mapped { header, rows, body })),
-                Err(e) => Opened::Damaged(e),
-            }
-        }
+        Ok((header, rows)) => match body(map, &header) {
+            Ok(body) => Opened::Current(Box::new(Mapped { header, rows, body })),
+            Err(e) => Opened::Damaged(e),
+        },
         Err(Fault::OtherFormat(v)) => {
             Opened::OtherVersion(format!("cache format {v}; this toporec reads {FORMAT_VERSION}"))
         }
@@ -234,17 +229,41 @@ pub enum Check {
     Damaged(String),
 }
 
-/// Checks the cache at `path` as [`open`] does, whatever it was built from.
+/// Checks the cache at `path` as [`open`] and the searches after it do, every block of the body
+/// at once, whatever it was built from.
 pub fn check(path: &Path) -> Check {
-    let bytes = match std::fs::read(path) {
-        Ok(b) => b,
+    // SAFETY: as in `open`: cache files are replaced by rename, never written in place.
+    let map = match std::fs::File::open(path).and_then(|f| unsafe { memmap2::Mmap::map(&f) }) {
+        Ok(map) => map,
         Err(e) => return Check::Damaged(format!("cannot be read ({e})")),
     };
-    match parse(&bytes, Body::Now) {
-        Ok((h, _)) => Check::Intact(h),
-        Err(Fault::OtherFormat(v)) => Check::OtherFormat(v),
-        Err(Fault::Damaged(e)) => Check::Damaged(e),
+    let header = match parse(&map) {
+        Ok((h, _)) => h,
+        Err(Fault::OtherFormat(v)) => return Check::OtherFormat(v),
+        Err(Fault::Damaged(e)) => return Check::Damaged(e),
+    };
+    match body(map, &header) {
+        Ok(body) => {
+            body.all();
+            match body.damage() {
+                None => Check::Intact(header),
+                Some(e) => Check::Damaged(e.to_string()),
+            }
+        }
+        Err(e) => Check::Damaged(e),
     }
+}
+
+/// The body of the cache mapped in `map`, whose `header` [`parse`] read: each block checked
+/// against the header's checksum when first read.
+fn body(map: memmap2::Mmap, header: &Header) -> std::result::Result<CheckedMap, String> {
+    let c = &header.checksums;
+    let sums = c
+        .body
+        .iter()
+        .map(|h| u64::from_str_radix(h, 16).map_err(|_| "a body checksum is not hex".to_string()))
+        .collect::<std::result::Result<Vec<u64>, String>>()?;
+    CheckedMap::new(map, header.body.0, header.body.1, c.block, sums)
 }
 
 /// The header of the cache at `path`, every checksum checked; an error saying why it cannot
@@ -271,16 +290,9 @@ fn damaged(what: impl Into<String>) -> Fault {
     Fault::Damaged(what.into())
 }
 
-/// When the body's blocks are checked.
-#[derive(Clone, Copy, PartialEq)]
-enum Body {
-    /// At once, every block on every core.
-    Now,
-    /// Each when first read ([`CheckedMap`]).
-    Later,
-}
-
-fn parse(bytes: &[u8], body_check: Body) -> std::result::Result<(Header, Vec<IndexedScan>), Fault> {
+/// The header and rows of a cache, checked, and the body's size and checksum count; the body's
+/// blocks are checked by [`CheckedMap`] ([`body`]).
+fn parse(bytes: &[u8]) -> std::result::Result<(Header, Vec<IndexedScan>), Fault> {
     if bytes.is_empty() {
         return Err(damaged("empty file"));
     }
@@ -311,19 +323,8 @@ fn parse(bytes: &[u8], body_check: Body) -> std::result::Result<(Header, Vec<Ind
         return Err(damaged("rows fail their checksum"));
     }
     let c = &header.checksums;
-    let body = &bytes[offset..];
     if c.block == 0 || c.body.len() != size.div_ceil(c.block) {
         return Err(damaged("header lists the wrong number of body checksums"));
-    }
-    let sums = if body_check == Body::Now { block_checksums(body, c.block) } else { c.body.clone() };
-    if let Some(i) = (0..sums.len()).find(|&i| sums[i] != c.body[i]) {
-        let start = offset + i * c.block;
-        let end = (start + c.block).min(bytes.len());
-        return Err(damaged(format!(
-            "body block {} of {} (bytes {start}..{end}) fails its checksum",
-            i + 1,
-            sums.len()
-        )));
     }
     let rows = decode_rows(rows_part, &header).map_err(damaged)?;
     Ok((header, rows))
