@@ -50,23 +50,21 @@ fn icp_odometry_undoes_a_scale_no_loop_can_see() {
         .collect();
     let bags: Vec<String> =
         sessions.iter().map(|s| sim.join(format!("bag/{s}.bag")).to_str().unwrap().to_string()).collect();
-    let ate = |odometry: &str| -> (f64, String) {
-        let out = dir.join(format!("{odometry}.csv"));
+    // `toporec loops [the bags] --index INDEX … -o OUT.csv --odometry ODOMETRY [extra]`.
+    let loops = |with_bags: bool, index: &str, out: &str, odometry: &str, extra: &[&str]| {
+        let (index, out) = (dir.join(index), dir.join(format!("{out}.csv")));
         let mut args = vec!["loops"];
-        args.extend(bags.iter().map(String::as_str));
-        let index = dir.join("index");
-        args.extend([
-            "--index",
-            index.to_str().unwrap(),
-            "--exclude-seconds",
-            "10",
-            "--odometry",
-            odometry,
-            "--no-progress",
-            "-o",
-            out.to_str().unwrap(),
-        ]);
-        let o = toporec(&args);
+        if with_bags {
+            args.extend(bags.iter().map(String::as_str));
+        }
+        let (index, out) = (index.to_str().unwrap(), out.to_str().unwrap());
+        args.extend(["--index", index, "--exclude-seconds", "10", "--no-progress", "-o", out]);
+        args.extend(["--odometry", odometry]);
+        args.extend(extra);
+        toporec(&args)
+    };
+    let ate = |odometry: &str| -> (f64, String) {
+        let o = loops(true, "index", odometry, odometry, &[]);
         assert!(o.status.success(), "{}", text(&o.stderr));
         let corrected: Vec<[f64; 2]> = sessions
             .iter()
@@ -84,22 +82,21 @@ fn icp_odometry_undoes_a_scale_no_loop_can_see() {
     assert!(said.contains(&format!(", {steps} of {steps} steps aligned by ICP")), "{said}");
     assert!(from_poses > 0.3, "the logs' scale left in: {from_poses}");
     assert!(from_icp < 0.1, "{from_icp}");
-    // The logs moved away: the steps keep the stored poses', and one warning says so.
+    // Two methods: the steps are aligned once for both, and toporec-plus's map is the one it
+    // makes alone, to the byte.
+    let o = loops(true, "index-two", "two", "icp", &["--method", "toporec-plus", "--method", "ring"]);
+    let said = text(&o.stderr);
+    assert!(o.status.success(), "{said}");
+    let aligned = format!(", {steps} of {steps} steps aligned by ICP");
+    assert_eq!(said.matches(&aligned).count(), 2, "{said}");
+    for s in sessions {
+        let alone = std::fs::read(dir.join(format!("icp.{s}.tum"))).unwrap();
+        assert_eq!(std::fs::read(dir.join(format!("two.toporec-plus.{s}.tum"))).unwrap(), alone, "{s}");
+    }
+    // The logs moved away: the steps keep the stored poses', and one warning says so (for both
+    // methods: the steps are asked for once).
     std::fs::rename(&sim, dir.join("moved")).unwrap();
-    let index = dir.join("index");
-    let out = dir.join("moved.csv");
-    let o = toporec(&[
-        "loops",
-        "--index",
-        index.to_str().unwrap(),
-        "--exclude-seconds",
-        "10",
-        "--odometry",
-        "icp",
-        "--no-progress",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let o = loops(false, "index-two", "moved", "icp", &[]);
     let said = text(&o.stderr);
     assert!(o.status.success(), "{said}");
     let warned: Vec<&str> = said.lines().filter(|l| l.contains("cannot be read again")).collect();

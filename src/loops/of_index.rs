@@ -71,6 +71,8 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
     let mut summary = Summary::default();
     let mut all_rows = Vec::new();
     let mut calibrations = Vec::new();
+    // The steps ICP aligned (or could not), by their two scans: aligned once for every method.
+    let mut steps_known = HashMap::new();
     for method in &methods {
         let engine = Engine::open_with(index, &[], method, &damage)?.retain(&in_sessions)?;
         if engine.scans.is_empty() {
@@ -190,11 +192,7 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
         if wants_map && vertices.iter().any(|v| v.pose.is_some()) {
             let first = a.sessions.first().cloned().unwrap_or_else(|| vertices[0].session.clone());
             let aligned = if a.odometry == map::Odometry::Icp {
-                let pairs: Vec<(usize, usize, _)> = map::steps(&vertices)
-                    .into_iter()
-                    .filter_map(|(u, v)| Some((u, v, map::stored_step(&vertices[u], &vertices[v])?)))
-                    .collect();
-                Some(verify::align_steps(index, &vertices, &pairs, a.limits, !a.no_progress, &damage)?)
+                Some(aligned_steps(index, &vertices, a, &damage, &mut steps_known)?)
             } else {
                 None
             };
@@ -258,4 +256,30 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
     }
     summary.damaged = crate::sinks::index::holdings::held_scans(damage.found())?;
     Ok(summary)
+}
+
+/// The steps between consecutive scans of `walk` aligned again by ICP (`--odometry icp`), by
+/// their walk positions. `known` holds every step an earlier method's walk asked for, aligned or
+/// not, by its two scans' ids: only the steps new to it are aligned (the same scans give the
+/// same step whichever method found the loops).
+fn aligned_steps(
+    index: &std::path::Path,
+    walk: &[Vertex],
+    a: &LoopsArgs,
+    damage: &Damage,
+    known: &mut HashMap<(String, String), Option<map::AlignedStep>>,
+) -> Result<std::collections::BTreeMap<(usize, usize), map::AlignedStep>> {
+    let key = |u: usize, v: usize| (walk[u].scan_id.clone(), walk[v].scan_id.clone());
+    let pairs: Vec<(usize, usize, _)> = map::steps(walk)
+        .into_iter()
+        .filter_map(|(u, v)| Some((u, v, map::stored_step(&walk[u], &walk[v])?)))
+        .collect();
+    let new: Vec<_> = pairs.iter().copied().filter(|&(u, v, _)| !known.contains_key(&key(u, v))).collect();
+    if !new.is_empty() {
+        let aligned = verify::align_steps(index, walk, &new, a.limits, !a.no_progress, damage)?;
+        for &(u, v, _) in &new {
+            known.insert(key(u, v), aligned.get(&(u, v)).copied());
+        }
+    }
+    Ok(pairs.iter().filter_map(|&(u, v, _)| Some(((u, v), known[&key(u, v)]?))).collect())
 }
