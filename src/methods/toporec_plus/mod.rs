@@ -39,10 +39,12 @@
 //! 5. **The fine stage** ([`pose`]). The descriptor also holds a Cartesian image of the height
 //!    field around the sensor (`image_side`² cells of `image_cell` m). For the `fine` best
 //!    candidates, the query's image, turned by the yaw just found, is phase-correlated with
-//!    the candidate's: the peak is the query's position in the candidate's sensor frame (x
-//!    forward, y left), reported with every hit. The posed candidates within 0.05 of the best
-//!    distance (near-ties: neighbouring scans of one street) are ordered by their distance plus
-//!    `0.2 ×` the forward offset (at most 4 m; 4 m where the correlation's peak is below 0.15);
+//!    the candidate's: the peak, refined between cells by its centroid, is the query's position
+//!    in the candidate's sensor frame (x forward, y left), reported with every hit. The posed
+//!    candidates within 0.05 of the best distance (near-ties: neighbouring scans of one street)
+//!    are ordered by their distance plus `0.2 ×` the forward offset (the peak refined by a
+//!    parabola, with which that weight was chosen; at most 4 m; 4 m where the correlation's peak
+//!    is below 0.15);
 //!    a candidate further behind keeps its rank. Each reports its distance unchanged, so a loop
 //!    threshold keeps its scale.
 //!    The polar grid finds the street; the offset says which of its neighbouring scans the

@@ -6,9 +6,16 @@
 //! the highest square of the height field in it (the height channel's codes; 0 where none).
 //! Given the yaw the polar match found, the query's image is turned by it (bilinear) and
 //! phase-correlated with the candidate's (both zero-padded to a power of two, the two real
-//! images in one complex FFT); the correlation's peak, refined between cells by a parabola
-//! through its neighbours, is the query's position in the candidate's sensor frame: x forward,
-//! y left, metres.
+//! images in one complex FFT); the correlation's peak, refined between cells by the centroid of
+//! the peak and its two neighbours on each axis, is the query's position in the candidate's
+//! sensor frame: x forward, y left, metres.
+//!
+//! Neighbouring scans of a drive lie a fraction of a cell apart, so the refinement carries the
+//! estimate. A parabola through the peak and its neighbours, as commonly used, draws a sub-cell
+//! shift toward the cell's centre: on the real city drive of docs/evaluation.md it estimates
+//! the forward offset at about half its size. The centroid, its negative neighbours counted as
+//! 0, halves the median error there. The fine stage's ranking still uses the parabola's forward
+//! offset ([`Pose::ranked_x`]): its weight and near-tie limit were chosen with it.
 
 use super::PlusParams;
 use rustfft::num_complex::Complex32;
@@ -25,6 +32,9 @@ pub struct Pose {
     pub y: f64,
     /// The normalized correlation's peak, in (0, 1].
     pub peak: f64,
+    /// Forward (m), the peak refined by a parabola instead: what the fine stage ranks
+    /// near-ties by (the module's doc says why).
+    pub ranked_x: f64,
 }
 
 /// The image's codes of a height field's filled squares (`centres` and `codes` side by side),
@@ -103,15 +113,16 @@ impl Aligner {
             }
         }
         let (a, b) = at;
-        let vertex = |before: f64, peak: f64, after: f64| {
-            let curvature = before - 2.0 * peak + after;
-            if curvature < 0.0 { (0.5 * (before - after) / curvature).clamp(-0.5, 0.5) } else { 0.0 }
-        };
-        let da = vertex(value(a + pad - 1, b), best, value(a + 1, b));
-        let db = vertex(value(a, b + pad - 1), best, value(a, b + 1));
+        let before_after = |da: usize, db: usize| (value(a + pad - da, b + pad - db), value(a + da, b + db));
+        let ((up, down), (left, right)) = (before_after(1, 0), before_after(0, 1));
         let signed = |k: usize, d: f64| if k >= pad / 2 { k as f64 + d - pad as f64 } else { k as f64 + d };
         let scale = (pad * pad) as f64;
-        Pose { x: signed(a, da) * p.image_cell, y: signed(b, db) * p.image_cell, peak: best / scale }
+        Pose {
+            x: signed(a, centroid(up, best, down)) * p.image_cell,
+            y: signed(b, centroid(left, best, right)) * p.image_cell,
+            peak: best / scale,
+            ranked_x: signed(a, vertex(up, best, down)) * p.image_cell,
+        }
     }
 
     /// The 2D transform of `z` (`pad × pad`, row-major) in place: the rows, then the columns.
@@ -122,6 +133,21 @@ impl Aligner {
         fft.process(z);
         transpose(z, pad);
     }
+}
+
+/// The sub-cell offset of a peak from its value and its neighbours' before and after it: their
+/// centroid, a negative neighbour counted as 0 (in [-0.5, 0.5]).
+fn centroid(before: f64, peak: f64, after: f64) -> f64 {
+    let (before, after) = (before.max(0.0), after.max(0.0));
+    let mass = before + peak + after;
+    if mass > 0.0 { (after - before) / mass } else { 0.0 }
+}
+
+/// The sub-cell offset of a peak by the vertex of the parabola through it and its neighbours
+/// (in [-0.5, 0.5]; 0 where they do not curve down).
+fn vertex(before: f64, peak: f64, after: f64) -> f64 {
+    let curvature = before - 2.0 * peak + after;
+    if curvature < 0.0 { (0.5 * (before - after) / curvature).clamp(-0.5, 0.5) } else { 0.0 }
 }
 
 /// A square matrix transposed in place.

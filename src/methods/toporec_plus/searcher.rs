@@ -613,7 +613,7 @@ impl Searcher {
     /// The fine stage over hits sorted by the polar distance: the pose of the query relative to
     /// each of the best `fine` ([`super::pose`]), which are then ordered by a score, the polar
     /// distance plus [`POSE_WEIGHT`] times the offset along the candidate's heading
-    /// ([`forward_offset`]; posed by a correlation peak below [`PEAK_FLOOR`], counts as
+    /// ([`forward_offset`] of [`super::pose::Pose::ranked_x`]; posed by a correlation peak below [`PEAK_FLOOR`], counts as
     /// [`OFFSET_CAP`]), ties by row; only those within [`NEAR_TIE`] of the best polar distance
     /// are ordered so, the others follow in polar order. Every hit reports its polar
     /// distance: the score orders the few, and a threshold on the distance (loop closure) keeps
@@ -626,7 +626,8 @@ impl Searcher {
             .take(p.fine)
             .map(|&(row, d, yaw)| {
                 let pose = self.aligner.pose(&image, self.entry_section(Section::Image, row), yaw, p);
-                let counted = if pose.peak >= PEAK_FLOOR { forward_offset(pose.x) } else { OFFSET_CAP };
+                let counted =
+                    if pose.peak >= PEAK_FLOOR { forward_offset(pose.ranked_x) } else { OFFSET_CAP };
                 let hit = Hit { row, distance: d, yaw_degrees: Some(yaw), offset: Some([pose.x, pose.y]) };
                 (d + POSE_WEIGHT * counted, hit)
             })
