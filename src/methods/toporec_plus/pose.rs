@@ -114,14 +114,14 @@ impl Aligner {
         }
         let (a, b) = at;
         let before_after = |da: usize, db: usize| (value(a + pad - da, b + pad - db), value(a + da, b + db));
-        let ((up, down), (left, right)) = (before_after(1, 0), before_after(0, 1));
+        let ((behind, ahead), (right, left)) = (before_after(1, 0), before_after(0, 1));
         let signed = |k: usize, d: f64| if k >= pad / 2 { k as f64 + d - pad as f64 } else { k as f64 + d };
         let scale = (pad * pad) as f64;
         Pose {
-            x: signed(a, centroid(up, best, down)) * p.image_cell,
-            y: signed(b, centroid(left, best, right)) * p.image_cell,
+            x: signed(a, centroid(behind, best, ahead)) * p.image_cell,
+            y: signed(b, centroid(right, best, left)) * p.image_cell,
             peak: best / scale,
-            ranked_x: signed(a, vertex(up, best, down)) * p.image_cell,
+            ranked_x: signed(a, vertex(behind, best, ahead)) * p.image_cell,
         }
     }
 
