@@ -593,3 +593,59 @@ fn a_drifting_simulated_odometry_is_corrected_by_the_map() {
     println!("ATE: odometry {before:.3} m, map {after:.3} m");
     assert!(before > 2.0 && after < 0.25 * before, "{after} against {before}");
 }
+
+/// Without the check, `--g2o` writes the graph the map solves all the same: each loop carries
+/// toporec-plus's own pose (`x_m`, `y_m`, the yaw) at the map's weaker information (σ = 1 m, so
+/// 1 on each axis), and `toporec optimize --robust` reaches the cost the summary gives.
+#[test]
+fn an_unverified_map_writes_the_graph_it_solves() {
+    let dir = scratch_dir("unverified_map_graph");
+    let bag = crate::util::root().join("samples/drive.bag");
+    let (index, out, stem) = (dir.join("index"), dir.join("loops.csv"), dir.join("graph.g2o"));
+    let path = |p: &Path| p.to_str().unwrap().to_string();
+    let o = toporec(&[
+        "loops",
+        &path(&bag),
+        "--no-progress",
+        "--no-verify",
+        "--index",
+        &path(&index),
+        "-o",
+        &path(&out),
+        "--g2o",
+        &path(&stem),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let stderr = text(&o.stderr);
+    let said = stderr.lines().find(|l| l.starts_with("map (toporec-plus)")).expect("a map").to_string();
+    let graph = dir.join("graph.toporec-plus.g2o");
+    let body = std::fs::read_to_string(&graph).expect("the graph is written without the check");
+    let vertices = body.lines().filter(|l| l.starts_with("VERTEX_SE3:QUAT ")).count();
+    let edges: Vec<Vec<f64>> = body
+        .lines()
+        .filter_map(|l| l.strip_prefix("EDGE_SE3:QUAT "))
+        .map(|l| l.split(' ').map(|w| w.parse::<f64>().unwrap()).collect())
+        .collect();
+    let table = std::fs::read_to_string(&out).unwrap();
+    let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let kept: Vec<Vec<&str>> = table.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert!(!kept.is_empty());
+    assert_eq!(
+        edges.len(),
+        vertices - 1 + kept.len(),
+        "one session: the odometry's edges, then a loop's per row"
+    );
+    for (e, row) in edges[vertices - 1..].iter().zip(&kept) {
+        let (x, y): (f64, f64) = (row[column("x_m")].parse().unwrap(), row[column("y_m")].parse().unwrap());
+        assert!((e[2] - x).abs() < 1e-9 && (e[3] - y).abs() < 1e-9, "edge {e:?}, row {row:?}");
+        assert_eq!(e[9], 1.0, "the translation's information at σ = 1 m");
+    }
+    let cost = |s: &str| -> f64 {
+        s.split(" → ").nth(1).and_then(|r| r.split(' ').next()).and_then(|c| c.parse().ok()).expect("a cost")
+    };
+    let o = toporec(&["optimize", &path(&graph), "-o", &path(&dir.join("optimized.g2o")), "--robust"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    // The summary rounds the cost to 3 decimals.
+    assert!((cost(&said) - cost(&text(&o.stdout))).abs() <= 5e-4 + 1e-9, "{said}\n{}", text(&o.stdout));
+}

@@ -106,8 +106,9 @@ pub struct LoopsArgs {
     /// What a kept alignment must reach.
     #[command(flatten)]
     pub limits: verify::Limits,
-    /// Write each method's verified loops as g2o `EDGE_SE3:QUAT` lines, to `<stem>.<method>.g2o`
-    /// beside this path (with verification).
+    /// Write each method's pose graph (g2o) to `<stem>.<method>.g2o` beside this path: where the
+    /// scans have poses, the graph the map solves (vertices, odometry, kept loops); otherwise the
+    /// loops' `EDGE_SE3:QUAT` lines alone. Unverified loops carry the descriptor's pose, weaker.
     #[arg(long)]
     pub g2o: Option<PathBuf>,
     /// Make no map: leave the pose graph unoptimized (by default, where the scans have poses,

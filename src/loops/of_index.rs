@@ -37,11 +37,6 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
         a.methods.clone()
     };
     let verifying = a.verifies();
-    if a.g2o.is_some() && !verifying {
-        return Err(Error::invalid(
-            "--g2o: needs the loops verified (the relative pose comes from the alignment)".to_string(),
-        ));
-    }
     let in_sessions = |s: &IndexedScan| a.sessions.is_empty() || a.sessions.contains(&s.session);
     let exclusion = match a.exclude_scans {
         Some(n) => Exclusion::Scans(n),

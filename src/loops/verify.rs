@@ -227,14 +227,15 @@ fn relative(pose: &Isometry3<f64>) -> [f64; 6] {
     [t.x, t.y, t.z, roll.to_degrees(), pitch.to_degrees(), yaw.to_degrees()]
 }
 
-/// Writes one g2o `EDGE_SE3:QUAT` line per kept, verified row: from the matched scan's vertex
-/// to the query's (their positions in the walking order), the query's pose in the match's
-/// frame as x y z qx qy qz qw, and the upper triangle of the loop's information as the map
-/// weighs it ([`super::map`]: translation 1/σ² with σ the RMSE, at least 5 cm; rotation 1/σ²
-/// with σ = 0.5°).
+/// Writes one g2o `EDGE_SE3:QUAT` line per loop the map would take (`map::loop_edge`:
+/// accepted and, where checked, verified): from the matched scan's vertex to the query's (their
+/// positions in the walking order), the query's pose in the match's frame as x y z qx qy qz qw,
+/// and the upper triangle of the loop's information as the map weighs it (verified: translation
+/// 1/σ² with σ the RMSE, at least 5 cm, rotation 1/σ² with σ = 0.5°; unchecked, the
+/// descriptor's pose: σ = 1 m, 5° of yaw).
 pub(crate) fn write_g2o(path: &Path, rows: &[LoopRow]) -> Result<()> {
     let mut text = String::new();
-    for r in rows.iter().filter(|r| r.check.is_some_and(|c| c.passed)) {
+    for r in rows {
         let Some((pose, information)) = super::map::loop_edge(r) else { continue };
         let (from, to) = (r.found.row, r.query_vertex);
         let (t, q) = (pose.translation.vector, pose.rotation);
