@@ -1,6 +1,6 @@
 //! `toporec loops`: the exclusion window, the time order, the calibration and its file.
 
-use crate::util::{run_pipeline, sample_copy, scratch_dir, text, toporec};
+use crate::util::{g2o_se3_edges, run_pipeline, sample_copy, scratch_dir, text, toporec};
 use std::path::Path;
 
 /// The sample drive (two sessions of 32 scans 0.5 s apart, with poses) indexed with
@@ -305,11 +305,7 @@ fn loops_find_the_revisits_of_a_three_lap_drive() {
     let graph = std::fs::read_to_string(dir.join("loops.toporec-plus.g2o")).unwrap();
     let vertices = graph.lines().filter(|l| l.starts_with("VERTEX_SE3:QUAT ")).count();
     assert_eq!(graph.lines().last(), Some("FIX 0"));
-    let all_edges: Vec<Vec<f64>> = graph
-        .lines()
-        .filter_map(|l| l.strip_prefix("EDGE_SE3:QUAT "))
-        .map(|l| l.split(' ').map(|w| w.parse::<f64>().unwrap()).collect())
-        .collect();
+    let all_edges = g2o_se3_edges(&graph);
     assert_eq!(all_edges.len(), vertices - 1 + kept.len(), "one session: vertices − 1 odometry edges");
     let edges = &all_edges[vertices - 1..];
     for (e, f) in edges.iter().zip(&kept) {

@@ -158,6 +158,16 @@ pub fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
+/// The numbers of each `EDGE_SE3:QUAT` line of a g2o file's text, in order: the two vertices,
+/// x y z qx qy qz qw, then the information's upper triangle.
+pub fn g2o_se3_edges(graph: &str) -> Vec<Vec<f64>> {
+    graph
+        .lines()
+        .filter_map(|l| l.strip_prefix("EDGE_SE3:QUAT "))
+        .map(|l| l.split(' ').map(|w| w.parse::<f64>().unwrap()).collect())
+        .collect()
+}
+
 /// `toporec run PIPELINE --index INDEX -t THREADS --no-progress`.
 pub fn run_pipeline(pipeline: &Path, index: &Path, threads: usize) -> std::process::Output {
     let threads = threads.to_string();

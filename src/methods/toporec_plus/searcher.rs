@@ -613,8 +613,8 @@ impl Searcher {
     /// The fine stage over hits sorted by the polar distance: the pose of the query relative to
     /// each of the best `fine` ([`super::pose`]), which are then ordered by a score, the polar
     /// distance plus [`POSE_WEIGHT`] times the offset along the candidate's heading
-    /// ([`forward_offset`] of [`super::pose::Pose::ranked_x`]; posed by a correlation peak below [`PEAK_FLOOR`], counts as
-    /// [`OFFSET_CAP`]), ties by row; only those within [`NEAR_TIE`] of the best polar distance
+    /// ([`forward_offset`] of [`super::pose::Pose::ranked_x`]; posed by a correlation peak
+    /// below [`PEAK_FLOOR`], counts as [`OFFSET_CAP`]), ties by row; only those within [`NEAR_TIE`] of the best polar distance
     /// are ordered so, the others follow in polar order. Every hit reports its polar
     /// distance: the score orders the few, and a threshold on the distance (loop closure) keeps
     /// the scale of the polar ranking.
