@@ -39,7 +39,8 @@
 //! 5. **The fine stage** ([`pose`]). The descriptor also holds a Cartesian image of the height
 //!    field around the sensor (`image_side`² cells of `image_cell` m). For the `fine` best
 //!    candidates, the query's image, turned by the yaw just found, is phase-correlated with
-//!    the candidate's: the peak, refined between cells by its centroid, is the query's position
+//!    the candidate's, the cells within 2 m of the sensor (the vehicle carrying it) left out of
+//!    both: the peak, refined between cells by its centroid, is the query's position
 //!    in the candidate's sensor frame (x forward, y left), reported with every hit. The posed
 //!    candidates within 0.05 of the best distance (near-ties: neighbouring scans of one street)
 //!    are ordered by their distance plus `0.2 ×` the forward offset (the peak refined by a

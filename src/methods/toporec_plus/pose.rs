@@ -5,10 +5,12 @@
 //! sensor: `image_side` × `image_side` cells of `image_cell` metres, each the height code of
 //! the highest square of the height field in it (the height channel's codes; 0 where none).
 //! Given the yaw the polar match found, the query's image is turned by it (bilinear) and
-//! phase-correlated with the candidate's (both zero-padded to a power of two, the two real
-//! images in one complex FFT); the correlation's peak, refined between cells by the centroid of
-//! the peak and its two neighbours on each axis, is the query's position in the candidate's
-//! sensor frame: x forward, y left, metres.
+//! phase-correlated with the candidate's (both zero-padded, the two real images in one complex
+//! FFT), the cells around the sensor left out of both (`NEAR_FIELD_M`: the vehicle's own
+//! returns fill them alike in every scan and would draw each pose toward no shift); the
+//! correlation's peak, refined between cells by the centroid of the peak and its two neighbours
+//! on each axis, is the query's position in the candidate's sensor frame: x forward, y left,
+//! metres.
 //!
 //! Neighbouring scans of a drive lie a fraction of a cell apart, so the refinement carries the
 //! estimate. A parabola through the peak and its neighbours, as commonly used, draws a sub-cell
@@ -78,11 +80,15 @@ impl Aligner {
     pub(super) fn pose(&self, query: &[u8], candidate: &[u8], yaw_degrees: f64, p: &PlusParams) -> Pose {
         let (n, pad) = (self.n, self.pad);
         let turned = turn(query, n, yaw_degrees.to_radians());
-        // The candidate in the real part, the turned query in the imaginary part.
+        let near = near_field(n, p.image_cell);
+        // The candidate in the real part, the turned query in the imaginary part; the near
+        // field left out of both.
         let mut z = vec![Complex32::new(0.0, 0.0); pad * pad];
         for i in 0..n {
             for j in 0..n {
-                z[i * pad + j] = Complex32::new(candidate[i * n + j] as f32, turned[i * n + j]);
+                if !(near.contains(&i) && near.contains(&j)) {
+                    z[i * pad + j] = Complex32::new(candidate[i * n + j] as f32, turned[i * n + j]);
+                }
             }
         }
         self.transform(&mut z, &self.forward);
@@ -133,6 +139,22 @@ impl Aligner {
         fft.process(z);
         transpose(z, pad);
     }
+}
+
+/// How far the fine stage's images reach around the sensor before they are left out of the
+/// correlation (m, along each axis): the vehicle that carries the sensor. Its own returns lie
+/// in the same cells of every scan, so they correlate best at no shift and draw a pose toward
+/// the candidate. A car is about 2 m wide and 4–5 m long, its sensor near the middle of the
+/// roof (on the KITTI recordings of docs/evaluation.md, a few dozen returns a scan lie within
+/// 2 m of the sensor, off the car itself).
+const NEAR_FIELD_M: f64 = 2.0;
+
+/// The rows (and columns) of an `n`-cell image whose cells lie within [`NEAR_FIELD_M`] of the
+/// sensor, at least the two cells around it: the sensor stands at the corner between rows
+/// `n/2 - 1` and `n/2`.
+fn near_field(n: usize, cell: f64) -> std::ops::Range<usize> {
+    let k = ((NEAR_FIELD_M / cell).floor() as usize).clamp(1, n / 2);
+    n / 2 - k..n / 2 + k
 }
 
 /// The sub-cell offset of a peak from its value and its neighbours' before and after it: their

@@ -323,3 +323,37 @@ fn the_fine_stage_poses_a_shift_smaller_than_a_cell_at_its_size() {
         );
     }
 }
+
+#[test]
+fn the_fine_stage_leaves_out_the_vehicle_carrying_the_sensor() {
+    // Returns off the vehicle itself fill the same cells around the sensor in every scan: they
+    // correlate best at no shift. A scene of mounds, the query's sensor 2.5 cells ahead, and
+    // a bright block on the sensor in both images: posed within a quarter of a cell of the
+    // shift (with the block counted, at 0).
+    let p = PlusParams::default();
+    let n = p.image_side;
+    let mounds = [(7.3, 11.0, 120.0), (30.5, 6.2, 90.0), (14.0, 31.7, 110.0), (28.1, 24.4, 80.0)];
+    let scene = |ahead: f64| -> Vec<u8> {
+        let mut image = vec![0u8; n * n];
+        for i in 0..n {
+            for j in 0..n {
+                let x = i as f64 + ahead;
+                let h: f64 = mounds
+                    .iter()
+                    .map(|&(ci, cj, a)| a * (-((x - ci).powi(2) + (j as f64 - cj).powi(2)) / 2.0).exp())
+                    .sum();
+                image[i * n + j] = h.round().min(255.0) as u8;
+            }
+        }
+        // The vehicle: the sensor stands at the corner of cells n/2 - 1 and n/2.
+        for i in n / 2 - 2..n / 2 + 2 {
+            for j in n / 2 - 1..n / 2 + 1 {
+                image[i * n + j] = 250;
+            }
+        }
+        image
+    };
+    let pose = super::pose::Aligner::new(&p).pose(&scene(2.5), &scene(0.0), 0.0, &p);
+    let x = pose.x / p.image_cell;
+    assert!((x - 2.5).abs() <= 0.25 && pose.y.abs() <= 0.25 * p.image_cell, "({x:.3}, {:.3}) cells", pose.y);
+}
