@@ -614,10 +614,10 @@ impl Searcher {
     /// each of the best `fine` ([`super::pose`]), which are then ordered by a score, the polar
     /// distance plus [`POSE_WEIGHT`] times the offset along the candidate's heading
     /// ([`forward_offset`] of [`super::pose::Pose::ranked_x`]; posed by a correlation peak
-    /// below [`PEAK_FLOOR`], counts as [`OFFSET_CAP`]), ties by row; only those within [`NEAR_TIE`] of the best polar distance
-    /// are ordered so, the others follow in polar order. Every hit reports its polar
-    /// distance: the score orders the few, and a threshold on the distance (loop closure) keeps
-    /// the scale of the polar ranking.
+    /// below [`PEAK_FLOOR`], counts as [`OFFSET_CAP`]), ties by row; only those within
+    /// [`NEAR_TIE`] of the best polar distance are ordered so, the others follow in polar
+    /// order. Every hit reports its polar distance: the score orders the few, and a threshold
+    /// on the distance (loop closure) keeps the scale of the polar ranking.
     fn fine(&self, query: &[f32], hits: Vec<PlusHit>, k: usize) -> Vec<Hit> {
         let p = &self.params;
         let image: Vec<u8> = image_codes(query, p);

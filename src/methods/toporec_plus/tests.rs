@@ -296,22 +296,7 @@ fn the_fine_stage_poses_a_shift_smaller_than_a_cell_at_its_size() {
     let p = PlusParams::default();
     let n = p.image_side;
     let mounds = [(7.3, 11.0, 200.0), (20.5, 6.2, 150.0), (14.0, 25.7, 230.0), (28.1, 18.4, 120.0)];
-    let relief = |shift: (f64, f64)| -> Vec<u8> {
-        let mut image = vec![0u8; n * n];
-        for i in 0..n {
-            for j in 0..n {
-                let (x, y) = (i as f64 + shift.0, j as f64 + shift.1);
-                let h: f64 = mounds
-                    .iter()
-                    .map(|&(ci, cj, a)| {
-                        a * (-((x - ci).powi(2) + (y - cj).powi(2)) / (2.0 * 0.6f64.powi(2))).exp()
-                    })
-                    .sum();
-                image[i * n + j] = h.round().min(255.0) as u8;
-            }
-        }
-        image
-    };
+    let relief = |shift: (f64, f64)| mounds_image(n, &mounds, 0.6, shift);
     let aligner = super::pose::Aligner::new(&p);
     let candidate = relief((0.0, 0.0));
     for ahead in [0.25, 0.5, 0.75] {
@@ -334,17 +319,7 @@ fn the_fine_stage_leaves_out_the_vehicle_carrying_the_sensor() {
     let n = p.image_side;
     let mounds = [(7.3, 11.0, 120.0), (30.5, 6.2, 90.0), (14.0, 31.7, 110.0), (28.1, 24.4, 80.0)];
     let scene = |ahead: f64| -> Vec<u8> {
-        let mut image = vec![0u8; n * n];
-        for i in 0..n {
-            for j in 0..n {
-                let x = i as f64 + ahead;
-                let h: f64 = mounds
-                    .iter()
-                    .map(|&(ci, cj, a)| a * (-((x - ci).powi(2) + (j as f64 - cj).powi(2)) / 2.0).exp())
-                    .sum();
-                image[i * n + j] = h.round().min(255.0) as u8;
-            }
-        }
+        let mut image = mounds_image(n, &mounds, 1.0, (ahead, 0.0));
         // The vehicle: the sensor stands at the corner of cells n/2 - 1 and n/2.
         for i in n / 2 - 2..n / 2 + 2 {
             for j in n / 2 - 1..n / 2 + 1 {
@@ -356,4 +331,24 @@ fn the_fine_stage_leaves_out_the_vehicle_carrying_the_sensor() {
     let pose = super::pose::Aligner::new(&p).pose(&scene(2.5), &scene(0.0), 0.0, &p);
     let x = pose.x / p.image_cell;
     assert!((x - 2.5).abs() <= 0.25 && pose.y.abs() <= 0.25 * p.image_cell, "({x:.3}, {:.3}) cells", pose.y);
+}
+
+/// An `n` × `n` image of the fine stage (codes, row by row) of Gaussian mounds `(row, column,
+/// height)` of spread `sigma` cells, seen from a sensor moved by `shift` cells: cell (i, j)
+/// holds the relief at (i + shift.0, j + shift.1).
+fn mounds_image(n: usize, mounds: &[(f64, f64, f64)], sigma: f64, shift: (f64, f64)) -> Vec<u8> {
+    let mut image = vec![0u8; n * n];
+    for i in 0..n {
+        for j in 0..n {
+            let (x, y) = (i as f64 + shift.0, j as f64 + shift.1);
+            let h: f64 = mounds
+                .iter()
+                .map(|&(ci, cj, a)| {
+                    a * (-((x - ci).powi(2) + (y - cj).powi(2)) / (2.0 * sigma.powi(2))).exp()
+                })
+                .sum();
+            image[i * n + j] = h.round().min(255.0) as u8;
+        }
+    }
+    image
 }
