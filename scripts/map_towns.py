@@ -20,7 +20,7 @@ truth `simulate` writes beside the bags (`truth/<session>.tum`):
 * the loops kept in the map more than 5 m off, and those the map rejected, by their true distance.
 
     python3 scripts/map_towns.py --toporec target/release/toporec --seeds 101,102,103,104,105,106
-    python3 scripts/map_towns.py --false-loop-towns [--odometry icp]
+    python3 scripts/map_towns.py --false-loop-towns [--odometry icp] [--threshold 0.3534]
 """
 
 import argparse
@@ -71,7 +71,7 @@ REVISITS = ["--rate", "5", "--sensor", "hdl64"]
 FALSE_LOOP_TOWNS = [(73, "1.3"), (73, "5.8"), (79, "1.19"), (79, "5.69"), (67, "0"), (67, "4.54")]
 
 
-def drive(toporec, seed, kind, scratch, drift, odometry="poses", verify=True, sensor=TOWNS):
+def drive(toporec, seed, kind, scratch, drift, odometry="poses", verify=True, sensor=TOWNS, threshold=None):
     out = os.path.join(scratch, f"{seed}-{kind}")
     args = [toporec, "simulate", "-o", out, "--format", "bag", "--seed", str(seed), "--azimuth-res", "1.0",
             *sensor, "--drift-scale", str(drift[0]),
@@ -86,7 +86,8 @@ def drive(toporec, seed, kind, scratch, drift, odometry="poses", verify=True, se
     loops = os.path.join(out, "loops.csv")
     summary = run([toporec, "loops", *bags, "--exclude-seconds", "10", "--index", os.path.join(out, "index"),
                    "-o", loops, "--no-progress", "--g2o", os.path.join(out, "graph.g2o"), "--odometry", odometry]
-                  + ([] if verify else ["--no-verify"]))
+                  + ([] if verify else ["--no-verify"])
+                  + ([] if threshold is None else ["--threshold", str(threshold)]))
     truth = {s: tum(os.path.join(out, "truth", f"{s}.tum")) for s in sessions}
     corrected = {s: tum(os.path.join(out, f"loops.{s}.tum")) for s in sessions}
     # The odometry: the graph's odometry edges chained from each session's first vertex.
@@ -134,6 +135,8 @@ def main():
                         help="the map's steps: the log's odometry, or each aligned again by ICP")
     parser.add_argument("--no-verify", action="store_true",
                         help="loops unchecked by ICP: the map weighs the descriptor's own pose")
+    parser.add_argument("--threshold", type=float,
+                        help="toporec-plus's loop threshold instead of its default")
     parser.add_argument("--false-loop-towns", action="store_true",
                         help="the towns 73, 79 and 67 of the reversed-revisit table instead of --seeds")
     args = parser.parse_args()
@@ -149,7 +152,8 @@ def main():
     with tempfile.TemporaryDirectory() as scratch:
         for seed, kind in drives:
             odo, ate, scaled, far, passed, rejected, _ = drive(args.toporec, seed, kind, scratch, drift,
-                                                               args.odometry, not args.no_verify, sensor)
+                                                               args.odometry, not args.no_verify, sensor,
+                                                               args.threshold)
             shown = ", ".join(f"{r:.1f}" for r in sorted(rejected)) or "none"
             print(f"| {seed} | {kind} | {odo:.3f} | {ate:.3f} | {ate / odo:.3f} | {scaled:.3f} | {passed} | {far} | "
                   f"{shown} |", flush=True)

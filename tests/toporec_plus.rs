@@ -501,7 +501,7 @@ fn an_index_made_before_the_lateral_views_were_the_default_keeps_its_settings() 
     let o = toporec(&["run", "--full", pipeline.to_str().unwrap(), "--no-progress"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let shown = info(&index);
-    assert!(shown.contains("loop threshold 0.3534") && shown.contains("\"lateral\":[3.0]"), "{shown}");
+    assert!(shown.contains("loop threshold 0.3289") && shown.contains("\"lateral\":[3.0]"), "{shown}");
     let method = toporec::loops::detector::method_of_index(&index, "toporec-plus").unwrap();
     assert_eq!(method, toporec::Method::of(PlusParams::default()));
 }

@@ -62,7 +62,7 @@ def test_detector_equals_toporec_loops(repo, loops_index, binary, tmp_path, meth
 
 
 def test_default_thresholds_and_errors():
-    assert toporec.LoopDetector("toporec-plus").threshold == 0.3534
+    assert toporec.LoopDetector("toporec-plus").threshold == 0.3289
     assert toporec.LoopDetector("scancontext").threshold == 0.5335
     assert toporec.LoopDetector("ring").threshold == 0.4544
     assert toporec.LoopDetector("ring-plus").threshold == 0.4390

@@ -637,7 +637,7 @@ class LoopDetector:
             (:func:`computed_methods` lists them).
         exclude_seconds: earlier scans of the same session closer in time are left out.
         threshold: a match below this descriptor distance is a loop; default the method's
-            documented one at the default settings (toporec-plus 0.3534, ScanContext 0.5335, RING 0.4544,
+            documented one at the default settings (toporec-plus 0.3289, ScanContext 0.5335, RING 0.4544,
             RING++ 0.4390; docs/loops.md), else required.
         exclude_scans: leave out this many preceding scans of the session instead of seconds.
         index: take the method's settings from this index (so the descriptors match its own).

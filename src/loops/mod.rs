@@ -75,7 +75,7 @@ pub struct LoopsArgs {
     #[arg(long, conflicts_with = "exclude_seconds")]
     pub exclude_scans: Option<usize>,
     /// Matches with a descriptor distance below this are loops (a distance in the method's own
-    /// units, > 0; default: the one calibrated for the method's settings, `info` shows it: 0.3534 for
+    /// units, > 0; default: the one calibrated for the method's settings, `info` shows it: 0.3289 for
     /// toporec-plus).
     #[arg(long, value_parser = ranges::positive)]
     pub threshold: Option<f64>,

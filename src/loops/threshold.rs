@@ -54,9 +54,9 @@ pub fn calibrate(matches: &[(f64, bool)], target: f64) -> Option<f64> {
     best
 }
 
-/// The default threshold of a method at its default settings: the threshold calibrated to
-/// precision 0.99 (revisits within 5 m, 30 s excluded) on the simulated HDL-64E drive of
-/// docs/loops.md. `None` for the other methods and settings (their distances differ).
+/// The default threshold of a method at its default settings: the threshold calibrated on
+/// simulated HDL-64E drives (revisits within 5 m; docs/loops.md says which drives and at what
+/// precision). `None` for the other methods and settings (their distances differ).
 pub fn default_threshold(method: &crate::methods::Method) -> Option<f64> {
     method.as_computed().and_then(|c| c.default_threshold())
 }

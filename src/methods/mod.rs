@@ -101,8 +101,8 @@ pub trait Computed: Settings + std::fmt::Debug + Send + Sync + 'static {
         &["search"]
     }
 
-    /// The loop threshold at the method's default settings (calibrated to precision 0.99 on the
-    /// simulated HDL-64E drive of docs/loops.md); `None` where none was calibrated.
+    /// The loop threshold at the method's default settings (calibrated on simulated HDL-64E
+    /// drives, docs/loops.md says which and at what precision); `None` where none was calibrated.
     fn default_threshold(&self) -> Option<f64> {
         None
     }
