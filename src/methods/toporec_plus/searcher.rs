@@ -614,20 +614,27 @@ impl Searcher {
     /// each of the best `fine` ([`super::pose`]), which are then ordered by a score, the polar
     /// distance plus [`POSE_WEIGHT`] times the offset along the candidate's heading
     /// ([`forward_offset`] of [`super::pose::Pose::ranked_x`]; posed by a correlation peak
-    /// below [`PEAK_FLOOR`], counts as [`OFFSET_CAP`]), ties by row; only those within
-    /// [`NEAR_TIE`] of the best polar distance are ordered so, the others follow in polar
-    /// order. Every hit reports its polar distance: the score orders the few, and a threshold
-    /// on the distance (loop closure) keeps the scale of the polar ranking.
+    /// below [`PEAK_FLOOR`], or turned more than a quarter turn from the best hit, counts as
+    /// [`OFFSET_CAP`]), ties by row; only those within [`NEAR_TIE`] of the best polar distance
+    /// are ordered so, the others follow in polar order. The turn: neighbouring scans of one
+    /// street are seen the same way round, while a lookalike turned half round (a symmetric
+    /// crossing from its other side) may pose near the query and must not overtake the best.
+    /// Every hit reports its polar distance: the score orders the few, and a threshold on the
+    /// distance (loop closure) keeps the scale of the polar ranking.
     fn fine(&self, query: &[f32], hits: Vec<PlusHit>, k: usize) -> Vec<Hit> {
         let p = &self.params;
         let image: Vec<u8> = image_codes(query, p);
+        let best_yaw = hits.first().map_or(0.0, |h| h.2);
         let mut posed: Vec<(f64, Hit)> = hits
             .iter()
             .take(p.fine)
             .map(|&(row, d, yaw)| {
                 let pose = self.aligner.pose(&image, self.entry_section(Section::Image, row), yaw, p);
-                let counted =
-                    if pose.peak >= PEAK_FLOOR { forward_offset(pose.ranked_x) } else { OFFSET_CAP };
+                let counted = if pose.peak >= PEAK_FLOOR && turned_alike(yaw, best_yaw) {
+                    forward_offset(pose.ranked_x)
+                } else {
+                    OFFSET_CAP
+                };
                 let hit = Hit { row, distance: d, yaw_degrees: Some(yaw), offset: Some([pose.x, pose.y]) };
                 (d + POSE_WEIGHT * counted, hit)
             })
@@ -665,6 +672,12 @@ pub(super) const PEAK_FLOOR: f64 = 0.15;
 
 /// The largest offset the fine stage counts (m): beyond it a pose says only "elsewhere".
 pub(super) const OFFSET_CAP: f64 = 4.0;
+
+/// Whether two candidates' yaws (degrees) lie within a quarter turn of each other.
+pub(super) fn turned_alike(a: f64, b: f64) -> bool {
+    let d = (a - b).rem_euclid(360.0);
+    d.min(360.0 - d) <= 90.0
+}
 
 /// The offset of a pose as the fine stage counts it: its forward part `|x|`, at most
 /// [`OFFSET_CAP`]. Neighbouring map scans of a drive lie along their headings, so how far the

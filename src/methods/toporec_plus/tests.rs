@@ -352,3 +352,31 @@ fn mounds_image(n: usize, mounds: &[(f64, f64, f64)], sigma: f64, shift: (f64, f
     }
     image
 }
+
+#[test]
+fn the_fine_stage_does_not_promote_a_lookalike_turned_half_round() {
+    // The query 1.5 m ahead of a map scan of its place, and elsewhere a lookalike: the query's
+    // own view turned half round and stretched by a tenth, as a symmetric crossing seen from
+    // its other side. The place is first by the polar distance, the lookalike a near-tie posed
+    // nearer the query, which its offset alone would promote. A near-tie turned more than a
+    // quarter turn from the best is another place, or the place driven the other way, and keeps
+    // its polar rank.
+    let p = PlusParams::default();
+    let seen: Vec<Point> = scene().iter().map(|&[x, y, z]| [x - 1.5, y, z]).collect();
+    let lookalike: Vec<Point> = turned(&seen, 2).iter().map(|&[x, y, z]| [1.1 * x, y, z]).collect();
+    let db = [describe(&scene(), &p).unwrap(), describe(&lookalike, &p).unwrap()].concat();
+    let (hits, _) = Searcher::new(db, p.clone()).search(&describe(&seen, &p).unwrap(), 2);
+    let (place, turned_round) = if hits[0].row == 0 { (&hits[0], &hits[1]) } else { (&hits[1], &hits[0]) };
+    let score = |h: &Hit| h.distance + POSE_WEIGHT * forward_offset(h.offset.expect("posed")[0]);
+    assert!(
+        place.distance < turned_round.distance && turned_round.distance <= place.distance + NEAR_TIE,
+        "a near-tie behind the place: {place:?}, {turned_round:?}"
+    );
+    assert!(
+        score(turned_round) < score(place),
+        "its offset alone would promote it: {place:?}, {turned_round:?}"
+    );
+    assert!((turned_round.yaw_degrees.unwrap() - 180.0).abs() <= 4.0, "{turned_round:?}");
+    assert!(turned_alike(358.0, 2.0) && turned_alike(0.0, 90.0) && !turned_alike(2.0, 178.0));
+    assert_eq!(hits[0].row, 0, "{hits:?}");
+}
