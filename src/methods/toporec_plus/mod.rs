@@ -45,9 +45,9 @@
 //!    candidates within 0.05 of the best distance (near-ties: neighbouring scans of one street)
 //!    are ordered by their distance plus `0.2 ×` the forward offset (the peak refined by a
 //!    parabola, with which that weight was chosen; at most 4 m; 4 m where the correlation's peak
-//!    is below 0.15);
-//!    a candidate further behind keeps its rank. Each reports its distance unchanged, so a loop
-//!    threshold keeps its scale.
+//!    is below 0.15 or the candidate is turned more than a quarter turn from the best, a
+//!    lookalike seen from its other side); a candidate further behind keeps its rank. Each
+//!    reports its distance unchanged, so a loop threshold keeps its scale.
 //!    The polar grid finds the street; the offset says which of its neighbouring scans the
 //!    query stands nearest.
 //!

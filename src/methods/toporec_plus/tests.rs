@@ -1,5 +1,5 @@
 //! toporec-plus's unit tests: the relief by hand, turns, keys, hidden sectors, short ranges,
-//! the first pass's routes, grown and restricted searches.
+//! the first pass's routes, grown and restricted searches, the fine stage's poses and order.
 
 use super::PlusParams;
 use super::distance::*;
