@@ -8,7 +8,8 @@ For each town (a `toporec simulate` seed) it drives, as ROS 1 bags whose /odom a
 With `--false-loop-towns` it drives instead the towns of docs/loops.md's reversed-revisit table
 with the most false matches at the threshold (73, 79 and 67, at their two lap offsets: the laps
 1 m and 3.5 m apart), as that table does (HDL-64E at 1°, 5 scans a second), the odometry drifting
-the same way.
+the same way. With `--revisit-drives` it drives the table's drives named (TOWN:OFFSET, or
+TOWN:same for two sessions each in its own frame) the same way.
 
 Then `toporec loops <bags> --exclude-seconds 10` makes the map, and this script reports, from the
 truth `simulate` writes beside the bags (`truth/<session>.tum`):
@@ -21,6 +22,7 @@ truth `simulate` writes beside the bags (`truth/<session>.tum`):
 
     python3 scripts/map_towns.py --toporec target/release/toporec --seeds 101,102,103,104,105,106
     python3 scripts/map_towns.py --false-loop-towns [--odometry icp] [--threshold 0.3534]
+    python3 scripts/map_towns.py --revisit-drives 179:0.69,179:5.19,179:same
 """
 
 import argparse
@@ -139,10 +141,17 @@ def main():
                         help="toporec-plus's loop threshold instead of its default")
     parser.add_argument("--false-loop-towns", action="store_true",
                         help="the towns 73, 79 and 67 of the reversed-revisit table instead of --seeds")
+    parser.add_argument("--revisit-drives",
+                        help="drives of the reversed-revisit table instead of --seeds: TOWN:OFFSET "
+                             "(the second lap reversed) or TOWN:same (two sessions), comma-separated")
     args = parser.parse_args()
     drift = [float(v) for v in args.drift.split(",")]
     if args.false_loop_towns:
         drives, sensor = [(seed, f"reversed-{offset}") for seed, offset in FALSE_LOOP_TOWNS], REVISITS
+    elif args.revisit_drives:
+        pairs = [d.split(":") for d in args.revisit_drives.split(",")]
+        drives = [(int(town), "two-sessions" if kind == "same" else f"reversed-{kind}") for town, kind in pairs]
+        sensor = REVISITS
     else:
         kinds = ["reversed-1.5", "reversed-3.5", "two-sessions"]
         drives, sensor = [(int(s), kind) for s in args.seeds.split(",") for kind in kinds], TOWNS

@@ -15,7 +15,9 @@
 //! the query, with ICP's relative pose: σ = the alignment's RMSE (at least 5 cm) for the
 //! translation, 0.5° for each rotation. Without verification (`--no-verify`), the descriptor's
 //! own estimate (x_m, y_m, yaw) at a weaker information: σ = 1 m for the translation, 5° for
-//! the yaw, 0.05 rad for roll and pitch; a method that gives none puts no loop in the map.
+//! the yaw, 0.05 rad for roll and pitch; a method that gives none puts no loop in the map. A
+//! loop within one session that the odometry alone rules out (`odometry_veto`) is left out of
+//! the graph and counted as rejected.
 //!
 //! **Frames.** Poses from a pose file are in one frame for all the sessions they cover (ground
 //! truth, one SLAM run); each log's own poses (its `/odom` or `/tf`) are a frame of their own.
@@ -25,6 +27,7 @@
 //! with (within 2 m and 5°) starts the solve, and the map does the rest. A frame with no loop
 //! to the first is left in its own frame and named.
 
+use super::odometry_veto::Drift;
 use super::row::LoopRow;
 use crate::error::{Result, ResultExt};
 use crate::map::lie::Se3;
@@ -91,8 +94,10 @@ pub struct MethodMap {
     pub unposed: usize,
     /// The first few of them, by id.
     pub unposed_named: Vec<String>,
-    /// Loops put in the graph; of those, kept by the map.
+    /// Loops given to the map; of those, kept by it.
     pub loops: (usize, usize),
+    /// Loops the odometry alone ruled out, before the solve (counted among the rejected).
+    pub vetoed: usize,
     /// With `--odometry icp`: the steps between consecutive scans, and those measured by ICP
     /// (the rest keep the stored step).
     pub steps_aligned: Option<(usize, usize)>,
@@ -127,13 +132,17 @@ impl std::fmt::Display for MethodMap {
             return writeln!(f, "map ({}): not optimized (--no-optimize)", self.method);
         }
         let (loops, kept) = self.loops;
+        let vetoed = match self.vetoed {
+            0 => String::new(),
+            n => format!(" ({n} by the odometry alone)"),
+        };
         let steps = match self.steps_aligned {
             Some((steps, aligned)) => format!(", {aligned} of {steps} steps aligned by ICP"),
             None => String::new(),
         };
         write!(
             f,
-            "map ({}): {} scans{steps}, {loops} loops, {kept} kept, {} rejected as inconsistent; cost {:.3} → {:.3} in {} iterations",
+            "map ({}): {} scans{steps}, {loops} loops, {kept} kept, {} rejected as inconsistent{vetoed}; cost {:.3} → {:.3} in {} iterations",
             self.method,
             self.vertices,
             loops - kept,
@@ -316,6 +325,17 @@ pub(super) fn make(
             Some((k, from, to, pose, info))
         })
         .collect();
+    // Loops the odometry alone rules out stay out of the graph (see `odometry_veto`).
+    let sessions: Vec<&str> = walk.iter().map(|v| v.session.as_str()).collect();
+    let drift = Drift::new(&sessions, &initial, |step| {
+        let (translation, _, yaw) = odometry_sigmas(step);
+        (translation, yaw)
+    });
+    let (loops, vetoed): (Vec<LoopEdge>, Vec<LoopEdge>) =
+        loops.into_iter().partition(|&(_, a, b, z, info)| {
+            let odometry = initial[a].expect("posed").inverse() * initial[b].expect("posed");
+            !drift.rules_out(a, b, &odometry, &z, 1.0 / info[(0, 0)])
+        });
     // Frames: place each other frame in the first's by the loops to the frames placed.
     let frame: Vec<usize> = walk.iter().map(|v| frame_of(&v.session)).collect();
     let anchor = frame_of(first);
@@ -422,7 +442,8 @@ pub(super) fn make(
     let mut graph = Graph { poses, fixed, edges };
     graph.hold_one_per_part();
     out.graph = Some((positions.iter().map(|&v| v as i64).collect(), graph.clone()));
-    out.loops.0 = loops.len();
+    out.loops.0 = loops.len() + vetoed.len();
+    out.vetoed = vetoed.len();
     if !optimize {
         return out;
     }
@@ -430,6 +451,9 @@ pub(super) fn make(
         Ok(solution) => {
             for (k, &(row, ..)) in loops.iter().enumerate() {
                 out.in_map[row] = Some(solution.kept(odometry + k));
+            }
+            for &(row, ..) in &vetoed {
+                out.in_map[row] = Some(false);
             }
             out.loops.1 = out.in_map.iter().filter(|m| **m == Some(true)).count();
             out.costs = (solution.initial_cost, solution.cost);
@@ -657,6 +681,22 @@ mod tests {
             worst(&map, &truth),
             worst(&odometry, &truth)
         );
+    }
+
+    #[test]
+    fn false_loops_that_agree_with_each_other_do_not_open_the_lap_they_cross() {
+        // One lap of the block: its last scans close it on its first; three consecutive scans
+        // at the opposite corner, 56 m away, match the first three as if they were there (a
+        // lookalike corner that passed ICP): they agree with each other, not with the odometry.
+        let truth = laps()[..80].to_vec();
+        let vertices = walk("a", &drifted(&truth));
+        let mut rows: Vec<LoopRow> =
+            (77..80).map(|k| row(0, k, iso(truth[0]).inverse() * iso(truth[k]), ("a", "a"))).collect();
+        let closures = rows.len();
+        rows.extend((40..43).map(|k| row(k - 40, k, iso([0.3, 0.1, 0.02]), ("a", "a"))));
+        let map = make("m", &vertices, &rows, &|_| 0, "a", None, true);
+        assert!(map.in_map[closures..].iter().all(|k| *k == Some(false)), "{:?}", map.in_map);
+        assert!(map.in_map[..closures].iter().all(|k| *k == Some(true)), "{:?}", map.in_map);
     }
 
     #[test]

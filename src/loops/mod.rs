@@ -23,6 +23,7 @@ mod exclusion;
 pub mod icp;
 pub mod map;
 mod matching;
+mod odometry_veto;
 mod of_index;
 mod picture;
 mod row;

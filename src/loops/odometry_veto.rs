@@ -1,0 +1,173 @@
+//! The odometry's veto: a loop that the odometry alone rules out never enters the map.
+//!
+//! Within one session the odometry says where the query lies from the matched scan, within a σ
+//! that grows along the path between them by the map's own drift model (the σ of its odometry
+//! edges, given by the map): each step's translation σ, and its yaw σ swinging the rest
+//! of the path about the step (first order). A loop whose claimed place lies further from the
+//! odometry's than χ² of 3 degrees of freedom at 1 − 10⁻⁶ allows (5.5 σ), the loop's own σ
+//! added, is rejected before the solve.
+//!
+//! Why before: the solve's graduated non-convexity starts every loop at weight 1, from least
+//! squares. A few false loops that agree with each other (consecutive scans at a lookalike
+//! corner, which pass ICP together) can bend that start so far that a true loop closing the lap
+//! looks the inconsistent one, and is rejected with them. The veto is far looser than the
+//! solve's own bound (1 − 10⁻⁶ against 0.99), since it weighs a loop against the odometry
+//! alone, with no other loop to share the drift: it removes only the loops the odometry cannot
+//! have drifted into. Loops between sessions, which share no odometry, are left to the solve.
+
+use nalgebra::{Isometry3, Vector3};
+
+/// χ² of 3 degrees of freedom at probability 1 − 10⁻⁶.
+const CHI2_3_VETO: f64 = 30.665;
+
+/// Running sums along each session's odometry, from its first posed scan: for each walk
+/// position, the sums over the steps that end at or before it.
+#[derive(Clone, Copy, Debug, Default)]
+struct Sums {
+    /// The session's index, to tell two scans of one session.
+    session: usize,
+    /// Σ σ_t² (translation, per axis).
+    translation: f64,
+    /// Σ σ_yaw².
+    yaw: f64,
+    /// Σ σ_yaw² x (x: the step's end, relative to the session's first scan).
+    yaw_x: Vector3<f64>,
+    /// Σ σ_yaw² |x|².
+    yaw_xx: f64,
+    /// The scan's position relative to the session's first scan.
+    at: Vector3<f64>,
+}
+
+/// The odometry's σ between any two scans of a session, in constant time.
+pub(super) struct Drift {
+    sums: Vec<Option<Sums>>,
+}
+
+impl Drift {
+    /// The sums over the walk's scans, by their `sessions` and `poses` (each scan's stored pose;
+    /// none: not posed), session by session in walking order, as the map's odometry edges chain
+    /// them; `sigmas` gives a step's translation and yaw σ.
+    pub(super) fn new(
+        sessions: &[&str],
+        poses: &[Option<Isometry3<f64>>],
+        sigmas: impl Fn(&Isometry3<f64>) -> (f64, f64),
+    ) -> Drift {
+        let mut last: std::collections::BTreeMap<&str, (usize, Sums)> = Default::default();
+        let mut origins: Vec<Vector3<f64>> = Vec::new();
+        let mut sums = vec![None; sessions.len()];
+        for (v, &session) in sessions.iter().enumerate() {
+            let Some(pose) = poses[v] else { continue };
+            let next = match last.get(session) {
+                Some(&(u, before)) => {
+                    let step = poses[u].expect("posed").inverse() * pose;
+                    let (translation, yaw) = sigmas(&step);
+                    let at = pose.translation.vector - origins[before.session];
+                    Sums {
+                        session: before.session,
+                        translation: before.translation + translation * translation,
+                        yaw: before.yaw + yaw * yaw,
+                        yaw_x: before.yaw_x + yaw * yaw * at,
+                        yaw_xx: before.yaw_xx + yaw * yaw * at.norm_squared(),
+                        at,
+                    }
+                }
+                None => {
+                    origins.push(pose.translation.vector);
+                    Sums { session: origins.len() - 1, ..Sums::default() }
+                }
+            };
+            sums[v] = Some(next);
+            last.insert(session, (v, next));
+        }
+        Drift { sums }
+    }
+
+    /// The odometry's variance (m², per axis) of the later of `a` and `b` seen from the
+    /// earlier, when both are posed scans of one session.
+    fn variance(&self, a: usize, b: usize) -> Option<f64> {
+        let (early, late) = (self.sums[a.min(b)]?, self.sums[a.max(b)]?);
+        if early.session != late.session {
+            return None;
+        }
+        let x = late.at;
+        let yaw = late.yaw - early.yaw;
+        let yaw_x = late.yaw_x - early.yaw_x;
+        let yaw_xx = late.yaw_xx - early.yaw_xx;
+        // Σ σ_yaw² |x_late − x_i|², expanded over the running sums.
+        let swing = yaw * x.norm_squared() - 2.0 * x.dot(&yaw_x) + yaw_xx;
+        Some(late.translation - early.translation + swing.max(0.0))
+    }
+
+    /// Whether the odometry rules out a loop claiming `claimed` (the query `b`'s pose in the
+    /// matched scan `a`'s frame, translation σ² `loop_variance` per axis), where `odometry` is
+    /// the stored poses' `a⁻¹ b`.
+    pub(super) fn rules_out(
+        &self,
+        a: usize,
+        b: usize,
+        odometry: &Isometry3<f64>,
+        claimed: &Isometry3<f64>,
+        loop_variance: f64,
+    ) -> bool {
+        let Some(variance) = self.variance(a, b) else { return false };
+        let apart = (odometry.inverse() * claimed).translation.vector.norm_squared();
+        apart > CHI2_3_VETO * (variance + loop_variance)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// The map's drift model: σ = 2 cm + 2 % of the step, 0.002 rad + 0.005 rad a metre.
+    fn model(step: &Isometry3<f64>) -> (f64, f64) {
+        let d = step.translation.vector.norm();
+        (0.02 + 0.02 * d, 0.002 + 0.005 * d)
+    }
+
+    fn straight(n: usize, session: &'static str) -> (Vec<&'static str>, Vec<Option<Isometry3<f64>>>) {
+        let walk = vec![session; n];
+        let poses = (0..n)
+            .map(|k| {
+                Some(Isometry3::from_parts(
+                    Translation3::new(2.0 * k as f64, 0.0, 0.0),
+                    UnitQuaternion::identity(),
+                ))
+            })
+            .collect();
+        (walk, poses)
+    }
+
+    #[test]
+    fn the_variance_is_the_sum_along_the_path() {
+        let (walk, poses) = straight(11, "a");
+        let drift = Drift::new(&walk, &poses, model);
+        // Ten steps of 2 m: σ_t = 0.06 m, σ_yaw = 0.012 rad, the end 2, 4, …, 20 m from each
+        // step's end.
+        let expected: f64 =
+            (0..10).map(|i| 0.06f64.powi(2) + 0.012f64.powi(2) * (2.0 * i as f64).powi(2)).sum();
+        let got = drift.variance(0, 10).expect("one session");
+        assert!((got - expected).abs() < 1e-9 * expected, "{got} against {expected}");
+        assert_eq!(drift.variance(3, 7), drift.variance(7, 3));
+        // σ = 0.45 m: a place 2 m from the odometry's is within the veto's 5.5 σ; 3 m is not.
+        let odometry = poses[0].unwrap().inverse() * poses[10].unwrap();
+        let near = odometry * Isometry3::translation(0.0, 2.0, 0.0);
+        let far = odometry * Isometry3::translation(0.0, 3.0, 0.0);
+        assert!(!drift.rules_out(0, 10, &odometry, &near, 0.0025));
+        assert!(drift.rules_out(0, 10, &odometry, &far, 0.0025));
+    }
+
+    #[test]
+    fn scans_of_two_sessions_are_left_to_the_solve() {
+        let (mut walk, mut poses) = straight(4, "a");
+        let (other, other_poses) = straight(4, "b");
+        walk.extend(other);
+        poses.extend(other_poses);
+        let drift = Drift::new(&walk, &poses, model);
+        assert!(drift.variance(1, 2).is_some());
+        assert!(drift.variance(1, 6).is_none());
+        let far = Isometry3::translation(500.0, 0.0, 0.0);
+        assert!(!drift.rules_out(1, 6, &Isometry3::identity(), &far, 0.0025));
+    }
+}
