@@ -326,8 +326,8 @@ pub(super) fn make(
         })
         .collect();
     // Loops the odometry alone rules out stay out of the graph (see `odometry_veto`).
-    let sessions: Vec<&str> = walk.iter().map(|v| v.session.as_str()).collect();
-    let drift = Drift::new(&sessions, &initial, |step| {
+    let steps = steps(walk);
+    let drift = Drift::new(&initial, &steps, |step| {
         let (translation, _, yaw) = odometry_sigmas(step);
         (translation, yaw)
     });
@@ -405,7 +405,6 @@ pub(super) fn make(
     let poses: Vec<Se3> = positions.iter().map(|&v| Se3(initial[v].expect("posed"))).collect();
     let mut fixed = vec![false; poses.len()];
     let mut edges = Vec::new();
-    let steps = steps(walk);
     let mut follows = vec![false; n];
     let mut measured_by_icp = 0;
     for &(u, v) in &steps {

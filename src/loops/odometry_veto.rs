@@ -44,21 +44,25 @@ pub(super) struct Drift {
 }
 
 impl Drift {
-    /// The sums over the walk's scans, by their `sessions` and `poses` (each scan's stored pose;
-    /// none: not posed), session by session in walking order, as the map's odometry edges chain
-    /// them; `sigmas` gives a step's translation and yaw σ.
+    /// The sums over the walk's scans at `poses` (each scan's stored pose; none: not posed),
+    /// chained by the map's odometry `steps` (its walk positions from one posed scan to the next
+    /// of its session, in walking order); `sigmas` gives a step's translation and yaw σ.
     pub(super) fn new(
-        sessions: &[&str],
         poses: &[Option<Isometry3<f64>>],
+        steps: &[(usize, usize)],
         sigmas: impl Fn(&Isometry3<f64>) -> (f64, f64),
     ) -> Drift {
-        let mut last: std::collections::BTreeMap<&str, (usize, Sums)> = Default::default();
+        let mut previous = vec![None; poses.len()];
+        for &(u, v) in steps {
+            previous[v] = Some(u);
+        }
         let mut origins: Vec<Vector3<f64>> = Vec::new();
-        let mut sums = vec![None; sessions.len()];
-        for (v, &session) in sessions.iter().enumerate() {
+        let mut sums: Vec<Option<Sums>> = vec![None; poses.len()];
+        for v in 0..poses.len() {
             let Some(pose) = poses[v] else { continue };
-            let next = match last.get(session) {
-                Some(&(u, before)) => {
+            sums[v] = Some(match previous[v] {
+                Some(u) => {
+                    let before = sums[u].expect("a step starts at an earlier posed scan");
                     let step = poses[u].expect("posed").inverse() * pose;
                     let (translation, yaw) = sigmas(&step);
                     let at = pose.translation.vector - origins[before.session];
@@ -71,13 +75,12 @@ impl Drift {
                         at,
                     }
                 }
+                // A session's first posed scan starts its chain.
                 None => {
                     origins.push(pose.translation.vector);
                     Sums { session: origins.len() - 1, ..Sums::default() }
                 }
-            };
-            sums[v] = Some(next);
-            last.insert(session, (v, next));
+            });
         }
         Drift { sums }
     }
@@ -126,8 +129,12 @@ mod tests {
         (0.02 + 0.02 * d, 0.002 + 0.005 * d)
     }
 
-    fn straight(n: usize, session: &'static str) -> (Vec<&'static str>, Vec<Option<Isometry3<f64>>>) {
-        let walk = vec![session; n];
+    /// Steps between walk positions, and the scans' poses.
+    type Walk = (Vec<(usize, usize)>, Vec<Option<Isometry3<f64>>>);
+
+    /// `n` scans 2 m apart along x, and their steps, the walk positions starting at `first`.
+    fn straight(n: usize, first: usize) -> Walk {
+        let steps = (first..first + n - 1).map(|k| (k, k + 1)).collect();
         let poses = (0..n)
             .map(|k| {
                 Some(Isometry3::from_parts(
@@ -136,13 +143,13 @@ mod tests {
                 ))
             })
             .collect();
-        (walk, poses)
+        (steps, poses)
     }
 
     #[test]
     fn the_variance_is_the_sum_along_the_path() {
-        let (walk, poses) = straight(11, "a");
-        let drift = Drift::new(&walk, &poses, model);
+        let (steps, poses) = straight(11, 0);
+        let drift = Drift::new(&poses, &steps, model);
         // Ten steps of 2 m: σ_t = 0.06 m, σ_yaw = 0.012 rad, the end 2, 4, …, 20 m from each
         // step's end.
         let expected: f64 =
@@ -160,11 +167,11 @@ mod tests {
 
     #[test]
     fn scans_of_two_sessions_are_left_to_the_solve() {
-        let (mut walk, mut poses) = straight(4, "a");
-        let (other, other_poses) = straight(4, "b");
-        walk.extend(other);
+        let (mut steps, mut poses) = straight(4, 0);
+        let (other, other_poses) = straight(4, 4);
+        steps.extend(other);
         poses.extend(other_poses);
-        let drift = Drift::new(&walk, &poses, model);
+        let drift = Drift::new(&poses, &steps, model);
         assert!(drift.variance(1, 2).is_some());
         assert!(drift.variance(1, 6).is_none());
         let far = Isometry3::translation(500.0, 0.0, 0.0);
