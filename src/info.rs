@@ -231,9 +231,10 @@ impl std::fmt::Display for IndexInfo {
         }
         for o in &self.poses {
             let file = o.file_xxh3.as_ref().map(|h| format!(", file {h}")).unwrap_or_default();
+            let own = if o.own_frame { "; a frame of its own" } else { "" };
             writeln!(
                 f,
-                "  {}: {}: {} of {} scans with a pose (poses {}{file})",
+                "  {}: {}: {} of {} scans with a pose (poses {}{file}){own}",
                 o.sessions.join(", "),
                 o.origin,
                 o.with_pose,

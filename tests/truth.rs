@@ -1,7 +1,7 @@
 //! What `toporec loops <log>` and `toporec run` report is true: poses that change are joined
 //! again (without recomputing a descriptor), an index belongs to its sources, every failure is
 //! named, degenerate input is never taken for a place, clouds without times are kept apart by
-//! position, and a log is recognised by its content.
+//! position, a log is recognised by its content, and poses of unrelated frames are never compared.
 
 use crate::util::*;
 use std::path::{Path, PathBuf};
@@ -410,4 +410,57 @@ fn loops_help_says_what_the_one_command_does() {
         help.contains("default: the one calibrated for the method's settings") && help.contains("> 0"),
         "{help}"
     );
+}
+
+#[test]
+fn kitti_sequences_are_frames_of_their_own() {
+    // Each sequence's poses.txt starts at its own first frame: two sequences' first scans both
+    // sit at the origin without being one place.
+    let Some(data) = shared_data("kitti_sequences_are_frames_of_their_own") else { return };
+    let dir = scratch_dir("truth_kitti_frames");
+    let seq = |n: &str| data.join("kitti/sequences").join(n).to_string_lossy().into_owned();
+    let (s00, s01, s02) = (seq("00"), seq("01"), seq("02"));
+    let common = ["--no-progress", "--no-optimize", "--all", "--exclude-seconds", "0.5", "-t", "2"];
+    let mut args = vec!["loops", s00.as_str(), s01.as_str(), s02.as_str(), "-o", "l.csv"];
+    args.extend_from_slice(&common);
+    let o = toporec_in(&dir, &args);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let info = toporec_in(&dir, &["info", "--index", "out/00"]);
+    assert_eq!(text(&info.stdout).matches("a frame of its own").count(), 3, "{}", text(&info.stdout));
+    // The revisits of the three are those of each alone: none is counted across sequences.
+    let revisits = |session: Option<&str>| -> (usize, String) {
+        let mut args = vec!["loops", "--index", "out/00", "-o", "i.csv"];
+        args.extend_from_slice(&common);
+        if let Some(s) = session {
+            args.extend_from_slice(&["--session", s]);
+        }
+        let o = toporec_in(&dir, &args);
+        let err = text(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        let line = err.lines().find(|l| l.starts_with("loops (toporec-plus)")).unwrap().to_string();
+        let n = line.split(" revisits found").next().filter(|_| line.contains(" revisits found"));
+        (n.map_or(0, |n| n.rsplit(" of ").next().unwrap().parse().unwrap()), line)
+    };
+    let each: usize = ["00", "01", "02"].into_iter().map(|s| revisits(Some(s)).0).sum();
+    let (all, line) = revisits(None);
+    assert!(each > 0, "sequence 00 revisits its start");
+    assert_eq!(all, each, "{line}");
+    for csv in ["l.csv", "i.csv"] {
+        let table = std::fs::read_to_string(dir.join(csv)).unwrap();
+        let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+        let at = |name: &str| header.iter().position(|c| *c == name).unwrap();
+        let (q, m, t) = (at("query_session"), at("matched_session"), at("true_distance_m"));
+        let (mut within, mut across) = (0, 0);
+        for l in table.lines().skip(1) {
+            let c: Vec<&str> = l.split(',').collect();
+            if c[q] == c[m] {
+                assert!(c[t].parse::<f64>().is_ok(), "{csv}: {l}");
+                within += 1;
+            } else {
+                assert_eq!(c[t], "", "{csv}: no true distance between two sequences: {l}");
+                across += 1;
+            }
+        }
+        assert!(within > 0 && across > 0, "{csv}: {within} within a sequence, {across} across");
+    }
 }

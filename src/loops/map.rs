@@ -40,7 +40,8 @@ use std::path::{Path, PathBuf};
 /// Whether sessions share a frame: as their pose origins say, or all in one, or each its own.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Frames {
-    /// A pose file's sessions share its frame; each log's own poses are a frame of their own.
+    /// Pose files share one frame; each log's own poses, and each KITTI sequence's `poses.txt`
+    /// (relative to its first frame), are a frame of their own.
     #[default]
     Auto,
     /// Every session's poses are in one frame.

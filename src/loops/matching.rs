@@ -80,9 +80,10 @@ impl<'a> Allowed<'a> {
         )
     }
 
-    /// Which scans have an allowed scan within `radius` metres (both with poses): the scans a
-    /// true loop could be found for.
-    pub fn with_revisit(&self, radius: f64) -> Vec<bool> {
+    /// Which scans have an allowed scan within `radius` metres (both with poses, in one frame:
+    /// `frame_of` gives a session's): the scans a true loop could be found for.
+    pub fn with_revisit(&self, radius: f64, frame_of: &dyn Fn(&str) -> usize) -> Vec<bool> {
+        let frame: Vec<usize> = self.scans.iter().map(|s| frame_of(&s.session)).collect();
         let cell = |p: [f64; 3]| p.map(|c| (c / radius).floor() as i64);
         let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
         for (row, s) in self.scans.iter().enumerate() {
@@ -93,7 +94,9 @@ impl<'a> Allowed<'a> {
         let near = |query: usize, q: [f64; 3], c: [i64; 3]| {
             grid.get(&c).is_some_and(|rows| {
                 rows.iter().any(|&r| {
-                    self.allows(query, r) && self.scans[r].pose.is_some_and(|p| distance3(p, q) <= radius)
+                    frame[r] == frame[query]
+                        && self.allows(query, r)
+                        && self.scans[r].pose.is_some_and(|p| distance3(p, q) <= radius)
                 })
             })
         };

@@ -131,8 +131,8 @@ pub struct LoopsArgs {
     /// 1,000-scan drive; it undoes an odometry's scale error, which no loop can see).
     #[arg(long, value_enum, default_value_t = map::Odometry::Poses)]
     pub odometry: map::Odometry,
-    /// Which sessions' poses share a frame: auto (a pose file's sessions share it; each log's own
-    /// poses are a frame of their own), shared or own.
+    /// Which sessions' poses share a frame: auto (pose files share one; each log's own poses, and
+    /// each KITTI sequence's `poses.txt`, are a frame of their own), shared or own.
     #[arg(long, value_enum, default_value_t = map::Frames::Auto)]
     pub frames: map::Frames,
     /// No progress bar.

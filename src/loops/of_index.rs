@@ -56,9 +56,10 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
         match a.frames {
             Frames::Shared => 0,
             Frames::Own => 1 + a.sessions.iter().position(|s| s == session).unwrap_or(usize::MAX - 1),
-            // Pose files (and poses of unknown origin) share one frame; each log's own, its own.
+            // Pose files (and poses of unknown origin) share one frame; each log's own poses,
+            // and each KITTI sequence's (relative to its first frame), are a frame of their own.
             Frames::Auto => match origins.iter().position(|o| o.sessions.iter().any(|s| s == session)) {
-                Some(i) if origins[i].file.is_none() => 1 + i,
+                Some(i) if origins[i].file.is_none() || origins[i].own_frame => 1 + i,
                 _ => 0,
             },
         }
@@ -147,7 +148,7 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
         let is_true = |r: &LoopRow| r.found.true_distance_m.is_some_and(|d| d <= a.revisit_radius);
         // Between the radius and `--false-beyond`: neither true nor false.
         let in_band = |t: f64| t > a.revisit_radius && a.false_beyond.is_some_and(|band| t <= band);
-        let with_revisit = rule.with_revisit(a.revisit_radius);
+        let with_revisit = rule.with_revisit(a.revisit_radius, &frame_of);
         // Whether a row's query has an allowed revisit (one row per query).
         let has_revisit = |r: &LoopRow| with_revisit[rule.order[r.query_vertex]];
         let (curve, auc) = protocol_scores(&rows, &has_revisit, a.revisit_radius, a.false_beyond);

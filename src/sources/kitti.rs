@@ -163,8 +163,11 @@ impl super::Source for KittiSpec {
                 let times = dir.join("times.txt");
                 let times = times.is_file().then_some(times);
                 let table = super::poses::PoseTable::default();
-                file.is_file().then(|| {
-                    super::poses::PoseOrigin::of_file(
+                // KITTI's poses are relative to each sequence's first frame: two sequences'
+                // frames are unrelated.
+                file.is_file().then(|| super::poses::PoseOrigin {
+                    own_frame: true,
+                    ..super::poses::PoseOrigin::of_file(
                         vec![session],
                         &file,
                         times.as_deref(),

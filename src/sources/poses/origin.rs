@@ -19,6 +19,11 @@ pub struct PoseOrigin {
     /// xxh3-64 of the pose file's bytes (and of its times file's), 16 hex digits.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub file_xxh3: Option<String>,
+    /// Whether the poses are in a frame of their own sessions alone, not shared with other pose
+    /// files (a KITTI sequence's `poses.txt`, relative to its own first frame). A log's own
+    /// poses (no `file`) always are.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub own_frame: bool,
     /// Scans of those sessions in the index, after the run.
     #[serde(default)]
     pub scans: u64,
