@@ -413,6 +413,22 @@ fn loops_help_says_what_the_one_command_does() {
 }
 
 #[test]
+fn an_output_that_is_a_directory_is_refused_before_anything_is_written() {
+    let dir = scratch_dir("truth_out_directory");
+    bag_in(&dir);
+    std::fs::create_dir_all(dir.join("table")).unwrap();
+    let o = loops(&dir, &["-o", "table"]);
+    assert!(!o.status.success());
+    assert!(text(&o.stderr).contains("table: is a directory"), "{}", text(&o.stderr));
+    let mut left: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["drive.bag", "table"], "no index, poses or picture written");
+}
+
+#[test]
 fn kitti_sequences_are_frames_of_their_own() {
     // Each sequence's poses.txt starts at its own first frame: two sequences' first scans both
     // sit at the origin without being one place.

@@ -197,6 +197,13 @@ impl Outcome {
 /// scans have poses).
 pub fn run(a: &LoopsArgs, threads: usize) -> Result<Outcome> {
     let start = std::time::Instant::now();
+    // Said before any work, so that no output is written beside a table that cannot be.
+    if a.out.is_dir() {
+        return Err(Error::invalid(format!(
+            "{}: is a directory; -o names the loops table's file",
+            a.out.display()
+        )));
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()
