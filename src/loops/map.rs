@@ -5,9 +5,9 @@
 //! **The graph.** A vertex per scan with a pose, its id the scan's position in the walking order
 //! (the loops table's `query_vertex` / `matched_vertex`), at its stored pose (x, y, z and yaw;
 //! roll and pitch 0, as the index keeps them). An edge between consecutive scans of a session
-//! with their relative pose, its information from a drift model: σ = 2 cm + 2 % of the step for
-//! each axis of the translation, 0.002 rad + 0.005 rad a metre for yaw, 0.01 rad for roll and
-//! pitch (which the stored poses do not have). With `--odometry icp`, each such step is aligned
+//! with their relative pose, its information from a drift model ([`DriftModel`], by default):
+//! σ = 2 cm + 2 % of the step for each axis of the translation, 0.002 rad + 0.005 rad a metre
+//! for yaw, 0.01 rad for roll and pitch (which the stored poses do not have). With `--odometry icp`, each such step is aligned
 //! again by ICP between the two raw scans, starting from the stored step, and measured by the
 //! alignment where it passes the check's limits and lies within three of those σ of the stored
 //! step (the information as a loop's, below): a LiDAR odometry, metric where the log's may be
@@ -20,7 +20,8 @@
 //! the graph and counted as rejected.
 //!
 //! **Frames.** Poses from a pose file are in one frame for all the sessions they cover (ground
-//! truth, one SLAM run); each log's own poses (its `/odom` or `/tf`) are a frame of their own.
+//! truth, one SLAM run); each log's own poses (its `/odom` or `/tf`) and each KITTI sequence's
+//! `poses.txt` (relative to its first frame) are a frame of their own.
 //! `--frames shared` or `--frames own` says otherwise. Sessions of one frame keep it: each
 //! session's first scan is held. A frame of its own is placed in the first session's frame by
 //! its loops to it: each loop between the two proposes a placement; the one most others agree
@@ -228,17 +229,64 @@ fn aligned_information(rmse: f64) -> SMatrix<f64, 6, 6> {
     diagonal(rmse, 0.5f64.to_radians(), 0.5f64.to_radians())
 }
 
-/// The drift model's σ of a step of `step` (see the module doc): translation (m), roll and
-/// pitch, yaw (rad).
-fn odometry_sigmas(step: &Isometry3<f64>) -> (f64, f64, f64) {
-    let d = step.translation.vector.norm();
-    (0.02 + 0.02 * d, 0.01, 0.002 + 0.005 * d)
+/// The odometry's drift model (`--odometry-drift TRANSLATION,YAW`): a step's σ is 2 cm +
+/// `translation` × its length for each axis of its translation, 0.002 rad + `yaw` rad a metre
+/// for its yaw, 0.01 rad for roll and pitch. The default, 2 % and 0.005 rad a metre, allows for
+/// a wheel odometry's drift; a tighter model lets the map reject more false loops.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriftModel {
+    /// σ of each axis of a step's translation per metre of it, beyond 2 cm.
+    pub translation: f64,
+    /// σ of a step's yaw per metre of it (rad), beyond 0.002 rad.
+    pub yaw: f64,
 }
 
-/// The odometry information of a step of `pose` (see the module doc).
-fn odometry_information(step: &Isometry3<f64>) -> SMatrix<f64, 6, 6> {
-    let (translation, roll_pitch, yaw) = odometry_sigmas(step);
-    diagonal(translation, roll_pitch, yaw)
+impl Default for DriftModel {
+    fn default() -> Self {
+        DriftModel { translation: 0.02, yaw: 0.005 }
+    }
+}
+
+impl std::str::FromStr for DriftModel {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        let number = |t: &str| t.parse::<f64>().ok().filter(|v| v.is_finite() && *v >= 0.0);
+        match parts[..] {
+            [t, y] => match (number(t), number(y)) {
+                (Some(translation), Some(yaw)) => Ok(DriftModel { translation, yaw }),
+                _ => Err(format!(
+                    "{s}: two numbers ≥ 0 (the translation's σ a metre, the yaw's in rad a metre)"
+                )),
+            },
+            _ => Err(format!("{s}: give TRANSLATION,YAW (for example 0.02,0.005)")),
+        }
+    }
+}
+
+impl DriftModel {
+    /// The σ of a step of `step`: translation (m), roll and pitch, yaw (rad).
+    fn sigmas(&self, step: &Isometry3<f64>) -> (f64, f64, f64) {
+        let d = step.translation.vector.norm();
+        (0.02 + self.translation * d, 0.01, 0.002 + self.yaw * d)
+    }
+
+    /// The information of a step of `step`.
+    fn information(&self, step: &Isometry3<f64>) -> SMatrix<f64, 6, 6> {
+        let (translation, roll_pitch, yaw) = self.sigmas(step);
+        diagonal(translation, roll_pitch, yaw)
+    }
+}
+
+/// How a map is made: the odometry's drift model, the steps ICP measured (`--odometry icp`,
+/// by their walk positions; they replace the stored steps where they agree), and whether to
+/// optimize (or only build the graph).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Making<'a> {
+    pub drift: DriftModel,
+    pub aligned: Option<&'a BTreeMap<(usize, usize), AlignedStep>>,
+    pub optimize: bool,
 }
 
 /// The odometry's steps of `walk`: the walk positions of each posed scan's previous posed scan
@@ -270,9 +318,10 @@ pub(super) fn stored_step(from: &Vertex, to: &Vertex) -> Option<Isometry3<f64>> 
 fn odometry_edge(
     stored: &Isometry3<f64>,
     aligned: Option<&AlignedStep>,
+    drift: &DriftModel,
 ) -> (Isometry3<f64>, SMatrix<f64, 6, 6>, bool) {
     if let Some(a) = aligned {
-        let (translation, roll_pitch, yaw) = odometry_sigmas(stored);
+        let (translation, roll_pitch, yaw) = drift.sigmas(stored);
         let off = stored.inverse() * a.pose;
         let agrees = off.translation.vector.norm() <= 3.0 * translation
             && off.rotation.angle() <= 3.0 * roll_pitch.max(yaw);
@@ -280,22 +329,21 @@ fn odometry_edge(
             return (a.pose, aligned_information(a.rmse), true);
         }
     }
-    (*stored, odometry_information(stored), false)
+    (*stored, drift.information(stored), false)
 }
 
 /// Builds and optimizes one method's map over `walk` (by walking order) and its `rows`;
 /// `frame_of` gives each session's frame (sessions of one frame share it), `first` the session
-/// whose frame the map is in; `aligned` (`--odometry icp`) the steps ICP measured (by their
-/// walk positions), which replace the stored steps where they agree.
+/// whose frame the map is in.
 pub(super) fn make(
     method: &str,
     walk: &[Vertex],
     rows: &[LoopRow],
     frame_of: &dyn Fn(&str) -> usize,
     first: &str,
-    aligned: Option<&BTreeMap<(usize, usize), AlignedStep>>,
-    optimize: bool,
+    how: &Making,
 ) -> MethodMap {
+    let Making { drift, aligned, optimize } = *how;
     let n = walk.len();
     let mut initial: Vec<Option<Isometry3<f64>>> =
         walk.iter().map(|v| v.pose.as_ref().map(isometry)).collect();
@@ -328,14 +376,14 @@ pub(super) fn make(
         .collect();
     // Loops the odometry alone rules out stay out of the graph (see `odometry_veto`).
     let steps = steps(walk);
-    let drift = Drift::new(&initial, &steps, |step| {
-        let (translation, _, yaw) = odometry_sigmas(step);
+    let veto = Drift::new(&initial, &steps, |step| {
+        let (translation, _, yaw) = drift.sigmas(step);
         (translation, yaw)
     });
     let (loops, vetoed): (Vec<LoopEdge>, Vec<LoopEdge>) =
         loops.into_iter().partition(|&(_, a, b, z, info)| {
             let odometry = initial[a].expect("posed").inverse() * initial[b].expect("posed");
-            !drift.rules_out(a, b, &odometry, &z, 1.0 / info[(0, 0)])
+            !veto.rules_out(a, b, &odometry, &z, 1.0 / info[(0, 0)])
         });
     // Frames: place each other frame in the first's by the loops to the frames placed.
     let frame: Vec<usize> = walk.iter().map(|v| frame_of(&v.session)).collect();
@@ -411,7 +459,8 @@ pub(super) fn make(
     for &(u, v) in &steps {
         follows[v] = true;
         let stored = initial[u].expect("posed").inverse() * initial[v].expect("posed");
-        let (measured, information, by_icp) = odometry_edge(&stored, aligned.and_then(|a| a.get(&(u, v))));
+        let (measured, information, by_icp) =
+            odometry_edge(&stored, aligned.and_then(|a| a.get(&(u, v))), &drift);
         measured_by_icp += usize::from(by_icp);
         edges.push(Edge {
             from: index[u].expect("posed"),
@@ -566,6 +615,11 @@ mod tests {
     use super::super::row::{Check, Match};
     use super::*;
 
+    /// The default drift model, optimized.
+    fn optimized() -> Making<'static> {
+        Making { optimize: true, ..Making::default() }
+    }
+
     /// Two laps of a 40 m square block, a scan every 2 m (80 a lap), the second lap's scans
     /// 0.5 m to the side of the first's, as (x, y, yaw).
     fn laps() -> Vec<[f64; 3]> {
@@ -667,7 +721,7 @@ mod tests {
             .map(|k| row(k - 80, k, iso(truth[k - 80]).inverse() * iso(truth[k]), ("a", "a")))
             .collect();
         rows.push(row(30, 130, iso([1.2, 0.3, 0.05]), ("a", "a")));
-        let map = make("m", &vertices, &rows, &|_| 0, "a", None, true);
+        let map = make("m", &vertices, &rows, &|_| 0, "a", &optimized());
         assert_eq!(map.in_map.last(), Some(&Some(false)), "{:?}", map.in_map);
         assert!(map.in_map[..rows.len() - 1].iter().all(|k| *k == Some(true)), "{:?}", map.in_map);
         // The loops hold the second lap to the first; what drift the two share, they cannot see.
@@ -694,7 +748,7 @@ mod tests {
             (77..80).map(|k| row(0, k, iso(truth[0]).inverse() * iso(truth[k]), ("a", "a"))).collect();
         let closures = rows.len();
         rows.extend((40..43).map(|k| row(k - 40, k, iso([0.3, 0.1, 0.02]), ("a", "a"))));
-        let map = make("m", &vertices, &rows, &|_| 0, "a", None, true);
+        let map = make("m", &vertices, &rows, &|_| 0, "a", &optimized());
         assert!(map.in_map[closures..].iter().all(|k| *k == Some(false)), "{:?}", map.in_map);
         assert!(map.in_map[..closures].iter().all(|k| *k == Some(true)), "{:?}", map.in_map);
     }
@@ -724,7 +778,7 @@ mod tests {
             "b" => 1,
             _ => 2,
         };
-        let map = make("m", &vertices, &rows, &frame, "a", None, true);
+        let map = make("m", &vertices, &rows, &frame, "a", &optimized());
         assert_eq!(map.apart, vec!["c".to_string()]);
         assert!(map.in_map.iter().all(|k| *k == Some(true)), "{:?}", map.in_map);
         // Each revisit sits where it should beside the scan it revisits (0.5 m to the side).

@@ -131,6 +131,15 @@ pub struct LoopsArgs {
     /// 1,000-scan drive; it undoes an odometry's scale error, which no loop can see).
     #[arg(long, value_enum, default_value_t = map::Odometry::Poses)]
     pub odometry: map::Odometry,
+    /// The odometry's drift model in the map, TRANSLATION,YAW: each step's σ is 2 cm +
+    /// TRANSLATION × its length for each axis of its translation, and 0.002 rad + YAW rad a
+    /// metre for its yaw. It weighs the odometry against the loops and rules out the loops
+    /// that the odometry alone contradicts; the default allows for a wheel odometry's drift,
+    /// and an odometry known to be better (a LiDAR odometry, ground truth) should say so: a
+    /// model looser than the odometry lets a few false loops that agree with each other bend
+    /// the map.
+    #[arg(long, default_value = "0.02,0.005", value_name = "TRANSLATION,YAW")]
+    pub odometry_drift: map::DriftModel,
     /// Which sessions' poses share a frame: auto (pose files share one; each log's own poses, and
     /// each KITTI sequence's `poses.txt`, are a frame of their own), shared or own.
     #[arg(long, value_enum, default_value_t = map::Frames::Auto)]

@@ -192,8 +192,9 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             } else {
                 None
             };
-            let mut made =
-                map::make(method, &vertices, &rows, &frame_of, &first, aligned.as_ref(), !a.no_optimize);
+            let how =
+                map::Making { drift: a.odometry_drift, aligned: aligned.as_ref(), optimize: !a.no_optimize };
+            let mut made = map::make(method, &vertices, &rows, &frame_of, &first, &how);
             if !a.no_optimize && made.failed.is_none() {
                 for (r, kept) in rows.iter_mut().zip(&made.in_map) {
                     r.in_map = *kept;
