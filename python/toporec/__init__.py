@@ -394,8 +394,8 @@ def loops(
         with_poses: also return the map's corrected poses.
         options: other options of the command, by name (``topic="/points"``,
             ``poses_topic="/odom"``, ``pose_frames="odom:velodyne"``, ``exclude_seconds=10``,
-            ``no_optimize=True``, ``cloud="map.ply"``); ``True`` gives a flag, ``False`` leaves
-            it out.
+            ``no_optimize=True``, ``cloud="map.ply"``, ``odometry_drift="0.005,0.001"``);
+            ``True`` gives a flag, ``False`` leaves it out.
 
     Returns:
         The loops table (``schemas/loops.json``): the same columns and rows as the command.
