@@ -231,7 +231,8 @@ impl std::fmt::Display for IndexInfo {
         }
         for o in &self.poses {
             let file = o.file_xxh3.as_ref().map(|h| format!(", file {h}")).unwrap_or_default();
-            let own = if o.own_frame { "; a frame of its own" } else { "" };
+            // (A log's own poses are evidently so; a pose file's usually share one frame.)
+            let own = if o.file.is_some() && o.in_own_frame() { "; a frame of its own" } else { "" };
             writeln!(
                 f,
                 "  {}: {}: {} of {} scans with a pose (poses {}{file}){own}",

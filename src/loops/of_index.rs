@@ -59,7 +59,7 @@ pub(super) fn search(a: &LoopsArgs) -> Result<Summary> {
             // Pose files (and poses of unknown origin) share one frame; each log's own poses,
             // and each KITTI sequence's (relative to its first frame), are a frame of their own.
             Frames::Auto => match origins.iter().position(|o| o.sessions.iter().any(|s| s == session)) {
-                Some(i) if origins[i].file.is_none() || origins[i].own_frame => 1 + i,
+                Some(i) if origins[i].in_own_frame() => 1 + i,
                 _ => 0,
             },
         }

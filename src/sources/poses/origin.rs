@@ -82,6 +82,12 @@ impl PoseOrigin {
         PoseOrigin { sessions, origin, ..Default::default() }
     }
 
+    /// Whether these poses are in a frame of their own: a log's own, or a KITTI sequence's. An
+    /// index recorded before `own_frame` was names a KITTI sequence's poses "(by frame)".
+    pub fn in_own_frame(&self) -> bool {
+        self.file.is_none() || self.own_frame || self.origin.ends_with("(by frame)")
+    }
+
     /// The warning for the pose file's unreadable lines, once: how many, and the first.
     pub fn bad_lines_warning(&self) -> Option<String> {
         let (n, first) = &self.bad_lines;
@@ -95,5 +101,29 @@ impl PoseOrigin {
                 first.as_deref().unwrap_or_default()
             )
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::PoseOrigin;
+
+    #[test]
+    fn a_kitti_sequences_poses_are_a_frame_of_their_own_however_recorded() {
+        let file = Some(std::path::PathBuf::from("00/poses.txt"));
+        let kitti = |own_frame| PoseOrigin {
+            origin: "00/poses.txt, times 00/times.txt (by frame)".into(),
+            file: file.clone(),
+            own_frame,
+            ..PoseOrigin::default()
+        };
+        assert!(kitti(true).in_own_frame() && kitti(false).in_own_frame());
+        let tum = PoseOrigin {
+            origin: "poses.tum (TUM, nearest time within 100 ms)".into(),
+            file: file.clone(),
+            ..PoseOrigin::default()
+        };
+        assert!(!tum.in_own_frame(), "a pose file shares its frame");
+        assert!(PoseOrigin { file: None, ..tum }.in_own_frame(), "a log's own poses");
     }
 }
