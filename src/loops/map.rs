@@ -7,11 +7,11 @@
 //! roll and pitch 0, as the index keeps them). An edge between consecutive scans of a session
 //! with their relative pose, its information from a drift model ([`DriftModel`], by default):
 //! σ = 2 cm + 2 % of the step for each axis of the translation, 0.002 rad + 0.005 rad a metre
-//! for yaw, 0.01 rad for roll and pitch (which the stored poses do not have). With `--odometry icp`, each such step is aligned
-//! again by ICP between the two raw scans, starting from the stored step, and measured by the
-//! alignment where it passes the check's limits and lies within three of those σ of the stored
-//! step (the information as a loop's, below): a LiDAR odometry, metric where the log's may be
-//! long or short by a scale no loop can see. An edge per kept loop, from the matched scan to
+//! for yaw, 0.01 rad for roll and pitch (which the stored poses do not have). With
+//! `--odometry icp`, each such step is aligned again by ICP between the two raw scans, starting
+//! from the stored step, and measured by the alignment where it passes the check's limits and
+//! lies within three of those σ of the stored step (the information as a loop's, below): a
+//! LiDAR odometry, metric where the log's may be long or short by a scale no loop can see. An edge per kept loop, from the matched scan to
 //! the query, with ICP's relative pose: σ = the alignment's RMSE (at least 5 cm) for the
 //! translation, 0.5° for each rotation. Without verification (`--no-verify`), the descriptor's
 //! own estimate (x_m, y_m, yaw) at a weaker information: σ = 1 m for the translation, 5° for
@@ -29,6 +29,7 @@
 //! to the first is left in its own frame and named.
 
 use super::odometry_veto::Drift;
+pub use super::odometry_veto::DriftModel;
 use super::row::LoopRow;
 use crate::error::{Result, ResultExt};
 use crate::map::lie::Se3;
@@ -229,54 +230,10 @@ fn aligned_information(rmse: f64) -> SMatrix<f64, 6, 6> {
     diagonal(rmse, 0.5f64.to_radians(), 0.5f64.to_radians())
 }
 
-/// The odometry's drift model (`--odometry-drift TRANSLATION,YAW`): a step's σ is 2 cm +
-/// `translation` × its length for each axis of its translation, 0.002 rad + `yaw` rad a metre
-/// for its yaw, 0.01 rad for roll and pitch. The default, 2 % and 0.005 rad a metre, allows for
-/// a wheel odometry's drift; a tighter model lets the map reject more false loops.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DriftModel {
-    /// σ of each axis of a step's translation per metre of it, beyond 2 cm.
-    pub translation: f64,
-    /// σ of a step's yaw per metre of it (rad), beyond 0.002 rad.
-    pub yaw: f64,
-}
-
-impl Default for DriftModel {
-    fn default() -> Self {
-        DriftModel { translation: 0.02, yaw: 0.005 }
-    }
-}
-
-impl std::str::FromStr for DriftModel {
-    type Err = String;
-
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
-        let number = |t: &str| t.parse::<f64>().ok().filter(|v| v.is_finite() && *v >= 0.0);
-        match parts[..] {
-            [t, y] => match (number(t), number(y)) {
-                (Some(translation), Some(yaw)) => Ok(DriftModel { translation, yaw }),
-                _ => Err(format!(
-                    "{s}: two numbers ≥ 0 (the translation's σ a metre, the yaw's in rad a metre)"
-                )),
-            },
-            _ => Err(format!("{s}: give TRANSLATION,YAW (for example 0.02,0.005)")),
-        }
-    }
-}
-
-impl DriftModel {
-    /// The σ of a step of `step`: translation (m), roll and pitch, yaw (rad).
-    fn sigmas(&self, step: &Isometry3<f64>) -> (f64, f64, f64) {
-        let d = step.translation.vector.norm();
-        (0.02 + self.translation * d, 0.01, 0.002 + self.yaw * d)
-    }
-
-    /// The information of a step of `step`.
-    fn information(&self, step: &Isometry3<f64>) -> SMatrix<f64, 6, 6> {
-        let (translation, roll_pitch, yaw) = self.sigmas(step);
-        diagonal(translation, roll_pitch, yaw)
-    }
+/// The odometry information of a step of `step` by the drift model.
+fn odometry_information(drift: &DriftModel, step: &Isometry3<f64>) -> SMatrix<f64, 6, 6> {
+    let (translation, roll_pitch, yaw) = drift.sigmas(step);
+    diagonal(translation, roll_pitch, yaw)
 }
 
 /// How a map is made: the odometry's drift model, the steps ICP measured (`--odometry icp`,
@@ -329,7 +286,7 @@ fn odometry_edge(
             return (a.pose, aligned_information(a.rmse), true);
         }
     }
-    (*stored, drift.information(stored), false)
+    (*stored, odometry_information(drift, stored), false)
 }
 
 /// Builds and optimizes one method's map over `walk` (by walking order) and its `rows`;
@@ -376,10 +333,7 @@ pub(super) fn make(
         .collect();
     // Loops the odometry alone rules out stay out of the graph (see `odometry_veto`).
     let steps = steps(walk);
-    let veto = Drift::new(&initial, &steps, |step| {
-        let (translation, _, yaw) = drift.sigmas(step);
-        (translation, yaw)
-    });
+    let veto = Drift::new(&initial, &steps, &drift);
     let (loops, vetoed): (Vec<LoopEdge>, Vec<LoopEdge>) =
         loops.into_iter().partition(|&(_, a, b, z, info)| {
             let odometry = initial[a].expect("posed").inverse() * initial[b].expect("posed");

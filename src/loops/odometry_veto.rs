@@ -14,8 +14,55 @@
 //! solve's own bound (1 − 10⁻⁶ against 0.99), since it weighs a loop against the odometry
 //! alone, with no other loop to share the drift: it removes only the loops the odometry cannot
 //! have drifted into. Loops between sessions, which share no odometry, are left to the solve.
+//!
+//! The drift model ([`DriftModel`], `--odometry-drift`) is the map's: the σ of its odometry
+//! edges.
 
 use nalgebra::{Isometry3, Vector3};
+
+/// The odometry's drift model (`--odometry-drift TRANSLATION,YAW`): a step's σ is 2 cm +
+/// `translation` × its length for each axis of its translation, 0.002 rad + `yaw` rad a metre
+/// for its yaw, 0.01 rad for roll and pitch. The default, 2 % and 0.005 rad a metre, allows for
+/// a wheel odometry's drift; a tighter model lets the map reject more false loops.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriftModel {
+    /// σ of each axis of a step's translation per metre of it, beyond 2 cm.
+    pub translation: f64,
+    /// σ of a step's yaw per metre of it (rad), beyond 0.002 rad.
+    pub yaw: f64,
+}
+
+impl Default for DriftModel {
+    fn default() -> Self {
+        DriftModel { translation: 0.02, yaw: 0.005 }
+    }
+}
+
+impl std::str::FromStr for DriftModel {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        let number = |t: &str| t.parse::<f64>().ok().filter(|v| v.is_finite() && *v >= 0.0);
+        match parts[..] {
+            [t, y] => match (number(t), number(y)) {
+                (Some(translation), Some(yaw)) => Ok(DriftModel { translation, yaw }),
+                _ => Err(format!(
+                    "{s}: two numbers ≥ 0 (the translation's σ a metre, the yaw's in rad a metre)"
+                )),
+            },
+            _ => Err(format!("{s}: give TRANSLATION,YAW (for example 0.02,0.005)")),
+        }
+    }
+}
+
+impl DriftModel {
+    /// The σ of a step of `step`: translation (m), roll and pitch, yaw (rad).
+    pub(super) fn sigmas(&self, step: &Isometry3<f64>) -> (f64, f64, f64) {
+        let d = step.translation.vector.norm();
+        (0.02 + self.translation * d, 0.01, 0.002 + self.yaw * d)
+    }
+}
 
 /// χ² of 3 degrees of freedom at probability 1 − 10⁻⁶.
 const CHI2_3_VETO: f64 = 30.665;
@@ -46,11 +93,11 @@ pub(super) struct Drift {
 impl Drift {
     /// The sums over the walk's scans at `poses` (each scan's stored pose; none: not posed),
     /// chained by the map's odometry `steps` (its walk positions from one posed scan to the next
-    /// of its session, in walking order); `sigmas` gives a step's translation and yaw σ.
+    /// of its session, in walking order), each step's σ by `model`.
     pub(super) fn new(
         poses: &[Option<Isometry3<f64>>],
         steps: &[(usize, usize)],
-        sigmas: impl Fn(&Isometry3<f64>) -> (f64, f64),
+        model: &DriftModel,
     ) -> Drift {
         let mut previous = vec![None; poses.len()];
         for &(u, v) in steps {
@@ -64,7 +111,7 @@ impl Drift {
                 Some(u) => {
                     let before = sums[u].expect("a step starts at an earlier posed scan");
                     let step = poses[u].expect("posed").inverse() * pose;
-                    let (translation, yaw) = sigmas(&step);
+                    let (translation, _, yaw) = model.sigmas(&step);
                     let at = pose.translation.vector - origins[before.session];
                     Sums {
                         session: before.session,
@@ -123,12 +170,6 @@ mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
 
-    /// The map's drift model: σ = 2 cm + 2 % of the step, 0.002 rad + 0.005 rad a metre.
-    fn model(step: &Isometry3<f64>) -> (f64, f64) {
-        let d = step.translation.vector.norm();
-        (0.02 + 0.02 * d, 0.002 + 0.005 * d)
-    }
-
     /// Steps between walk positions, and the scans' poses.
     type Walk = (Vec<(usize, usize)>, Vec<Option<Isometry3<f64>>>);
 
@@ -149,7 +190,7 @@ mod tests {
     #[test]
     fn the_variance_is_the_sum_along_the_path() {
         let (steps, poses) = straight(11, 0);
-        let drift = Drift::new(&poses, &steps, model);
+        let drift = Drift::new(&poses, &steps, &DriftModel::default());
         // Ten steps of 2 m: σ_t = 0.06 m, σ_yaw = 0.012 rad, the end 2, 4, …, 20 m from each
         // step's end.
         let expected: f64 =
@@ -171,7 +212,7 @@ mod tests {
         let (other, other_poses) = straight(4, 4);
         steps.extend(other);
         poses.extend(other_poses);
-        let drift = Drift::new(&poses, &steps, model);
+        let drift = Drift::new(&poses, &steps, &DriftModel::default());
         assert!(drift.variance(1, 2).is_some());
         assert!(drift.variance(1, 6).is_none());
         let far = Isometry3::translation(500.0, 0.0, 0.0);
