@@ -413,6 +413,18 @@ fn loops_help_says_what_the_one_command_does() {
 }
 
 #[test]
+fn a_single_scan_is_said_to_leave_nothing_to_match() {
+    let Some(data) = shared_data("a_single_scan_is_said_to_leave_nothing_to_match") else { return };
+    let dir = scratch_dir("truth_single_scan");
+    let session = data.join("nclt/2012-01-15");
+    let o = toporec_in(&dir, &["loops", session.to_str().unwrap(), "--no-progress", "-o", "l.csv"]);
+    let err = text(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("1 scans read") || err.contains("1 scan read"), "{err}");
+    assert!(err.contains("no loop could be sought: one scan"), "{err}");
+}
+
+#[test]
 fn an_output_that_is_a_directory_is_refused_before_anything_is_written() {
     let dir = scratch_dir("truth_out_directory");
     bag_in(&dir);

@@ -53,6 +53,9 @@ impl MethodSummary {
                 exclusion::UNTIMED_RATE_HZ
             ));
         }
+        if self.scans == 1 {
+            out.push("no loop could be sought: one scan, and no other to match it with".to_string());
+        }
         if self.matched == 0 && self.scans > 1 {
             let window = match exclusion {
                 Exclusion::Scans(n) => format!("--exclude-scans {n}"),
