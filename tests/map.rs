@@ -665,38 +665,12 @@ fn an_unverified_map_writes_the_graph_it_solves() {
 #[test]
 fn an_odometry_given_as_good_as_it_is_keeps_the_map_from_lookalike_loops() {
     let dir = scratch_dir("odometry_drift_model");
-    let sim = dir.join("sim");
+    let bag = crate::util::simulate_lookalike_laps(&dir.join("sim"));
     let path = |p: &Path| p.to_str().unwrap().to_string();
-    let o = toporec(&[
-        "simulate",
-        "-o",
-        &path(&sim),
-        "--format",
-        "bag",
-        "--sessions",
-        "1",
-        "--laps",
-        "2",
-        "--lap-offset",
-        "3.5",
-        "--blocks",
-        "2",
-        "--block-size",
-        "40",
-        "--sensor",
-        "vlp16",
-        "--azimuth-res",
-        "2",
-        "--rate",
-        "2",
-        "--seed",
-        "13",
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
     let (out, graph) = (dir.join("loops.csv"), dir.join("loops.g2o"));
     let o = toporec(&[
         "loops",
-        &path(&sim.join("bag/2026-01-01.bag")),
+        &path(&bag),
         "--index",
         &path(&dir.join("index")),
         "-o",

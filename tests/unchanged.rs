@@ -107,34 +107,10 @@ fn indexes_loops_pictures_and_graphs_are_as_recorded() {
 
     // A simulated drive back the other way, 3.5 m over.
     let reversed = dir.join("reversed");
-    ok(toporec(&[
-        "simulate",
-        "-o",
-        &s(&reversed.join("sim")),
-        "--format",
-        "bag",
-        "--sessions",
-        "1",
-        "--laps",
-        "2",
-        "--lap-offset",
-        "3.5",
-        "--blocks",
-        "2",
-        "--block-size",
-        "40",
-        "--sensor",
-        "vlp16",
-        "--azimuth-res",
-        "2",
-        "--rate",
-        "2",
-        "--seed",
-        "13",
-    ]));
+    let bag = simulate_lookalike_laps(&reversed.join("sim"));
     let o = toporec(&[
         "loops",
-        &s(&reversed.join("sim/bag/2026-01-01.bag")),
+        &s(&bag),
         "--index",
         &s(&reversed.join("index")),
         "-o",

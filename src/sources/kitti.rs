@@ -162,19 +162,8 @@ impl super::Source for KittiSpec {
                 let file = dir.join("poses.txt");
                 let times = dir.join("times.txt");
                 let times = times.is_file().then_some(times);
-                let table = super::poses::PoseTable::default();
-                // KITTI's poses are relative to each sequence's first frame: two sequences'
-                // frames are unrelated.
-                file.is_file().then(|| super::poses::PoseOrigin {
-                    own_frame: true,
-                    ..super::poses::PoseOrigin::of_file(
-                        vec![session],
-                        &file,
-                        times.as_deref(),
-                        &table,
-                        "by frame",
-                    )
-                })
+                file.is_file()
+                    .then(|| super::poses::PoseOrigin::of_kitti_sequence(session, &file, times.as_deref()))
             })
             .collect()
     }

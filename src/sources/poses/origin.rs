@@ -3,6 +3,9 @@
 use super::PoseTable;
 use std::path::Path;
 
+/// How a KITTI sequence's scans take their poses, as its origin says it.
+const KITTI_JOIN: &str = "by frame";
+
 /// Where the poses of some sessions come from: a pose file, or a log's own messages. A run
 /// records one per file or log in the manifest (`info` shows them), with the fingerprint of
 /// the poses its rows carry.
@@ -82,10 +85,22 @@ impl PoseOrigin {
         PoseOrigin { sessions, origin, ..Default::default() }
     }
 
+    /// The origin of a KITTI sequence's `poses.txt` (`times`: its `times.txt`): by frame, in a
+    /// frame of its own, since KITTI's poses are relative to each sequence's first frame.
+    pub fn of_kitti_sequence(session: String, file: &Path, times: Option<&Path>) -> Self {
+        let table = PoseTable::default();
+        PoseOrigin { own_frame: true, ..Self::of_file(vec![session], file, times, &table, KITTI_JOIN) }
+    }
+
     /// Whether these poses are in a frame of their own: a log's own, or a KITTI sequence's. An
-    /// index recorded before `own_frame` was names a KITTI sequence's poses "(by frame)".
+    /// index recorded before `own_frame` was says the latter only by its origin's "(by frame)".
     pub fn in_own_frame(&self) -> bool {
-        self.file.is_none() || self.own_frame || self.origin.ends_with("(by frame)")
+        let kitti_words = self
+            .origin
+            .strip_suffix(')')
+            .and_then(|o| o.strip_suffix(KITTI_JOIN))
+            .is_some_and(|o| o.ends_with('('));
+        self.file.is_none() || self.own_frame || kitti_words
     }
 
     /// The warning for the pose file's unreadable lines, once: how many, and the first.
